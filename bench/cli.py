@@ -1,0 +1,7 @@
+"""Sub-commands of the `bench` package (none yet: see the open issues)."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    """Add this package's commands to the `tpods` parser."""

@@ -1,0 +1,75 @@
+"""The ``tpods`` command line: a thin shell over the packages.
+
+Each package contributes its sub-commands through ``register(subparsers)`` in its
+own ``cli`` module. Handlers return an exit status. User errors
+(:class:`tpods.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import tpods
+from tpods.errors import UserError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse parser whose errors are one line (usage goes to --help)."""
+
+    def error(self, message: str) -> None:  # pragma: no cover - exercised via CLI tests
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from bench.cli import register as register_bench
+    from calibration.cli import register as register_calibration
+    from estimator.cli import register as register_estimator
+    from mocap_bridge.cli import register as register_mocap
+    from tpods.demo import register as register_demo
+
+    parser = _Parser(
+        prog="tpods",
+        description="TPODS lab-bench toolkit: thrust characterisation, ground-truth inertia, "
+                    "mocap bridge, mass and Izz estimation.",
+    )
+    parser.add_argument("--version", action="version", version=f"tpods {tpods.__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    register_estimator(sub)
+    register_bench(sub)
+    register_calibration(sub)
+    register_mocap(sub)
+    register_demo(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func = getattr(args, "func", None)
+    if func is None:  # a group given without its sub-command
+        args.parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(func(args) or 0)
+    except UserError as exc:
+        print(f"tpods: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("tpods: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 141
+
+
+def group(sub, name: str, help_text: str) -> argparse._SubParsersAction:
+    """Add a command group (``tpods NAME ...``) and return its sub-parsers."""
+    p = sub.add_parser(name, help=help_text, description=help_text)
+    p.set_defaults(func=None, parser=p)
+    g = p.add_subparsers(dest=f"{name}_command", metavar="SUBCOMMAND", parser_class=_Parser)
+    return g
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
