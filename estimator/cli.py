@@ -9,6 +9,17 @@ from tpods.argtypes import float_list, fraction, nonneg_float, positive_float
 
 
 def register(sub) -> None:
+    from estimator import cli_batch, cli_ekf
+    from tpods.cli import group
+
+    register_sim(sub)
+    est = group(sub, "estimate", "estimate mass and Izz from a run (batch, filters, bounds)")
+    rep = group(sub, "report", "generate the paper-comparison reports")
+    cli_batch.register(sub, est, rep)
+    cli_ekf.register(sub, est, rep)
+
+
+def register_sim(sub) -> None:
     p = sub.add_parser(
         "sim", help="simulate a TPODS run and write a run folder",
         description="Simulate the planar TPODS plant under held thruster commands and write a run "

@@ -218,26 +218,19 @@ def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: flo
     Returns:
         (N, 6) states at ``t_out``; psi is continuous (not wrapped).
     """
-    cmd_t = np.asarray(cmd_t, dtype=float)
-    t_out = np.asarray(t_out, dtype=float)
-    w = wrench(thrust_n, params.arm_m)
+    from estimator.propagate import segment_thrust, zoh_segments
+
+    events, cmd_idx, out_pos = zoh_segments(cmd_t, t_out)
+    w = wrench(segment_thrust(thrust_n, cmd_idx), params.arm_m).tolist()
     p = (params.mass_kg, params.izz_kgm2, params.ct, params.cr, params.kb, params.ax, params.ay)
-    # Event grid: every output time and every command switch inside the span.
-    inner = cmd_t[(cmd_t > t_out[0]) & (cmd_t < t_out[-1])]
-    events = np.union1d(t_out, inner)
-    # Wrench active on [events[i], events[i+1]): last switch at or before events[i].
-    idx = np.searchsorted(cmd_t, events[:-1], side="right") - 1
     dts = np.diff(events)
     nsub = np.maximum(1, np.ceil(dts / max_step - 1e-9)).astype(int)
-    out_pos = np.searchsorted(events, t_out)
     states = np.empty((len(events), 6))
     state = tuple(float(a) for a in s0)
     states[0] = state
-    zero = (0.0, 0.0, 0.0)
-    w_list = w.tolist()
     for i in range(len(dts)):
         if dts[i] > 0:
-            wi = w_list[idx[i]] if idx[i] >= 0 else zero
+            wi = w[i]
             state = _rk4_hold(state, dts[i], int(nsub[i]), wi[0], wi[1], wi[2], *p)
         states[i + 1] = state
     return states[out_pos]
