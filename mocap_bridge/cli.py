@@ -1,7 +1,186 @@
-"""Sub-commands of the `mocap_bridge` package (none yet: see the open issues)."""
+"""``tpods mocap bridge`` and ``tpods mocap record``: thin shells over the package."""
 
 from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+
+from tpods.argtypes import nonneg_float, positive_float
+from tpods.errors import UserError
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
+    from mocap_bridge.zenoh_net import add_zenoh_options
+    from tpods.cli import group
+
+    g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
+
+    p = g.add_parser(
+        "bridge", help="publish mocap poses on Zenoh",
+        description="Publish rigid-body poses on tpods/mocap/<body>/pose (JSON, schema "
+                    "tpods.pose/1), statistics on tpods/mocap/stats every second.")
+    p.add_argument("--source", default="vicon-udp",
+                   help="vicon-udp[:PORT] (Tracker UDP stream, default port 51001), "
+                        "vicon-sdk:HOST[:PORT] (DataStream SDK), replay:RUN_DIR (run folder or "
+                        "recording), sim[:RUN_DIR] (plant simulator); default vicon-udp")
+    p.add_argument("--bind", default="0.0.0.0", help="UDP bind address (default 0.0.0.0)")
+    p.add_argument("--rate-scale", type=nonneg_float, default=1.0, metavar="X",
+                   help="replay/sim speed: 1 real time, 10 ten times faster, 0 as fast as "
+                        "possible (default 1)")
+    p.add_argument("--prefix", default="tpods/mocap", metavar="P",
+                   help="key prefix (default tpods/mocap)")
+    p.add_argument("--body", default=None,
+                   help="body name for replay of a run folder / sim (default: folder name / tpods1)")
+    p.add_argument("--up", choices=("z", "y"), default="z",
+                   help="mocap axis along the table normal (default z)")
+    p.add_argument("--projection", choices=("heading", "twist"), default="heading",
+                   help="yaw from the body x axis projected on the table (heading) or the twist "
+                        "about the normal (default heading)")
+    p.add_argument("--yaw-offset-deg", type=float, default=0.0, help="added to every yaw, degrees")
+    p.add_argument("--latency-ms", type=nonneg_float, default=0.0,
+                   help="vicon-udp: fixed latency subtracted from the receive time (default 0)")
+    p.add_argument("--keep-zero-poses", action="store_true",
+                   help="vicon-udp: publish an all-zero pose as a pose (default: occluded)")
+    p.add_argument("--congestion", choices=("block", "drop"), default="block",
+                   help="zenoh congestion control (default block: nothing dropped silently)")
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="stop after S seconds (default: until the source ends or Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no console line of statistics")
+    add_zenoh_options(p)
+    p.set_defaults(func=cmd_bridge)
+
+    r = g.add_parser(
+        "record", help="record poses from Zenoh into run folders",
+        description="Write OUT/<body>/poses.csv (t,x,y,psi) and OUT/<body>/samples.csv, "
+                    "flushed as samples arrive.")
+    r.add_argument("--key", default="tpods/mocap/**", help="key expression (default tpods/mocap/**)")
+    r.add_argument("--out", required=True, metavar="RUN_DIR", help="output folder")
+    r.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="stop after S seconds (default: Ctrl-C)")
+    r.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
+                   help="host time of t = 0 for live sources (default: first sample)")
+    r.add_argument("--quiet", action="store_true", help="no console line")
+    add_zenoh_options(r)
+    r.set_defaults(func=cmd_record)
+
+
+@contextmanager
+def _stop_on_signals(stop: threading.Event):
+    """SIGTERM (and SIGINT) set ``stop`` so every exit path closes cleanly."""
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            old[sig] = signal.signal(sig, lambda *_a: stop.set())
+        except ValueError:  # not the main thread
+            pass
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+class _Console:
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self.dirty = False
+
+    def show(self, line: str) -> None:
+        if self.quiet:
+            return
+        if self.tty:
+            sys.stderr.write("\r" + line[:200] + "\x1b[K")
+            self.dirty = True
+        else:
+            sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+    def end(self) -> None:
+        if self.dirty:
+            sys.stderr.write("\n")
+            self.dirty = False
+
+
+def cmd_bridge(args: argparse.Namespace) -> int:
+    from mocap_bridge.bridge import Bridge
+    from mocap_bridge.pose import AxisMap
+    from mocap_bridge.sources import open_source
+    from mocap_bridge.stats import console_line
+    from mocap_bridge.zenoh_net import open_session
+
+    if not args.prefix.strip("/"):
+        raise UserError("--prefix must not be empty")
+    if not math.isfinite(args.yaw_offset_deg):
+        raise UserError("--yaw-offset-deg must be finite")
+    source = open_source(args.source, rate_scale=args.rate_scale, bind=args.bind, body=args.body,
+                         latency_s=args.latency_ms * 1e-3)
+    if args.keep_zero_poses and hasattr(source, "decoder"):
+        source.decoder.zero_is_occluded = False
+    console = _Console(args.quiet)
+    stop = threading.Event()
+    try:
+        session = open_session(args)
+        try:
+            bridge = Bridge(session, prefix=args.prefix,
+                            axis_map=AxisMap(up=args.up, projection=args.projection,
+                                             yaw_offset_rad=math.radians(args.yaw_offset_deg)),
+                            congestion=args.congestion,
+                            on_stats=lambda snap: console.show(console_line(snap)))
+            print(f"bridge: {source.name} -> {bridge.prefix}/<body>/pose "
+                  f"(zenoh id {session.zid()})", file=sys.stderr)
+            with _stop_on_signals(stop):
+                bridge.run(source, stop=stop, duration_s=args.duration)
+        finally:
+            session.close()
+    finally:
+        source.close()
+        console.end()
+    tot = bridge.stats.totals()
+    src = bridge.stats.source_counters
+    extra = f", {src.get('datagrams', 0)} datagrams, {src.get('malformed', 0)} malformed" \
+        if "datagrams" in src else ""
+    print(f"bridge: published {tot['published']} poses of {len(bridge.stats.bodies)} bodies "
+          f"({tot['occluded']} occluded, {tot['duplicates']} duplicates dropped, "
+          f"{tot['gaps']} missing frames{extra})")
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from mocap_bridge.recorder import Recorder, subscribe
+    from mocap_bridge.zenoh_net import open_session
+
+    console = _Console(args.quiet)
+    stop = threading.Event()
+    rec = Recorder(args.out, key=args.key, t0=args.t0)
+    try:
+        session = open_session(args)
+        try:
+            sub = subscribe(session, args.key, rec)
+            t_end = None if args.duration is None else time.monotonic() + args.duration
+            with _stop_on_signals(stop):
+                while not stop.is_set():
+                    wait = 1.0 if t_end is None else min(1.0, t_end - time.monotonic())
+                    if wait <= 0:
+                        break
+                    stop.wait(wait)
+                    c = rec.counters
+                    console.show(f"record: {len(rec.bodies)} bodies | received {c['received']} | "
+                                 f"poses {c['recorded']} | occluded {c['occluded']} | "
+                                 f"malformed {c['malformed']}")
+            sub.undeclare()
+        finally:
+            session.close()
+    finally:
+        counters = rec.close()
+        console.end()
+    print(f"record: {counters['recorded']} poses of {len(rec.bodies)} bodies written to {rec.out} "
+          f"({counters['occluded']} occluded, {counters['malformed']} malformed, "
+          f"{counters['not_increasing']} out of order)")
+    return 0

@@ -1,0 +1,170 @@
+"""Record pose payloads from Zenoh into run folders, flushed as they arrive.
+
+Layout of ``OUT``::
+
+    OUT/recording.json           key, host start time, t0, counters (rewritten at the end)
+    OUT/<body>/poses.csv         t,x,y,psi   (run-folder contract; occluded frames left out)
+    OUT/<body>/samples.csv       every sample as received (occluded ones too)
+
+poses.csv times are the sample's ``t_src`` when the source has its own timeline
+(replay, sim), otherwise ``t - t0`` with ``t0`` the capture time of the first sample
+received (or the ``t0`` given). Values are written with 12 significant digits, like
+``tpods.runfolder.write_run``; samples.csv keeps full precision (shortest repr).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import tpods
+from mocap_bridge.pose import decode_pose, sanitize_chunk
+from mocap_bridge.sources.replay import SAMPLE_COLUMNS
+from tpods.errors import UserError
+
+
+def _f(v: float | None) -> str:
+    return "" if v is None else repr(float(v))
+
+
+class _BodyFiles:
+    def __init__(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        self.poses: IO[str] = open(folder / "poses.csv", "w", newline="")
+        self.poses.write("t,x,y,psi\n")
+        self.samples_f: IO[str] = open(folder / "samples.csv", "w", newline="")
+        self.samples = csv.writer(self.samples_f, lineterminator="\n")
+        self.samples.writerow(SAMPLE_COLUMNS)
+        self.poses.flush()
+        self.samples_f.flush()
+        self.last_t: float | None = None
+        self.uses_t_src: bool | None = None
+        self.rows = 0
+
+    def close(self) -> None:
+        self.poses.close()
+        self.samples_f.close()
+
+
+class Recorder:
+    """Write decoded pose samples per body (thread-safe; call :meth:`handle` per payload).
+
+    Counters: ``received``, ``recorded`` (rows in poses.csv), ``occluded``,
+    ``malformed``, ``other_schema`` (e.g. stats messages), ``not_increasing`` (a time
+    not after the body's previous one: left out of poses.csv, kept in samples.csv).
+    """
+
+    def __init__(self, out: str | Path, key: str = "", t0: float | None = None,
+                 flush: bool = True) -> None:
+        self.out = Path(out)
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"{self.out}: cannot create the output folder ({exc.strerror})") from None
+        self.key = key
+        self.t0 = t0
+        self.flush = flush
+        self.counters = {"received": 0, "recorded": 0, "occluded": 0, "malformed": 0,
+                         "other_schema": 0, "not_increasing": 0}
+        self.started = time.time()
+        self._files: dict[str, _BodyFiles] = {}
+        self._names: dict[str, str] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self._write_meta()
+
+    def _write_meta(self) -> None:
+        meta = {
+            "kind": "mocap-recording", "software": f"tpods {tpods.__version__}",
+            "created": _dt.datetime.fromtimestamp(self.started, _dt.UTC).isoformat(timespec="seconds"),
+            "key": self.key, "t0_host_s": self.t0, "bodies": dict(self._names),
+            "counters": dict(self.counters),
+        }
+        tmp = self.out / "recording.json.tmp"
+        tmp.write_text(json.dumps(meta, indent=2) + "\n")
+        tmp.replace(self.out / "recording.json")
+
+    def _files_for(self, body: str) -> _BodyFiles:
+        bf = self._files.get(body)
+        if bf is None:
+            name = sanitize_chunk(body)
+            while name in self._names.values():  # two raw names, one sanitised name
+                name += "_"
+            self._names[body] = name
+            bf = self._files[body] = _BodyFiles(self.out / name)
+            self._write_meta()
+        return bf
+
+    def handle(self, payload: bytes, t_rx: float | None = None) -> dict[str, Any] | None:
+        """Decode one payload and write it; returns the sample, or None if skipped."""
+        t_rx = time.time() if t_rx is None else t_rx
+        with self._lock:
+            if self._closed:
+                return None
+            self.counters["received"] += 1
+            d = decode_pose(payload, self.counters)
+            if d is None:
+                return None
+            bf = self._files_for(d["body"])
+            bf.samples.writerow([d["body"], d["frame"], _f(d["t"]), _f(d["t_recv"]), _f(d["t_src"]),
+                                 *(_f(d[k]) for k in ("x", "y", "z", "qx", "qy", "qz", "qw", "yaw")),
+                                 "true" if d["occluded"] else "false", _f(t_rx)])
+            if self.t0 is None:
+                self.t0 = d["t"]
+                self._write_meta()
+            if d["occluded"]:
+                self.counters["occluded"] += 1
+            else:
+                if bf.uses_t_src is None:
+                    bf.uses_t_src = d["t_src"] is not None
+                t = d["t_src"] if bf.uses_t_src and d["t_src"] is not None else d["t"] - self.t0
+                if bf.last_t is not None and t <= bf.last_t:
+                    self.counters["not_increasing"] += 1
+                else:
+                    # same %-formatting as np.savetxt(fmt="%.12g") in write_run
+                    bf.poses.write("%.12g,%.12g,%.12g,%.12g\n" % (t, d["x"], d["y"], d["yaw"]))  # noqa: UP031
+                    bf.last_t = t
+                    bf.rows += 1
+                    self.counters["recorded"] += 1
+            if self.flush:
+                bf.samples_f.flush()
+                bf.poses.flush()
+            return d
+
+    def close(self) -> dict[str, int]:
+        """Close the files and write the final counters to recording.json."""
+        with self._lock:
+            if self._closed:
+                return dict(self.counters)
+            self._closed = True
+            for bf in self._files.values():
+                bf.close()
+            self._write_meta()
+            return dict(self.counters)
+
+    @property
+    def bodies(self) -> dict[str, str]:
+        """Body name to its folder name."""
+        return dict(self._names)
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def subscribe(session: Any, key: str, recorder: Recorder):
+    """Declare a subscriber on ``key`` feeding ``recorder``; returns it (undeclare when done)."""
+    def on_sample(sample: Any) -> None:
+        recorder.handle(sample.payload.to_bytes())
+
+    try:
+        return session.declare_subscriber(key, on_sample)
+    except Exception as exc:
+        raise UserError(f"cannot subscribe to {key!r} ({str(exc).splitlines()[0]})") from None

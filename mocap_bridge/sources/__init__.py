@@ -1,0 +1,59 @@
+"""Pose sources for the bridge.
+
+Every source is an object with::
+
+    name: str                      # for the stats ("vicon-udp:51001", "replay:runs/x", ...)
+    in_table_frame: bool           # True when poses are already in the table frame
+    counters: dict[str, int]       # source-level counts (datagrams, malformed, ...)
+    def batches(self, stop: threading.Event) -> Iterator[list[PoseSample]]
+    def close(self) -> None
+
+``batches`` yields lists of :class:`mocap_bridge.pose.PoseSample` (one list per datagram
+or mocap frame) until the source ends or ``stop`` is set; it never blocks longer than
+about 0.2 s without checking ``stop``. Live producers push into
+:class:`mocap_bridge.sources.sim.PushSource`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tpods.errors import UserError
+
+
+def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
+                body: str | None = None, latency_s: float = 0.0):
+    """Build a source from its command-line spec.
+
+    ``vicon-udp[:PORT]``, ``vicon-sdk:HOST[:PORT]``, ``replay:RUN_DIR``, ``sim[:RUN_DIR]``.
+    """
+    kind, _, arg = spec.partition(":")
+    if kind == "vicon-udp":
+        from mocap_bridge.sources.vicon_udp import DEFAULT_PORT, ViconUDPSource
+
+        try:
+            port = int(arg) if arg else DEFAULT_PORT
+        except ValueError:
+            raise UserError(f"bad UDP port in --source {spec!r}") from None
+        if not 0 <= port <= 65535:
+            raise UserError(f"bad UDP port in --source {spec!r}")
+        return ViconUDPSource(port=port, bind=bind, latency_s=latency_s)
+    if kind == "vicon-sdk":
+        from mocap_bridge.sources.vicon_sdk import ViconSDKSource
+
+        if not arg:
+            raise UserError("--source vicon-sdk needs a host, e.g. vicon-sdk:192.168.1.5")
+        return ViconSDKSource(arg)
+    if kind == "replay":
+        from mocap_bridge.sources.replay import ReplaySource
+
+        if not arg:
+            raise UserError("--source replay needs a folder, e.g. replay:runs/sim-1")
+        return ReplaySource(Path(arg), rate_scale=rate_scale, body=body)
+    if kind == "sim":
+        from mocap_bridge.sources.sim import SimSource
+
+        return SimSource.from_run(Path(arg) if arg else None, rate_scale=rate_scale,
+                                  body=body or "tpods1")
+    raise UserError(f"unknown source {spec!r}; use vicon-udp[:PORT], vicon-sdk:HOST, "
+                    "replay:RUN_DIR or sim[:RUN_DIR]")
