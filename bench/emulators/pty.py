@@ -1,0 +1,117 @@
+"""Serve a byte-stream device emulator on a pseudo-terminal.
+
+An emulator is any object with
+
+- ``receive(data: bytes, now: float) -> bytes``: bytes written by the host; returns
+  the reply bytes (possibly empty);
+- ``tick(now: float) -> tuple[bytes, float | None]``: unsolicited output due at
+  ``now`` (continuous print, watchdog) and the monotonic time of the next tick
+  (None: nothing scheduled).
+
+:func:`serve_pty` opens a pty pair, puts the slave in raw mode (no echo, no CR/LF
+translation) and runs a thread that moves bytes between the master side and the
+emulator. The slave device path (``/dev/pts/N``) is what pyserial opens. The server
+keeps its own slave descriptor open, so the client may close, crash or be killed and
+reconnect; output nobody reads is dropped once the pty buffer is full.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import threading
+import time
+import tty
+from typing import Protocol
+
+
+class Emulator(Protocol):
+    def receive(self, data: bytes, now: float) -> bytes: ...
+
+    def tick(self, now: float) -> tuple[bytes, float | None]: ...
+
+
+class PtyServer:
+    """A running pty server: ``path`` is the device to open; ``stop()`` ends it."""
+
+    def __init__(self, emulator: Emulator, max_idle_s: float = 0.02) -> None:
+        self.emulator = emulator
+        self._max_idle_s = max_idle_s
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path: str = os.ttyname(self._slave)
+        self.dropped_bytes = 0
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread = threading.Thread(target=self._loop, name=f"pty-{self.path}", daemon=True)
+        self._thread.start()
+
+    # ---------------------------------------------------------------- loop
+    def _write(self, data: bytes) -> None:
+        while data:
+            try:
+                n = os.write(self._master, data)
+            except BlockingIOError:  # nobody reads: drop, like a UART with no listener
+                self.dropped_bytes += len(data)
+                return
+            except OSError:
+                return
+            data = data[n:]
+
+    def _loop(self) -> None:
+        next_tick: float | None = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if next_tick is not None and now >= next_tick:
+                out, next_tick = self.emulator.tick(now)
+                if out:
+                    self._write(out)
+                now = time.monotonic()
+            wait = self._max_idle_s if next_tick is None else min(self._max_idle_s, max(0.0, next_tick - now))
+            try:
+                ready, _, _ = select.select([self._master, self._wake_r], [], [], wait)
+            except (OSError, ValueError):
+                return
+            if self._master in ready:
+                try:
+                    data = os.read(self._master, 4096)
+                except BlockingIOError:
+                    continue
+                except OSError as exc:  # EIO: no slave open (cannot happen: we hold one)
+                    if exc.errno == errno.EIO:
+                        time.sleep(0.01)
+                        continue
+                    return
+                if data:
+                    out = self.emulator.receive(data, time.monotonic())
+                    if out:
+                        self._write(out)
+                # a command may change the schedule (continuous print started)
+                next_tick = time.monotonic()
+
+    # ------------------------------------------------------------- control
+    def stop(self) -> None:
+        """Stop the thread and close the pty (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        os.write(self._wake_w, b"x")
+        self._thread.join(timeout=2.0)
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> PtyServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def serve_pty(emulator: Emulator) -> PtyServer:
+    """Serve ``emulator`` on a new pty; returns the server (``.path``, ``.stop()``)."""
+    return PtyServer(emulator)

@@ -1,0 +1,396 @@
+"""Thrust characterisation session: duty steps on the valves, thrust from the balance.
+
+For each nozzle count ``k`` and duty step: open the nozzle under test and ``k - 1``
+others at that duty, discard ``settle_s``, record every reading for ``dwell_s``,
+close. Between steps (every ``zero_every`` steps) the zero is measured with the
+valves closed (``zero_settle_s`` discarded, ``zero_dwell_s`` recorded) and the
+drift is removed by linear interpolation between the zeros around each step.
+
+Output folder:
+
+- ``raw.csv``: every reading as it arrives (appended and flushed per line):
+  ``t_s,window,phase,step,n_open,duty_pct,reading_gf,stable``; ``phase`` is
+  ``check``, ``zero_settle``, ``zero``, ``settle`` or ``dwell``.
+- ``steps.csv``: per step ``step,n_open,duty_pct,t_start_s,t_end_s,n,n_unstable,
+  mean_raw_gf,zero_before_gf,zero_after_gf,drift_gf,thrust_gf,std_gf,sem_gf``.
+- ``run.json``: configuration, device identities, timing, counts, exit status
+  (``running`` while it runs, then ``success`` / ``aborted`` / ``failed``) and
+  whether OFF was confirmed.
+
+The pure parts (``plan_steps``, ``summarize_steps``) work on plain arrays and frames.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import math
+import signal
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from bench.ohaus import OhausScout, Reading
+from bench.thrust_table import GF_TO_N
+from bench.valves import ValveController
+from tpods.errors import DeviceError, UserError
+
+RAW_COLUMNS = ["t_s", "window", "phase", "step", "n_open", "duty_pct", "reading_gf", "stable"]
+STEP_COLUMNS = ["step", "n_open", "duty_pct", "t_start_s", "t_end_s", "n", "n_unstable",
+                "mean_raw_gf", "zero_before_gf", "zero_after_gf", "drift_gf", "thrust_gf",
+                "std_gf", "sem_gf"]
+
+
+class Terminated(BaseException):
+    """SIGTERM received (raised in the main thread by :func:`sigterm_raises`)."""
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Within the block SIGTERM raises :class:`Terminated`, so ``finally`` clauses run."""
+
+    def handler(signum, frame):
+        raise Terminated("terminated (SIGTERM)")
+
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """Settings of a characterisation session (durations in seconds, duties in percent)."""
+
+    nozzles: tuple[int, ...] = (1, 2, 3, 4)
+    duties_pct: tuple[float, ...] = (10, 20, 30, 40, 50, 60, 70, 80, 90)
+    dwell_s: float = 5.0
+    settle_s: float = 1.0
+    zero_settle_s: float = 2.0
+    zero_dwell_s: float = 1.0
+    zero_every: int = 1
+    pwm_hz: float = 10.0
+    nozzle_under_test: int = 1
+    duty_limits_pct: tuple[float, float] = (10.0, 90.0)
+    watchdog_ms: int = 500
+
+    def __post_init__(self) -> None:
+        lo, hi = self.duty_limits_pct
+        if not 0 < lo <= hi <= 100:
+            raise UserError(f"duty limits must satisfy 0 < low <= high <= 100, got {lo:g}-{hi:g}")
+        if not self.nozzles or any(k < 1 for k in self.nozzles):
+            raise UserError("nozzle counts must be positive integers")
+        if not self.duties_pct:
+            raise UserError("no duty steps")
+        bad = [d for d in self.duties_pct if not lo <= d <= hi]
+        if bad:
+            raise UserError(f"duty {bad[0]:g} % is outside the allowed {lo:g}-{hi:g} % "
+                            f"(change the duty limits to allow it)")
+        for name in ("dwell_s", "settle_s", "zero_settle_s", "zero_dwell_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise UserError(f"{name} must be a non-negative number of seconds")
+        if self.dwell_s <= 0 or self.zero_dwell_s <= 0:
+            raise UserError("dwell and zero dwell must be positive")
+        if self.zero_every < 1:
+            raise UserError("zero_every must be at least 1")
+        if self.watchdog_ms < 50:
+            raise UserError("the watchdog must be at least 50 ms")
+
+    @property
+    def planned_s(self) -> float:
+        """Planned time: every settle + dwell window, zeros included, seconds."""
+        n_steps = len(self.nozzles) * len(self.duties_pct)
+        n_zero = 1 + math.ceil(n_steps / self.zero_every)
+        return n_steps * (self.settle_s + self.dwell_s) + n_zero * (self.zero_settle_s + self.zero_dwell_s)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One duty step: ``duties`` per channel (percent), ``n_open`` valves open."""
+
+    index: int
+    n_open: int
+    duty_pct: float
+    duties: tuple[float, ...]
+
+
+def open_channels(n_open: int, nozzle_under_test: int, n_channels: int) -> list[int]:
+    """Channels (1-based) to open: the nozzle under test first, then the lowest others."""
+    others = [c for c in range(1, n_channels + 1) if c != nozzle_under_test]
+    return [nozzle_under_test] + others[: n_open - 1]
+
+
+def plan_steps(config: SessionConfig, n_channels: int) -> list[Step]:
+    """The session's duty steps in order (nozzle count outer, duty inner)."""
+    if not 1 <= config.nozzle_under_test <= n_channels:
+        raise UserError(f"nozzle under test must be 1-{n_channels}, got {config.nozzle_under_test}")
+    if max(config.nozzles) > n_channels:
+        raise UserError(f"the controller has {n_channels} valves; cannot open {max(config.nozzles)}")
+    steps = []
+    for k in config.nozzles:
+        chans = open_channels(k, config.nozzle_under_test, n_channels)
+        for d in config.duties_pct:
+            duties = tuple(float(d) if c in chans else 0.0 for c in range(1, n_channels + 1))
+            steps.append(Step(len(steps), k, float(d), duties))
+    return steps
+
+
+def reading_to_gf(r: Reading) -> float | None:
+    """Balance reading as gram-force (grams on the pan); None for a unit that is not a force/mass."""
+    if r.unit == "N":
+        return r.value / GF_TO_N
+    return r.grams
+
+
+def summarize_steps(raw: pd.DataFrame) -> pd.DataFrame:
+    """Per-step statistics from raw readings (columns RAW_COLUMNS), drift-corrected.
+
+    The zero of each ``zero`` window is its mean reading at its mean time; the zero
+    at each dwell reading is interpolated linearly in time between the windows
+    (held constant beyond the first/last). Returns a frame with STEP_COLUMNS.
+    """
+    zeros = raw[raw["phase"] == "zero"].groupby("window").agg(t=("t_s", "mean"), z=("reading_gf", "mean"))
+    zt, zv = zeros["t"].to_numpy(), zeros["z"].to_numpy()
+    rows = []
+    for step, g in raw[raw["phase"] == "dwell"].groupby("step", sort=True):
+        t = g["t_s"].to_numpy()
+        y = g["reading_gf"].to_numpy()
+        if len(zt):
+            z = np.interp(t, zt, zv)
+            before = zv[zt < t[0]]
+            after = zv[zt > t[-1]]
+            zb = float(before[-1]) if len(before) else math.nan
+            za = float(after[0]) if len(after) else math.nan
+        else:
+            z = np.zeros_like(y)
+            zb = za = math.nan
+        corr = y - z
+        n = len(y)
+        std = float(np.std(corr, ddof=1)) if n > 1 else math.nan
+        rows.append({
+            "step": int(step), "n_open": int(g["n_open"].iloc[0]), "duty_pct": float(g["duty_pct"].iloc[0]),
+            "t_start_s": float(t[0]), "t_end_s": float(t[-1]), "n": n,
+            "n_unstable": int((g["stable"] == 0).sum()), "mean_raw_gf": float(np.mean(y)),
+            "zero_before_gf": zb, "zero_after_gf": za, "drift_gf": float(np.mean(z)),
+            "thrust_gf": float(np.mean(corr)), "std_gf": std,
+            "sem_gf": std / math.sqrt(n) if n > 1 else math.nan,
+        })
+    return pd.DataFrame(rows, columns=STEP_COLUMNS)
+
+
+@dataclass
+class SessionResult:
+    """What a session did: status, output folder, timing (s), counts."""
+
+    status: str
+    out_dir: Path
+    planned_s: float
+    elapsed_s: float
+    n_readings: int
+    n_garbage: int
+    error: str | None = None
+    steps: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=STEP_COLUMNS))
+
+    @property
+    def overhead_pct(self) -> float:
+        return 100.0 * (self.elapsed_s - self.planned_s) / self.planned_s
+
+
+class _Recorder:
+    """Appends readings to raw.csv, flushing every line."""
+
+    def __init__(self, path: Path, t0: float) -> None:
+        self.fh = path.open("w", buffering=1)
+        self.fh.write(",".join(RAW_COLUMNS) + "\n")
+        self.fh.flush()
+        self.t0 = t0
+        self.rows: list[tuple] = []
+        self.n_other_unit = 0
+
+    def add(self, r: Reading, window: int, phase: str, step: int, n_open: int, duty: float) -> None:
+        gf = reading_to_gf(r)
+        if gf is None:
+            self.n_other_unit += 1
+            return
+        row = (r.t - self.t0, window, phase, step, n_open, duty, gf, int(r.stable))
+        self.rows.append(row)
+        self.fh.write(f"{row[0]:.4f},{window},{phase},{step},{n_open},{duty:g},{gf!r},{row[7]}\n")
+        self.fh.flush()
+
+    def frame(self) -> pd.DataFrame:
+        return pd.DataFrame(self.rows, columns=RAW_COLUMNS)
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
+    tmp.replace(path)
+
+
+def run_session(valves: ValveController, scale: OhausScout, config: SessionConfig,
+                out_dir: str | Path, progress: bool = True) -> SessionResult:
+    """Run a characterisation session on open devices; write raw.csv, steps.csv, run.json.
+
+    The valves are closed (OFF confirmed by STATE?) on every exit path; the
+    controller watchdog is armed and fed only while this loop is alive. Exceptions
+    (including KeyboardInterrupt and :class:`Terminated`) propagate after the
+    output is written with status ``failed`` / ``aborted``.
+    """
+    from tqdm import tqdm
+
+    import tpods
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.monotonic()
+    meta: dict[str, Any] = {
+        "kind": "thrust-characterisation",
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "software": f"tpods {tpods.__version__}",
+        "status": "running",
+        "config": asdict(config),
+        "devices": {},
+    }
+    _write_json(out / "run.json", meta)
+
+    # ---- check both devices before anything can open
+    ident = valves.identify()
+    meta["devices"]["valves"] = {"url": str(valves.url), "model": ident.model,
+                                 "firmware": ident.firmware, "n_channels": ident.n_channels}
+    steps = plan_steps(config, ident.n_channels)
+    valves.off()
+    check = scale.read("IP")
+    unit = check.unit
+    if reading_to_gf(check) is None:
+        raise DeviceError(f"the balance reads in {unit!r}; set it to grams (g)")
+    meta["devices"]["scale"] = {"url": str(scale.url), "version": scale.version(),
+                                "unit": unit, "settings": scale.settings}
+    _write_json(out / "run.json", meta)
+
+    rec = _Recorder(out / "raw.csv", t_start)
+    rec.add(check, -1, "check", -1, 0, 0.0)
+    status, error = "failed", None
+    guard = None
+    window = 0
+    bar = tqdm(total=round(config.planned_s, 1), unit="s", desc="characterise", file=sys.stderr,
+               disable=not progress, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}")
+    t_loop = math.nan
+    try:
+        scale.zero()
+        with valves.safe(config.watchdog_ms) as guard:
+            valves.set_freq(config.pwm_hz)
+            scale.start_continuous()
+            t_loop = time.monotonic()
+            planned_done = 0.0
+
+            def record(duration: float, phase: str, step: int, n_open: int, duty: float) -> None:
+                end = time.monotonic() + duration
+                while True:
+                    r = scale.next_reading(end)
+                    guard.heartbeat()
+                    if r is None:
+                        break
+                    rec.add(r, window, phase, step, n_open, duty)
+                    if progress:
+                        done = planned_done + duration - max(0.0, end - time.monotonic())
+                        bar.update(max(0.0, min(bar.total, done) - bar.n))
+
+            def zero_window() -> None:
+                nonlocal window, planned_done
+                record(config.zero_settle_s, "zero_settle", -1, 0, 0.0)
+                record(config.zero_dwell_s, "zero", -1, 0, 0.0)
+                planned_done += config.zero_settle_s + config.zero_dwell_s
+                window += 1
+
+            zero_window()
+            for st in steps:
+                bar.set_postfix_str(f"{st.n_open} nozzle(s) at {st.duty_pct:g} %", refresh=False)
+                valves.set_all(st.duties)
+                record(config.settle_s, "settle", st.index, st.n_open, st.duty_pct)
+                record(config.dwell_s, "dwell", st.index, st.n_open, st.duty_pct)
+                valves.off()
+                planned_done += config.settle_s + config.dwell_s
+                window += 1
+                if (st.index + 1) % config.zero_every == 0 or st.index == len(steps) - 1:
+                    zero_window()
+                if guard.feed_error is not None:
+                    raise guard.feed_error
+        status = "success"
+    except (KeyboardInterrupt, Terminated) as exc:
+        status, error = "aborted", str(exc) or "interrupted (Ctrl-C)"
+        raise
+    except Exception as exc:
+        status, error = "failed", str(exc) or exc.__class__.__name__
+        raise
+    finally:
+        bar.close()
+        t_end = time.monotonic()
+        rec.close()
+        with contextlib.suppress(Exception):
+            if scale.continuous:
+                scale.stop_continuous()
+        table = summarize_steps(rec.frame())
+        table.to_csv(out / "steps.csv", index=False)
+        closed = guard is not None and guard.final_state is not None and not any(guard.final_state)
+        loop_s = t_end - t_loop if math.isfinite(t_loop) else math.nan
+        meta.update({
+            "status": status, "error": error,
+            "valves_closed_confirmed": closed if guard is not None else None,
+            "final_state": list(guard.final_state) if guard and guard.final_state is not None else None,
+            "timing": {"planned_s": config.planned_s, "elapsed_s": t_end - t_start,
+                       "setup_s": (t_loop - t_start) if math.isfinite(t_loop) else None,
+                       "loop_s": loop_s,
+                       "overhead_pct": 100.0 * (t_end - t_start - config.planned_s) / config.planned_s,
+                       "loop_overhead_pct": 100.0 * (loop_s - config.planned_s) / config.planned_s},
+            "counts": {"readings": len(rec.rows), "garbage_lines": scale.n_garbage,
+                       "garbage_examples": [repr(g) for g in scale.garbage_examples],
+                       "other_unit_readings": rec.n_other_unit, "steps_done": len(table),
+                       "watchdog_feeds": guard.feeds if guard is not None else 0},
+        })
+        _write_json(out / "run.json", meta)
+    return SessionResult(status, out, config.planned_s, t_end - t_start, len(rec.rows),
+                         scale.n_garbage, error, table)
+
+
+def parse_duty_steps(text: str) -> tuple[float, ...]:
+    """``"10:90:10"`` (start:stop:step, inclusive) or ``"10,20,50"`` -> duties in percent."""
+    try:
+        if ":" in text:
+            parts = [float(x) for x in text.split(":")]
+            if len(parts) != 3 or parts[2] <= 0 or parts[1] < parts[0]:
+                raise ValueError
+            n = int(math.floor((parts[1] - parts[0]) / parts[2] + 1e-9)) + 1
+            vals = tuple(round(parts[0] + i * parts[2], 9) for i in range(n))
+        else:
+            vals = tuple(float(x) for x in text.split(",") if x.strip())
+        if not vals or not all(math.isfinite(v) for v in vals):
+            raise ValueError
+    except ValueError:
+        raise UserError(f"duty steps must be START:STOP:STEP or a comma list, got {text!r}") from None
+    return vals
+
+
+def parse_int_list(text: str, what: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(x) for x in text.split(",") if x.strip())
+        if not vals:
+            raise ValueError
+    except ValueError:
+        raise UserError(f"{what} must be comma-separated integers, got {text!r}") from None
+    return vals
