@@ -269,23 +269,42 @@ def _solve_scaled(Lam, lam, scale, mu):
     return y / d * scale  # unscaled step in q
 
 
-def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stats):
+def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stats,
+        reg: float = 0.0):
     """Levenberg-Marquardt / Gauss-Newton on one horizon.
 
-    Returns ``(z, converged, Lambda_z, residuals, states)``.
+    ``reg`` > 0 adds a pseudo-prior of that information on the log-parameters about
+    their starting values (used on the short horizons of the start-up only, where a
+    parameter can be unobservable). Steps are shortened so no log-parameter changes
+    by more than 1 (a factor e) per iteration.
+
+    Returns ``(z, converged, Lambda_z, Lambda_q (with reg), residuals, states)``.
     """
+    q_anchor = prob.to_q(z)
+    wreg = np.where(prob.islog, reg, 0.0)
+
+    def total(c, q):
+        return c + float(np.sum(wreg * (q - q_anchor) ** 2))
+
     cost, res, states = prob.evaluate(z)
     if not math.isfinite(cost):
         raise UserError("the initial guess gives a non-finite trajectory (check mass and Izz > 0)")
     history.append(cost)
+    q = prob.to_q(z)
+    cost = total(cost, q)
     mu = 0.0
     Lam, lam = prob.normal(z, res, states)
-    q = prob.to_q(z)
+    Lq = None
     for _ in range(max_iter):
         if not (np.all(np.isfinite(Lam)) and np.all(np.isfinite(lam))):
-            return z, False, Lam, res, states
+            return z, False, Lam, Lq, res, states
         Lq, lq = prob.normal_q(z, Lam, lam)
+        Lq = Lq + np.diag(wreg)
+        lq = lq - wreg * (q - q_anchor)
         step = _solve_scaled(Lq, lq, scale, mu)
+        big = np.max(np.abs(step[prob.islog]), initial=0.0)
+        if big > 1.0:
+            step = step / big
         small = bool(np.max(np.abs(step / scale)) < tol_scaled)
         if tol_sigma is not None and mu == 0.0:
             sig = np.sqrt(np.maximum(np.diag(safe_inverse(Lq)), 1e-300))
@@ -295,14 +314,15 @@ def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stat
         if small and tol_sigma is not None:
             # an intermediate stage: the next, longer horizon re-evaluates this point
             stats["iterations"] += 1
-            return z_new, True, Lam, res, states
+            return z_new, True, Lam, Lq, res, states
         cost_new, res_new, states_new = prob.evaluate(z_new)
+        cost_new = total(cost_new, q_new)
         if small:
             if cost_new <= cost * (1 + 1e-12) + 1e-12:
                 z, q, cost, res, states = z_new, q_new, cost_new, res_new, states_new
                 stats["iterations"] += 1
                 history.append(cost)
-            return z, True, Lam, res, states
+            return z, True, Lam, Lq, res, states
         if cost_new <= cost:
             z, q, cost, res, states = z_new, q_new, cost_new, res_new, states_new
             stats["iterations"] += 1
@@ -313,8 +333,8 @@ def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stat
             mu = 1e-4 if mu == 0.0 else mu * 10.0
             stats["rejected"] += 1
             if mu > 1e10:
-                return z, False, Lam, res, states
-    return z, False, Lam, res, states
+                return z, False, Lam, Lq, res, states
+    return z, False, Lam, Lq, res, states
 
 
 def _first_horizon(t_rel, pose, horizon0_s, yaw_limit_rad=1.0, min_poses=12):
@@ -327,14 +347,14 @@ def _first_horizon(t_rel, pose, horizon0_s, yaw_limit_rad=1.0, min_poses=12):
     return max(h, float(t_rel[min(min_poses, len(t_rel) - 1)]))
 
 
-def _next_horizon(h, span, z, Lam_z, full: _Problem, t_rel_full, yaw_3sigma_rad=0.5):
+def _next_horizon(h, span, z, Lam_q, full: _Problem, t_rel_full, yaw_3sigma_rad=0.5):
     """Longest horizon (at least 2h) where the predicted yaw's 3 sigma stays below the limit."""
     cost, _, states = full.evaluate(z)
-    if not math.isfinite(cost):
+    if not math.isfinite(cost) or Lam_q is None:
         return min(2 * h, span)
     phi = full.stm(z, states)
-    P = safe_inverse(Lam_z)
-    hy = phi[:, 2, :]
+    P = safe_inverse(Lam_q)
+    hy = phi[:, 2, :] * np.where(full.islog, z, 1.0)  # d psi / d q
     with np.errstate(all="ignore"):
         var = np.einsum("kn,nm,km->k", hy, P, hy)
     bad = np.nonzero(~(3 * np.sqrt(np.abs(var)) < yaw_3sigma_rad) & (t_rel_full > h))[0]
@@ -411,11 +431,12 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
             keep = t_rel <= h + 1e-9
             prob = _Problem(pose_t[keep], pose[keep], cmd_t, thrust_n, names, fixed_d, w, zbar,
                             prior_info, max_step)
-        z, converged, Lam, res, states = _lm(prob, z, scale, tol if last else 0.0,
-                                             None if last else 0.1, max_iter, history, stats)
+        z, converged, Lam, Lq, res, states = _lm(prob, z, scale, tol if last else 0.0,
+                                                 None if last else 0.1, max_iter, history,
+                                                 stats, reg=0.0 if last else 1.0)
         if last:
             break
-        h = _next_horizon(h, span, z, Lam, full, t_rel)
+        h = _next_horizon(h, span, z, Lq, full, t_rel)
     # covariance at the final point
     Lam, _ = prob.normal(z, res, states)
     cov = safe_inverse(Lam)
