@@ -1,0 +1,585 @@
+"""Extended Kalman filter on the augmented state ``z = (x, y, psi, u, v, r, m, Izz)``.
+
+Two implementations of one filter:
+
+- plain array functions (:func:`propagate`, :func:`ekf_predict`, :func:`ekf_update`,
+  :func:`run_ekf`): the lean path used for live estimation and the ``estimate batch
+  --method ekf|ls-ekf`` command (tens of thousands of pose updates per second);
+- :class:`TpodsEKF`, a filterpy ``ExtendedKalmanFilter`` whose ``predict_x`` runs the
+  same nonlinear propagation and sets ``F`` to the analytic transition matrix, with an
+  angle-wrapping residual and filterpy's Joseph-form update (:func:`run_filterpy`).
+
+Physics: :mod:`estimator.model` (``_rhs_scalar`` for the state; the Jacobian below is
+the scalar form of ``model.jac_state``/``jac_params`` and is tested against them).
+The state transition matrix is integrated by the same RK4 scheme as
+:func:`estimator.propagate.rk4_stm`, one step per zero-order-hold segment (segments
+split at every pose time and every command switch, and at ``max_step_s``).
+
+Filter conventions (SI units throughout):
+
+- prediction: ``P <- Phi P Phi^T + Q dt`` with ``Q = diag(q_psd)`` the continuous
+  process-noise spectral density (units^2/s, e.g. kg^2/Hz for the mass);
+- measurement ``(x, y, psi)`` with ``H = [I3 0]``; yaw residual wrapped to (-pi, pi],
+  the state yaw stays continuous;
+- update: Joseph form ``P <- (I-KH) P (I-KH)^T + K R K^T``, then symmetrised;
+- underweighting (Zanetti, DeMars & Bishop 2010): when ``alpha > 0`` and the
+  largest eigenvalue of ``R^-1/2 H P H^T R^-1/2`` exceeds ``uw_trigger`` (the
+  predicted measurement uncertainty dominates R in some direction), the gain uses
+  ``S = (1 + alpha) H P H^T + R``; otherwise the plain ``S = H P H^T + R``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from estimator.model import ARM_M, _rhs_scalar, wrench
+from estimator.propagate import zoh_segments
+
+STATE_NAMES = ("x", "y", "psi", "u", "v", "r", "mass", "izz")
+STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s", "kg", "kg m^2")
+NX = 8
+NZ = 3
+TWO_PI = 2.0 * math.pi
+_I8 = np.eye(NX)
+_H = np.eye(NZ, NX)
+_dot = np.dot
+
+# --------------------------------------------------------------------------------------
+# Configuration
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Filter settings (SI units).
+
+    Attributes:
+        x0: (8,) initial mean (x m, y m, psi rad, u m/s, v m/s, r rad/s, m kg, Izz kg m^2).
+        sigma0: (8,) initial standard deviations, same units.
+        q_psd: (8,) process-noise spectral density per state, units^2/s.
+        sigma_meas: (3,) measurement standard deviations (m, m, rad).
+        underweight: alpha of the underweighted update (0 = off).
+        uw_trigger: underweighting is active while the largest eigenvalue of
+            R^-1/2 H P H^T R^-1/2 exceeds this.
+        max_step_s: longest RK4 step of the propagation, s.
+        arm_m, ct, cr, kb, ax, ay: known plant terms (see :mod:`estimator.model`).
+    """
+
+    x0: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 5e-3)
+    sigma0: tuple[float, ...] = (0.1, 0.1, math.radians(5.0), 0.1, 0.1, math.radians(2.0),
+                                 1.0, 2e-3)
+    q_psd: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1e-4, 0.0)
+    sigma_meas: tuple[float, float, float] = (0.01, 0.01, math.radians(1.0))
+    underweight: float = 0.0
+    uw_trigger: float = 1.0
+    max_step_s: float = 0.01
+    arm_m: float = ARM_M
+    ct: float = 0.0
+    cr: float = 0.0
+    kb: float = 0.0
+    ax: float = 0.0
+    ay: float = 0.0
+
+    def __post_init__(self):
+        for name, n in (("x0", NX), ("sigma0", NX), ("q_psd", NX), ("sigma_meas", NZ)):
+            v = getattr(self, name)
+            if len(v) != n:
+                raise ValueError(f"{name} needs {n} values, got {len(v)}")
+        if any(s <= 0 for s in self.sigma_meas):
+            raise ValueError("measurement sigmas must be positive")
+        if any(q < 0 for q in self.q_psd) or any(s < 0 for s in self.sigma0):
+            raise ValueError("process noise and initial sigmas must be non-negative")
+        if self.underweight < 0:
+            raise ValueError("underweighting alpha must be >= 0")
+        if self.max_step_s <= 0:
+            raise ValueError("max_step_s must be positive")
+
+    @property
+    def P0(self) -> np.ndarray:
+        return np.diag(np.square(self.sigma0))
+
+    @property
+    def R(self) -> np.ndarray:
+        return np.diag(np.square(self.sigma_meas))
+
+    @property
+    def known(self) -> tuple[float, ...]:
+        """(ct, cr, kb, ax, ay)."""
+        return (self.ct, self.cr, self.kb, self.ax, self.ay)
+
+    def with_(self, **kw) -> EkfConfig:
+        return replace(self, **kw)
+
+
+PAPER = EkfConfig()
+"""The paper's EKF setting: 1e-4 kg^2/Hz on mass, its initial mean/std and 1 cm / 1 deg."""
+
+PRESETS = {"paper": PAPER,
+           "no-process-noise": PAPER.with_(q_psd=(0.0,) * NX)}
+
+
+def parse_state_values(text: str, what: str = "value") -> dict[int, float]:
+    """Parse ``name=value,...`` (names from STATE_NAMES, ``m`` for mass) into {index: value}."""
+    alias = {"m": "mass", "i": "izz", "yaw": "psi"}
+    out: dict[int, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        if "=" not in part:
+            raise ValueError(f"expected NAME={what}, got {part!r}")
+        k, v = (s.strip() for s in part.split("=", 1))
+        k = alias.get(k.lower(), k.lower())
+        if k not in STATE_NAMES:
+            raise ValueError(f"unknown state {k!r}; choose from {', '.join(STATE_NAMES)}")
+        try:
+            val = float(v)
+        except ValueError:
+            raise ValueError(f"{k}: not a number: {v!r}") from None
+        if not math.isfinite(val):
+            raise ValueError(f"{k}: must be finite")
+        out[STATE_NAMES.index(k)] = val
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Propagation (lean scalar/numpy path)
+
+# flat indices into an (8, 8) matrix of the non-zero entries of the augmented Jacobian
+_JAC_POS = [(0, 2), (0, 3), (0, 4), (1, 2), (1, 3), (1, 4), (2, 5),
+            (3, 2), (3, 3), (3, 4), (3, 5), (3, 6),
+            (4, 2), (4, 3), (4, 4), (4, 5), (4, 6),
+            (5, 3), (5, 4), (5, 5), (5, 7)]
+_JAC_FLAT = np.array([i * NX + j for i, j in _JAC_POS])
+_NW = 10  # RK4-STM workspace per step: 4 stage Jacobians, 3 + 2 + 1 products
+_PUT_CACHE: dict[int, np.ndarray] = {}
+
+
+def _put_index(n: int) -> np.ndarray:
+    """Flat indices of the stage-Jacobian entries in an (n, 10, 8, 8) workspace."""
+    idx = _PUT_CACHE.get(n)
+    if idx is None:
+        idx = np.concatenate([_JAC_FLAT + (i * _NW + k) * NX * NX
+                              for i in range(n) for k in range(4)])
+        _PUT_CACHE[n] = idx
+    return idx
+
+
+def _jac_values(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay):
+    """Non-zero entries (in ``_JAC_POS`` order) of ``d zdot / d z``, the 8x8 augmented Jacobian."""
+    c = math.cos(psi)
+    s = math.sin(psi)
+    sp = math.hypot(u, v)
+    if sp > 0.0:
+        dsu = kb * u / sp / izz
+        dsv = kb * v / sp / izz
+    else:
+        dsu = dsv = 0.0
+    return [-u * s - v * c, c, -s, u * c - v * s, s, c, 1.0,
+            -ax * s + ay * c, -ct / m, r, v, -(fx - ct * u) / (m * m),
+            -ax * c - ay * s, -r, -ct / m, -u, -(fy - ct * v) / (m * m),
+            dsu, dsv, -cr / izz, -(mz - cr * r + kb * sp) / (izz * izz)]
+
+
+def _rk4_state(z, h, fx, fy, mz, known, vals):
+    """One RK4 step of the state under a constant wrench; appends the 4 stage Jacobians to ``vals``.
+
+    Args:
+        z: list of 8 floats. h: step, s. fx, fy, mz: body wrench. known: (ct, cr, kb, ax, ay).
+    Returns:
+        the new state, a list of 8 floats.
+    """
+    x, y, psi, u, v, r, m, izz = z
+    ct, cr, kb, ax, ay = known
+    h2 = 0.5 * h
+    k1 = _rhs_scalar(x, y, psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    s2 = (x + h2 * k1[0], y + h2 * k1[1], psi + h2 * k1[2], u + h2 * k1[3], v + h2 * k1[4],
+          r + h2 * k1[5])
+    k2 = _rhs_scalar(*s2, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    s3 = (x + h2 * k2[0], y + h2 * k2[1], psi + h2 * k2[2], u + h2 * k2[3], v + h2 * k2[4],
+          r + h2 * k2[5])
+    k3 = _rhs_scalar(*s3, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    s4 = (x + h * k3[0], y + h * k3[1], psi + h * k3[2], u + h * k3[3], v + h * k3[4],
+          r + h * k3[5])
+    k4 = _rhs_scalar(*s4, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    h6 = h / 6.0
+    vals += _jac_values(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    vals += _jac_values(s2[2], s2[3], s2[4], s2[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    vals += _jac_values(s3[2], s3[3], s3[4], s3[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    vals += _jac_values(s4[2], s4[3], s4[4], s4[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    return [x + h6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
+            y + h6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
+            psi + h6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]),
+            u + h6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3]),
+            v + h6 * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]),
+            r + h6 * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]), m, izz]
+
+
+def _stm_from_stages(vals: list, hs: list) -> np.ndarray:
+    """Transition matrix of consecutive RK4 steps from their stage Jacobians.
+
+    RK4 on ``Phi' = A(t) Phi`` from ``Phi = I`` with stage matrices A1..A4 (the same
+    stages as :func:`estimator.propagate.rk4_stm`) expands exactly to::
+
+        Phi = I + h/6 (A1 + 2 A2 + 2 A3 + A4) + h^2/6 (A2A1 + A3A2 + A4A3)
+                + h^3/12 (A3A2A1 + A4A3A2) + h^4/24 A4A3A2A1
+
+    evaluated here with three batched products over all steps at once.
+    """
+    n = len(hs)
+    W = np.zeros((n, _NW, NX, NX))
+    W.put(_put_index(n), vals)
+    phi = None
+    for i in range(n):
+        w = W[i]
+        np.matmul(w[1:4], w[0:3], out=w[4:7])
+        np.matmul(w[2:4], w[4:6], out=w[7:9])
+        _dot(w[3], w[7], out=w[9])
+        h = hs[i]
+        h2 = h * h / 6.0
+        h3 = h * h * h / 12.0
+        c = np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0, h2, h2, h2, h3, h3, h * h * h * h / 24.0])
+        p = _dot(c, w.reshape(_NW, NX * NX))
+        p[::NX + 1] += 1.0
+        p = p.reshape(NX, NX)
+        phi = p if phi is None else _dot(p, phi)
+    return phi
+
+
+def propagate(z, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: float = 0.01):
+    """Propagate the augmented state and its transition matrix over hold segments.
+
+    Args:
+        z: (8,) state at the start.
+        seg_dt: sequence of segment lengths, s (zero-length segments are skipped).
+        seg_w: matching sequence of body wrenches (Fx N, Fy N, Mz N m).
+        known: (ct, cr, kb, ax, ay).
+        max_step_s: longest RK4 step; longer segments are split evenly.
+
+    Returns:
+        ``(z_end (8,) ndarray, Phi (8, 8))``.
+    """
+    zl = [float(a) for a in z]
+    vals: list[float] = []
+    hs: list[float] = []
+    for dt, w in zip(seg_dt, seg_w, strict=True):
+        if dt <= 0.0:
+            continue
+        n = max(1, math.ceil(dt / max_step_s - 1e-9))
+        h = dt / n
+        for _ in range(n):
+            zl = _rk4_state(zl, h, w[0], w[1], w[2], known, vals)
+            hs.append(h)
+    if not hs:
+        return np.array(zl), _I8.copy()
+    return np.array(zl), _stm_from_stages(vals, hs)
+
+
+# --------------------------------------------------------------------------------------
+# Predict / update on plain arrays
+
+
+def ekf_predict(z, P, seg_dt, seg_w, cfg: EkfConfig):
+    """EKF prediction over hold segments. Returns ``(z (8,), P (8, 8), Phi (8, 8))``."""
+    z1, phi = propagate(z, seg_dt, seg_w, cfg.known, cfg.max_step_s)
+    P1 = _dot(_dot(phi, P), phi.T)
+    dt = float(sum(seg_dt))
+    for i, q in enumerate(cfg.q_psd):
+        if q:
+            P1[i, i] += q * dt
+    return z1, P1, phi
+
+
+def wrap_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Measurement residual ``a - b`` with the yaw component wrapped to [-pi, pi); works on columns."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    d[2] = (d[2] + math.pi) % TWO_PI - math.pi
+    return d
+
+
+def _max_eig_sym3(a, b, c, d, e, f) -> float:
+    """Largest eigenvalue of the symmetric 3x3 [[a, d, e], [d, b, f], [e, f, c]] (closed form)."""
+    p1 = d * d + e * e + f * f
+    q = (a + b + c) / 3.0
+    p2 = (a - q) ** 2 + (b - q) ** 2 + (c - q) ** 2 + 2.0 * p1
+    if p2 <= 1e-300:
+        return q
+    p = math.sqrt(p2 / 6.0)
+    ba, bb, bc = (a - q) / p, (b - q) / p, (c - q) / p
+    bd, be, bf = d / p, e / p, f / p
+    r = 0.5 * (ba * (bb * bc - bf * bf) - bd * (bd * bc - bf * be) + be * (bd * bf - bb * be))
+    r = -1.0 if r < -1.0 else (1.0 if r > 1.0 else r)
+    return q + 2.0 * p * math.cos(math.acos(r) / 3.0)
+
+
+def uw_ratio(P: np.ndarray, R: np.ndarray) -> float:
+    """Largest eigenvalue of ``R^-1/2 H P H^T R^-1/2`` (H = [I3 0]), the underweighting trigger.
+
+    Only the diagonal of R is used (R is diagonal in this filter).
+    """
+    w = [1.0 / math.sqrt(R[i, i]) for i in range(NZ)]
+    (a, d, e), (_, b, f), (_, _, c) = P[:NZ, :NZ].tolist()
+    return _max_eig_sym3(a * w[0] * w[0], b * w[1] * w[1], c * w[2] * w[2], d * w[0] * w[1],
+                         e * w[0] * w[2], f * w[1] * w[2])
+
+
+def _inv_sym3(a, b, c, d, e, f):
+    """Inverse of the symmetric 3x3 [[a, d, e], [d, b, f], [e, f, c]] as nested lists."""
+    A = b * c - f * f
+    B = e * f - d * c
+    C = d * f - b * e
+    det = a * A + d * B + e * C
+    D = a * c - e * e
+    E = d * e - a * f
+    F = a * b - d * d
+    k = 1.0 / det
+    return [[A * k, B * k, C * k], [B * k, D * k, E * k], [C * k, E * k, F * k]]
+
+
+def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None):
+    """Joseph-form measurement update with the optional underweighting.
+
+    Args:
+        z: (8,) predicted state. P: (8, 8) predicted covariance.
+        meas: (3,) measured x (m), y (m), yaw (rad, may be wrapped).
+        cfg: the filter settings. R: (3, 3) diagonal measurement covariance (default cfg.R).
+
+    Returns:
+        ``(z, P, info)`` with ``info = (nis, triggered)``: the normalised innovation
+        squared (with the plain S) and whether underweighting was active.
+    """
+    R = cfg.R if R is None else R
+    r0, r1, r2 = R[0, 0], R[1, 1], R[2, 2]
+    (a, d, e), (_, b, f), (_, _, c) = P[:NZ, :NZ].tolist()
+    zl = z[:NZ].tolist()
+    y0 = meas[0] - zl[0]
+    y1 = meas[1] - zl[1]
+    y2 = (meas[2] - zl[2] + math.pi) % TWO_PI - math.pi
+    si = _inv_sym3(a + r0, b + r1, c + r2, d, e, f)
+    nis = (y0 * (si[0][0] * y0 + si[0][1] * y1 + si[0][2] * y2)
+           + y1 * (si[1][0] * y0 + si[1][1] * y1 + si[1][2] * y2)
+           + y2 * (si[2][0] * y0 + si[2][1] * y1 + si[2][2] * y2))
+    triggered = False
+    if cfg.underweight > 0.0:
+        w0, w1, w2 = 1.0 / math.sqrt(r0), 1.0 / math.sqrt(r1), 1.0 / math.sqrt(r2)
+        if _max_eig_sym3(a * w0 * w0, b * w1 * w1, c * w2 * w2, d * w0 * w1, e * w0 * w2,
+                         f * w1 * w2) > cfg.uw_trigger:
+            triggered = True
+            g = 1.0 + cfg.underweight
+            si = _inv_sym3(g * a + r0, g * b + r1, g * c + r2, g * d, g * e, g * f)
+    K = _dot(P[:, :NZ], np.array(si))
+    z = z + _dot(K, np.array([y0, y1, y2]))
+    A = _I8 - _dot(K, _H)
+    P = _dot(_dot(A, P), A.T) + _dot(K * np.array([r0, r1, r2]), K.T)
+    P += P.T
+    P *= 0.5
+    return z, P, (nis, triggered)
+
+
+# --------------------------------------------------------------------------------------
+# Whole-run filtering
+
+
+@dataclass
+class EkfResult:
+    """Output of a filter run over a pose history.
+
+    Attributes:
+        t: (N,) pose times, s.
+        x: (N, 8) posterior means at the pose times (prior where no update was made).
+        sigma: (N, 8) matching standard deviations.
+        P: (8, 8) final covariance.
+        updated: (N,) whether the pose was used.
+        triggered: (N,) whether the underweighted update was active.
+        nis: (N,) normalised innovation squared (NaN where not updated).
+        cov: (N, 8, 8) covariances if requested, else None.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    sigma: np.ndarray
+    P: np.ndarray
+    updated: np.ndarray
+    triggered: np.ndarray
+    nis: np.ndarray
+    cov: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def mass_kg(self) -> float:
+        return float(self.x[-1, 6])
+
+    @property
+    def izz_kgm2(self) -> float:
+        return float(self.x[-1, 7])
+
+    def rmse(self, mass_kg: float, izz_kgm2: float, t_from: float | None = None) -> tuple[float, float]:
+        """RMS error of m and Izz over every pose time (from ``t_from``), kg and kg m^2."""
+        sel = slice(None) if t_from is None else self.t >= t_from
+        e = self.x[sel, 6:8] - np.array([mass_kg, izz_kgm2])
+        r = np.sqrt(np.mean(e**2, axis=0))
+        return float(r[0]), float(r[1])
+
+
+@dataclass
+class Schedule:
+    """Hold segments between consecutive pose times.
+
+    ``seg_dt[k]`` and ``seg_w[k]`` list the segments from ``pose_t[k-1]`` to
+    ``pose_t[k]`` (empty for k = 0).
+    """
+
+    pose_t: np.ndarray
+    seg_dt: list[list[float]]
+    seg_w: list[list[tuple[float, float, float]]]
+
+
+def make_schedule(pose_t, cmd_t, thrust_n, arm_m: float = ARM_M) -> Schedule:
+    """Split the pose intervals at command switches (thrust zero before the first command)."""
+    from estimator.propagate import segment_thrust
+
+    pose_t = np.asarray(pose_t, dtype=float)
+    events, cmd_idx, node_pos = zoh_segments(cmd_t, pose_t)
+    w = wrench(segment_thrust(thrust_n, cmd_idx), arm_m).tolist()
+    dts = np.diff(events).tolist()
+    seg_dt: list[list[float]] = [[]]
+    seg_w: list[list] = [[]]
+    for k in range(1, len(pose_t)):
+        a, b = int(node_pos[k - 1]), int(node_pos[k])
+        seg_dt.append(dts[a:b])
+        seg_w.append(w[a:b])
+    return Schedule(pose_t, seg_dt, seg_w)
+
+
+def _initial(cfg: EkfConfig, x0, P0):
+    x = np.array(cfg.x0 if x0 is None else x0, dtype=float)
+    P = cfg.P0 if P0 is None else np.array(P0, dtype=float)
+    if x.shape != (NX,) or P.shape != (NX, NX):
+        raise ValueError("x0 must be (8,) and P0 (8, 8)")
+    return x, P
+
+
+def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=None,
+            use=None, keep_cov: bool = False, progress=None) -> EkfResult:
+    """Filter a pose history with the lean EKF.
+
+    Args:
+        pose_t: (N,) increasing pose times, s (any spacing; dropped frames are gaps).
+        pose: (N, 3) x (m), y (m), yaw (rad, wrapped or not).
+        cmd_t, thrust_n: (Nc,), (Nc, 4) zero-order-hold thrusts, N.
+        cfg: filter settings. x0, P0: initial mean (8,) and covariance (8, 8) at
+            ``pose_t[0]`` (default from cfg).
+        use: optional (N,) bool, which poses to update with (others: predict only).
+        keep_cov: also return every covariance.
+        progress: optional callable(k) called every 1000 poses.
+    """
+    pose = np.asarray(pose, dtype=float)
+    sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
+    n = len(sched.pose_t)
+    use = np.ones(n, bool) if use is None else np.asarray(use, bool)
+    x, P = _initial(cfg, x0, P0)
+    R = cfg.R
+    xs = np.empty((n, NX))
+    sig = np.empty((n, NX))
+    nis = np.full(n, np.nan)
+    trig = np.zeros(n, bool)
+    covs = np.empty((n, NX, NX)) if keep_cov else None
+    meas = pose.tolist()
+    for k in range(n):
+        if k:
+            x, P, _ = ekf_predict(x, P, sched.seg_dt[k], sched.seg_w[k], cfg)
+        if use[k]:
+            x, P, (nis[k], trig[k]) = ekf_update(x, P, meas[k], cfg, R)
+        xs[k] = x
+        sig[k] = P.diagonal()
+        if keep_cov:
+            covs[k] = P
+        if progress is not None and k % 1000 == 0:
+            progress(k)
+    np.sqrt(np.maximum(sig, 0.0), out=sig)
+    return EkfResult(sched.pose_t.copy(), xs, sig, P, use.copy(), trig, nis, covs)
+
+
+# --------------------------------------------------------------------------------------
+# The filterpy-based filter
+
+
+def _hjac(_x):
+    H = np.zeros((NZ, NX))
+    H[0, 0] = H[1, 1] = H[2, 2] = 1.0
+    return H
+
+
+def _hx(x):
+    return x[:NZ].copy()
+
+
+class TpodsEKF(ExtendedKalmanFilter):
+    """filterpy ``ExtendedKalmanFilter`` for the augmented TPODS state.
+
+    ``predict(u=(seg_dt, seg_w))`` propagates through the hold segments of one pose
+    interval: the overridden ``predict_x`` integrates the nonlinear model, sets
+    ``F`` to the analytic transition matrix and ``Q`` to ``diag(q_psd) * dt``, then
+    filterpy forms ``F P F^T + Q``. :meth:`update_pose` takes a pose (3,), passes it
+    as a column vector with an angle-wrapping residual (Joseph-form update by
+    filterpy), or runs the underweighted update while it is triggered.
+    """
+
+    def __init__(self, cfg: EkfConfig = PAPER, x0=None, P0=None):
+        super().__init__(dim_x=NX, dim_z=NZ)
+        x, P = _initial(cfg, x0, P0)
+        self.cfg = cfg
+        self.x = x.reshape(NX, 1)
+        self.P = P.copy()
+        self.R = cfg.R
+        self.triggered = False
+
+    def predict_x(self, u=0):
+        seg_dt, seg_w = u
+        z, phi = propagate(self.x.ravel(), seg_dt, seg_w, self.cfg.known, self.cfg.max_step_s)
+        self.x = z.reshape(NX, 1)
+        self.F = phi
+        self.Q = np.diag(np.asarray(self.cfg.q_psd) * float(sum(seg_dt)))
+
+    def update_pose(self, pose) -> None:
+        zc = np.asarray(pose, dtype=float).reshape(NZ, 1)
+        cfg = self.cfg
+        self.triggered = cfg.underweight > 0.0 and uw_ratio(self.P, self.R) > cfg.uw_trigger
+        if not self.triggered:
+            self.update(zc, _hjac, _hx, R=self.R, residual=wrap_residual)
+        else:
+            H = _hjac(self.x)
+            PHT = self.P @ H.T
+            self.S = (1.0 + cfg.underweight) * (H @ PHT) + self.R
+            self.SI = np.linalg.inv(self.S)
+            self.K = PHT @ self.SI
+            self.y = wrap_residual(zc, _hx(self.x))
+            self.x = self.x + self.K @ self.y
+            I_KH = self._I - self.K @ H
+            self.P = I_KH @ self.P @ I_KH.T + self.K @ self.R @ self.K.T
+
+
+def run_filterpy(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=None,
+                 use=None) -> EkfResult:
+    """Same as :func:`run_ekf` with :class:`TpodsEKF` (slower; the reference implementation)."""
+    pose = np.asarray(pose, dtype=float)
+    sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
+    n = len(sched.pose_t)
+    use = np.ones(n, bool) if use is None else np.asarray(use, bool)
+    f = TpodsEKF(cfg, x0, P0)
+    xs = np.empty((n, NX))
+    sig = np.empty((n, NX))
+    nis = np.full(n, np.nan)
+    trig = np.zeros(n, bool)
+    for k in range(n):
+        if k:
+            f.predict(u=(sched.seg_dt[k], sched.seg_w[k]))
+        if use[k]:
+            Sp = f.P[:NZ, :NZ] + f.R
+            y = wrap_residual(pose[k], f.x.ravel()[:NZ])
+            nis[k] = float(y @ np.linalg.solve(Sp, y))
+            f.update_pose(pose[k])
+            trig[k] = f.triggered
+        xs[k] = f.x.ravel()
+        sig[k] = np.sqrt(np.diag(f.P))
+    return EkfResult(sched.pose_t.copy(), xs, sig, f.P.copy(), use.copy(), trig, nis)
