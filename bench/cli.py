@@ -1,7 +1,223 @@
-"""Sub-commands of the `bench` package (none yet: see the open issues)."""
+"""``tpods bench``: thrust characterisation (characterize, fit) and device emulators."""
 
 from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tpods.argtypes import nonneg_float, positive_float
+from tpods.errors import UserError
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
+    from tpods.cli import group
+
+    g = group(sub, "bench", "thrust characterisation bench: valve controller + OHAUS balance")
+
+    p = g.add_parser("characterize", help="run a thrust characterisation session",
+                     description="Step the PWM duty of 1..k valves and record the thrust of the nozzle "
+                                 "under test on an OHAUS balance. Writes raw.csv, steps.csv, run.json. "
+                                 "The valves close (OFF confirmed by STATE?) on every exit path and the "
+                                 "controller watchdog closes them if this process dies.")
+    p.add_argument("--valves", required=True, metavar="URL",
+                   help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...)")
+    p.add_argument("--scale", required=True, metavar="URL", help="OHAUS balance: device path or pyserial URL")
+    p.add_argument("--nozzles", default="1,2,3,4", help="numbers of simultaneously open valves (default 1,2,3,4)")
+    p.add_argument("--duty", default="10:90:10", help="duty steps, START:STOP:STEP or a list, %% (default 10:90:10)")
+    p.add_argument("--dwell", type=positive_float, default=5.0, help="recorded time per step, s (default 5)")
+    p.add_argument("--settle", type=nonneg_float, default=1.0, help="discarded time after opening, s (default 1)")
+    p.add_argument("--zero-settle", type=nonneg_float, default=2.0,
+                   help="discarded time after closing before a zero measurement, s (default 2)")
+    p.add_argument("--zero-dwell", type=positive_float, default=1.0, help="zero measurement time, s (default 1)")
+    p.add_argument("--zero-every", type=int, default=1, help="measure the zero after every N steps (default 1)")
+    p.add_argument("--pwm-hz", type=positive_float, default=10.0, help="PWM frequency, Hz (default 10)")
+    p.add_argument("--nozzle-under-test", type=int, default=1, help="valve channel on the balance (default 1)")
+    p.add_argument("--duty-limits", default="10,90", help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
+    p.add_argument("--watchdog-ms", type=int, default=500, help="controller watchdog, ms (default 500)")
+    p.add_argument("--valves-baud", type=int, default=115200, help="valve controller baud rate (default 115200)")
+    p.add_argument("--scale-baud", type=int, default=9600, help="balance baud rate (default 9600)")
+    p.add_argument("--scale-format", default="8N1", help="balance data bits, parity, stop bits (default 8N1; Scout Pro USB: 7N1)")
+    p.add_argument("--scale-handshake", choices=("none", "xonxoff", "rtscts"), default="none")
+    p.add_argument("--silence-timeout", type=positive_float, default=2.0,
+                   help="no reading from the balance for this long aborts the session, s (default 2)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_characterize)
+
+    f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run",
+                     description="Least squares (paper Eqs. 8-11) of orders 1-4 per nozzle count; writes a "
+                                 "thrust table TOML with fit statistics and two plots.")
+    f.add_argument("run_dir", metavar="RUN_DIR", help="folder written by `tpods bench characterize`")
+    f.add_argument("--order", default="auto", choices=("auto", "1", "2", "3", "4"),
+                   help="polynomial order, or auto (pick by --criterion; default)")
+    f.add_argument("--criterion", default="aicc", choices=("aicc", "bic", "cv"),
+                   help="order selection: AICc (default), BIC or leave-one-step-out CV")
+    f.add_argument("--out", default=None, help="thrust table to write (default RUN_DIR/thrust_table.toml)")
+    f.add_argument("--pressure-psi", type=positive_float, default=None, help="accumulator pressure to record")
+    f.add_argument("--plot-dir", default=None, help="where the PNG plots go (default: next to --out)")
+    f.add_argument("--reference", default=None,
+                   help="thrust table to compare with (a TOML path, or 'table2' for the paper's Table 2)")
+    f.set_defaults(func=cmd_fit)
+
+    e = g.add_parser("emulate", help="serve an emulated valve controller and OHAUS balance on ptys",
+                     description="Serve an emulated protocol-v1 valve controller and an emulated OHAUS "
+                                 "Scout (weighing the nozzle under test) on pseudo-terminals and print "
+                                 "their device paths; runs until Ctrl-C or --duration.")
+    e.add_argument("--channels", type=int, default=4, help="number of valves (default 4)")
+    e.add_argument("--nozzle-under-test", type=int, default=1, help="valve whose thrust the balance feels")
+    e.add_argument("--table", default=None, help="truth thrust table TOML (default the paper's Table 2)")
+    e.add_argument("--load-g", type=float, default=0.0, help="static mass on the pan, g (default 0)")
+    e.add_argument("--lag-s", type=nonneg_float, default=0.3, help="first-order lag, s (default 0.3)")
+    e.add_argument("--noise-g", type=nonneg_float, default=0.2, help="reading noise std, g (default 0.2)")
+    e.add_argument("--drift-g-per-s", type=float, default=0.003, help="zero drift, g/s (default 0.003)")
+    e.add_argument("--unstable-prob", type=nonneg_float, default=0.03, help="random unstable flags (default 0.03)")
+    e.add_argument("--garbage-prob", type=nonneg_float, default=0.01, help="garbage line probability (default 0.01)")
+    e.add_argument("--rate-hz", type=positive_float, default=10.0, help="continuous print rate, Hz (default 10)")
+    e.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    e.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds")
+    e.add_argument("--log-dir", default=None, help="on exit write valves_log.csv and scale_sent.csv here")
+    e.set_defaults(func=cmd_emulate)
+
+
+def _serial_format(text: str) -> dict:
+    t = text.strip().upper()
+    if len(t) != 3 or t[0] not in "5678" or t[1] not in "NEOMS" or t[2] not in "12":
+        raise UserError(f"serial format must look like 8N1 or 7E1, got {text!r}")
+    return {"bytesize": int(t[0]), "parity": t[1], "stopbits": int(t[2])}
+
+
+def cmd_characterize(args: argparse.Namespace) -> int:
+    from bench.ohaus import OhausScout
+    from bench.session import (
+        SessionConfig,
+        Terminated,
+        parse_duty_steps,
+        parse_int_list,
+        run_session,
+        sigterm_raises,
+    )
+    from bench.valves import ValveController
+
+    lim = parse_duty_steps(args.duty_limits.replace(":", ","))
+    if len(lim) != 2:
+        raise UserError(f"--duty-limits must be LOW,HIGH, got {args.duty_limits!r}")
+    cfg = SessionConfig(
+        nozzles=parse_int_list(args.nozzles, "--nozzles"), duties_pct=parse_duty_steps(args.duty),
+        dwell_s=args.dwell, settle_s=args.settle, zero_settle_s=args.zero_settle,
+        zero_dwell_s=args.zero_dwell, zero_every=args.zero_every, pwm_hz=args.pwm_hz,
+        nozzle_under_test=args.nozzle_under_test, duty_limits_pct=(lim[0], lim[1]),
+        watchdog_ms=args.watchdog_ms)
+    if not 1 <= cfg.pwm_hz <= 100:
+        raise UserError(f"--pwm-hz must be 1-100, got {cfg.pwm_hz:g}")
+    out = Path(args.out)
+    if (out / "raw.csv").exists():
+        raise UserError(f"{out} already holds a session (raw.csv); choose another --out")
+    fmt = _serial_format(args.scale_format)
+    hs = args.scale_handshake
+    with sigterm_raises():
+        try:
+            with ValveController(args.valves, baudrate=args.valves_baud,
+                                 duty_limits=cfg.duty_limits_pct) as valves, \
+                 OhausScout(args.scale, baudrate=args.scale_baud, xonxoff=hs == "xonxoff",
+                            rtscts=hs == "rtscts", silence_timeout=args.silence_timeout, **fmt) as scale:
+                res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
+        except Terminated:
+            print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
+            return 143
+        except KeyboardInterrupt:
+            print(f"tpods: interrupted; valves closed; partial data in {out}", file=sys.stderr)
+            return 130
+    print(f"session {res.status}: {len(res.steps)} steps, {res.n_readings} readings, "
+          f"{res.n_garbage} garbage line(s) skipped")
+    print(f"time {res.elapsed_s:.1f} s for {res.planned_s:.1f} s planned "
+          f"(overhead {res.overhead_pct:+.1f} %)")
+    print(f"wrote {out}/raw.csv, steps.csv, run.json")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from bench.fit import fit_steps, max_error_pct_full_scale
+    from bench.plots import plot_fit_orders, plot_time_series
+    from bench.session import read_session
+    from bench.thrust_table import ThrustTable
+
+    raw, steps = read_session(args.run_dir)
+    result = fit_steps(steps, args.order, args.criterion)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "thrust_table.toml"
+    if out.parent and not out.parent.exists():
+        raise UserError(f"{out.parent}: no such folder")
+    table = result.table(args.pressure_psi, source=f"tpods bench fit {args.run_dir}")
+    table.save(out)
+    reference = None
+    if args.reference is not None:
+        reference = ThrustTable.default() if args.reference.lower() == "table2" else ThrustTable.load(args.reference)
+    plot_dir = Path(args.plot_dir) if args.plot_dir else out.parent
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    p1 = plot_fit_orders(result, plot_dir / f"{out.stem}_orders.png", truth=reference)
+    p2 = plot_time_series(raw, plot_dir / f"{out.stem}_timeseries.png", steps)
+    hdr = f"{'nozzles':>7} {'order':>5} {'rms_gf':>8} {'cv_rms_gf':>9} {'AICc':>8} {'BIC':>8}"
+    print(hdr)
+    for k in sorted(result.fits):
+        for n, f in sorted(result.fits[k].items()):
+            mark = " <" if n == result.selected[k] else ""
+            print(f"{k:>7} {n:>5} {f.rms:>8.3f} {f.cv_rms:>9.3f} {f.aicc:>8.2f} {f.bic:>8.2f}{mark}")
+    if reference is not None:
+        errs = max_error_pct_full_scale(table, reference)
+        print("max |fit - reference| over 10-90 %, % of full scale: "
+              + ", ".join(f"{k} nozzle(s) {v:.2f}" for k, v in errs.items()))
+    print(f"wrote {out}, {p1}, {p2}")
+    return 0
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
+    from bench.thrust_table import load_thrust_table
+
+    table = load_thrust_table(args.table)
+    if args.channels < 1:
+        raise UserError("--channels must be at least 1")
+    if not 1 <= args.nozzle_under_test <= args.channels:
+        raise UserError(f"--nozzle-under-test must be 1-{args.channels}")
+    for name in ("unstable_prob", "garbage_prob"):
+        if getattr(args, name) > 1:
+            raise UserError(f"--{name.replace('_', '-')} must be a probability (0-1)")
+    valves = EmulatedValveController(args.channels)
+    scout = EmulatedScout(valves, table, args.nozzle_under_test, load_g=args.load_g, lag_s=args.lag_s,
+                          noise_g=args.noise_g, drift_g_per_s=args.drift_g_per_s,
+                          unstable_prob=args.unstable_prob, garbage_prob=args.garbage_prob,
+                          print_rate_hz=args.rate_hz, seed=args.seed)
+    stop = threading.Event()
+    old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    sv = serve_pty(valves)
+    ss = serve_pty(scout)
+    try:
+        print(f"valves: {sv.path}")
+        print(f"scale: {ss.path}", flush=True)
+        print("serving; Ctrl-C to stop", file=sys.stderr, flush=True)
+        try:
+            stop.wait(args.duration)
+        except KeyboardInterrupt:
+            pass
+    finally:
+        ss.stop()
+        sv.stop()
+        signal.signal(signal.SIGTERM, old)
+    if args.log_dir:
+        d = Path(args.log_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        with (d / "valves_log.csv").open("w") as fh:
+            fh.write("t_s,cause," + ",".join(f"d{i + 1}" for i in range(args.channels)) + "\n")
+            for ch in valves.log:
+                fh.write(f"{ch.t:.6f},{ch.cause}," + ",".join(f"{x:g}" for x in ch.duties) + "\n")
+        with (d / "scale_sent.csv").open("w") as fh:
+            fh.write("t_s,kind,line\n")
+            for s in scout.sent:
+                fh.write(f"{s.t:.6f},{s.kind},{s.data.strip()!r}\n")
+    print(f"stopped: {len(valves.log) - 1} valve change(s), {valves.watchdog_trips} watchdog trip(s), "
+          f"{sum(s.kind == 'weight' for s in scout.sent)} reading(s) sent", file=sys.stderr)
+    return 0

@@ -394,3 +394,41 @@ def parse_int_list(text: str, what: str) -> tuple[int, ...]:
     except ValueError:
         raise UserError(f"{what} must be comma-separated integers, got {text!r}") from None
     return vals
+
+
+def read_session(run_dir: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Read a session folder: ``(raw, steps)``; steps are recomputed from raw.csv when
+    steps.csv is missing or empty (a session killed before it could write it)."""
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise UserError(f"{run}: no such run folder")
+    raw_path = run / "raw.csv"
+    try:
+        raw = pd.read_csv(raw_path)
+    except FileNotFoundError:
+        raise UserError(f"{raw_path}: not found (is this a characterisation run?)") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise UserError(f"{raw_path}: unreadable ({exc})") from None
+    missing = set(RAW_COLUMNS) - set(raw.columns)
+    if missing:
+        raise UserError(f"{raw_path}: missing column(s) {', '.join(sorted(missing))}")
+    try:
+        raw = raw.astype({"t_s": float, "reading_gf": float, "duty_pct": float, "step": int,
+                          "n_open": int, "window": int, "stable": int})
+    except (ValueError, TypeError) as exc:
+        raise UserError(f"{raw_path}: non-numeric value ({exc})") from None
+    bad = ~np.isfinite(raw["reading_gf"].to_numpy()) | ~np.isfinite(raw["t_s"].to_numpy())
+    if bad.any():
+        raise UserError(f"{raw_path}: line {int(np.argmax(bad)) + 2}: value is not a finite number")
+    steps_path = run / "steps.csv"
+    steps = None
+    if steps_path.exists():
+        try:
+            steps = pd.read_csv(steps_path)
+        except pd.errors.EmptyDataError:
+            steps = None
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise UserError(f"{steps_path}: unreadable ({exc})") from None
+    if steps is None or steps.empty:
+        steps = summarize_steps(raw)
+    return raw, steps

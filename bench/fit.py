@@ -1,0 +1,211 @@
+"""Polynomial thrust fits (paper Eqs. 8-11) and order selection.
+
+Per nozzle count ``k`` the per-step mean thrusts ``z`` (gram-force) at duties ``D``
+(percent) are fitted by ``h = a0 + a1 D + ... + an D^n`` in the least-squares sense,
+``x = (H^T H)^-1 H^T z`` (Eq. 11; solved through a column-scaled QR/SVD, the same
+estimate computed stably). For each order the result holds the residual RMS, the
+coefficient covariance ``s^2 (H^T H)^-1``, AICc, BIC and the leave-one-step-out
+cross-validation RMS (exact, from the hat matrix). Pure functions on arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from bench.thrust_table import ThrustTable
+from tpods.errors import UserError
+
+ORDERS = (1, 2, 3, 4)
+CRITERIA = ("aicc", "bic", "cv")
+
+
+def design_matrix(duty_pct: np.ndarray, order: int) -> np.ndarray:
+    """Eq. 9: rows ``[1, D, D^2, ..., D^order]``; shape ``(q, order + 1)``."""
+    d = np.asarray(duty_pct, dtype=float)
+    return d[:, None] ** np.arange(order + 1)
+
+
+@dataclass(frozen=True)
+class PolyFit:
+    """Least-squares polynomial of one order.
+
+    Attributes:
+        order: polynomial order n.
+        coefficients: ``(n + 1,)`` ascending powers of duty (percent), thrust unit.
+        covariance: ``(n + 1, n + 1)`` coefficient covariance ``s^2 (H^T H)^-1``
+            with ``s^2 = RSS / (q - n - 1)`` (NaN when q = n + 1).
+        rss: residual sum of squares; rms: ``sqrt(RSS / q)``.
+        n_points: q; aicc, bic: information criteria (lower is better; AICc is
+            infinite when q <= n + 2); cv_rms: leave-one-out RMS prediction error.
+        residuals: ``(q,)`` data minus fit.
+    """
+
+    order: int
+    coefficients: np.ndarray
+    covariance: np.ndarray
+    rss: float
+    rms: float
+    n_points: int
+    aicc: float
+    bic: float
+    cv_rms: float
+    residuals: np.ndarray = field(repr=False)
+
+    def predict(self, duty_pct: np.ndarray | float) -> np.ndarray:
+        """Fitted thrust at ``duty_pct``."""
+        return np.polynomial.polynomial.polyval(np.asarray(duty_pct, dtype=float), self.coefficients)
+
+    def criterion(self, name: str) -> float:
+        return {"aicc": self.aicc, "bic": self.bic, "cv": self.cv_rms}[name]
+
+
+def fit_polynomial(duty_pct: np.ndarray, thrust: np.ndarray, order: int) -> PolyFit:
+    """Least-squares fit of ``thrust`` (shape ``(q,)``) against ``duty_pct`` of one order."""
+    d = np.asarray(duty_pct, dtype=float)
+    z = np.asarray(thrust, dtype=float)
+    q, p = len(d), order + 1
+    if d.shape != z.shape or d.ndim != 1:
+        raise UserError("duty and thrust must be 1-D arrays of equal length")
+    if order < 0:
+        raise UserError(f"polynomial order must be non-negative, got {order}")
+    if len(np.unique(d)) < p:
+        raise UserError(f"an order-{order} fit needs at least {p} distinct duties, got {len(np.unique(d))}")
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(z))):
+        raise UserError("duty and thrust must be finite")
+    scale = float(np.max(np.abs(d))) or 1.0
+    hs = design_matrix(d / scale, order)  # well conditioned on [0, 1]
+    b, *_ = np.linalg.lstsq(hs, z, rcond=None)
+    s = scale ** -np.arange(p, dtype=float)
+    coef = b * s
+    resid = z - hs @ b
+    rss = float(resid @ resid)
+    hth_inv = np.linalg.inv(hs.T @ hs)
+    sigma2 = rss / (q - p) if q > p else math.nan
+    cov = sigma2 * (s[:, None] * hth_inv * s[None, :])
+    lev = np.einsum("ij,jk,ik->i", hs, hth_inv, hs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo = resid / (1.0 - lev)
+    cv = float(np.sqrt(np.mean(loo ** 2))) if np.all(lev < 1 - 1e-9) else math.inf
+    # Gaussian log-likelihood with the variance as a parameter: k = p + 1
+    k = p + 1
+    ll_term = q * math.log(max(rss, 1e-300) / q)
+    aic = ll_term + 2 * k
+    aicc = aic + 2 * k * (k + 1) / (q - k - 1) if q - k - 1 > 0 else math.inf
+    bic = ll_term + k * math.log(q)
+    return PolyFit(order, coef, cov, rss, math.sqrt(rss / q), q, aicc, bic, cv, resid)
+
+
+def fit_orders(duty_pct: np.ndarray, thrust: np.ndarray,
+               orders: Iterable[int] = ORDERS) -> dict[int, PolyFit]:
+    """Fits of every order that the number of distinct duties allows."""
+    n_distinct = len(np.unique(np.asarray(duty_pct, dtype=float)))
+    return {n: fit_polynomial(duty_pct, thrust, n) for n in orders if n + 1 <= n_distinct}
+
+
+def select_order(fits: Mapping[int, PolyFit], criterion: str = "aicc") -> int:
+    """The order minimising ``criterion`` (``aicc``, ``bic`` or ``cv``); ties go to the lower order.
+
+    Falls back to BIC when AICc is infinite for every order (too few steps).
+    """
+    if criterion not in CRITERIA:
+        raise UserError(f"criterion must be one of {', '.join(CRITERIA)}, not {criterion!r}")
+    if not fits:
+        raise UserError("no polynomial could be fitted (too few duty steps)")
+    if criterion == "aicc" and not any(math.isfinite(f.aicc) for f in fits.values()):
+        criterion = "bic"
+    return min(sorted(fits), key=lambda n: (fits[n].criterion(criterion), n))
+
+
+@dataclass
+class ThrustFit:
+    """Fits for every nozzle count: ``fits[k][order]``, ``selected[k]``, and the table."""
+
+    fits: dict[int, dict[int, PolyFit]]
+    selected: dict[int, int]
+    criterion: str
+    order_request: str
+    data: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    """``data[k] = (duty_pct, thrust_gf, std_gf)`` per step."""
+
+    def table(self, pressure_psi: float | None = None, source: str | None = None) -> ThrustTable:
+        """ThrustTable (gram-force) with the selected orders and fit statistics in ``extra``."""
+        coeffs = {k: tuple(float(a) for a in self.fits[k][n].coefficients)
+                  for k, n in self.selected.items()}
+        duties = np.concatenate([v[0] for v in self.data.values()])
+        stats: dict[str, Any] = {}
+        for k, n in self.selected.items():
+            f = self.fits[k][n]
+            stats[str(k)] = {
+                "order": n, "n_steps": f.n_points, "residual_rms_gf": f.rms,
+                "cv_rms_gf": f.cv_rms, "aicc": f.aicc, "bic": f.bic,
+                "coefficient_std": [float(math.sqrt(v)) if v >= 0 else math.nan
+                                    for v in np.diag(f.covariance)],
+                "covariance": [[float(x) for x in row] for row in f.covariance],
+                "orders": {str(m): {"residual_rms_gf": g.rms, "cv_rms_gf": g.cv_rms,
+                                    "aicc": g.aicc, "bic": g.bic,
+                                    "coefficients": [float(a) for a in g.coefficients]}
+                           for m, g in self.fits[k].items()},
+            }
+        extra: dict[str, Any] = {}
+        if source:
+            extra["source"] = source
+        extra["fit"] = {"criterion": self.criterion, "order": self.order_request, "nozzles": stats}
+        return ThrustTable(coeffs, "gf", (float(duties.min()), float(duties.max())), pressure_psi, extra)
+
+
+def fit_steps(steps: pd.DataFrame, order: str | int = "auto", criterion: str = "aicc",
+              orders: Iterable[int] = ORDERS) -> ThrustFit:
+    """Fit per-step mean thrust (steps.csv columns ``n_open, duty_pct, thrust_gf``) per nozzle count.
+
+    ``order`` is ``"auto"`` (pick by ``criterion``) or a fixed order 1-4.
+    """
+    missing = {"n_open", "duty_pct", "thrust_gf"} - set(steps.columns)
+    if missing:
+        raise UserError(f"steps table lacks column(s) {', '.join(sorted(missing))}")
+    if order != "auto":
+        try:
+            order = int(order)
+        except ValueError:
+            raise UserError(f"order must be auto or 1-4, not {order!r}") from None
+        if order not in ORDERS:
+            raise UserError(f"order must be auto or 1-4, not {order}")
+    good = steps[np.isfinite(steps["thrust_gf"].to_numpy(dtype=float))]
+    if good.empty:
+        raise UserError("no completed duty steps to fit")
+    fits, selected, data = {}, {}, {}
+    for k, g in good.groupby("n_open", sort=True):
+        d = g["duty_pct"].to_numpy(dtype=float)
+        z = g["thrust_gf"].to_numpy(dtype=float)
+        sd = g["std_gf"].to_numpy(dtype=float) if "std_gf" in g else np.full_like(z, np.nan)
+        fk = fit_orders(d, z, orders)
+        if not fk:
+            raise UserError(f"{int(k)} nozzle(s): {len(np.unique(d))} distinct duty step(s) is too few to fit")
+        if order == "auto":
+            selected[int(k)] = select_order(fk, criterion)
+        else:
+            if order not in fk:
+                raise UserError(f"{int(k)} nozzle(s): an order-{order} fit needs at least "
+                                f"{order + 1} distinct duty steps, got {len(np.unique(d))}")
+            selected[int(k)] = order
+        fits[int(k)] = fk
+        data[int(k)] = (d, z, sd)
+    return ThrustFit(fits, selected, criterion, str(order), data)
+
+
+def max_error_pct_full_scale(table: ThrustTable, reference: ThrustTable,
+                             duty_pct: np.ndarray | None = None) -> dict[int, float]:
+    """Per nozzle count, max |table - reference| over ``duty_pct`` (default 10-90 % in 1 % steps)
+    as a percentage of the reference's full scale (its largest value over those duties)."""
+    d = np.arange(10.0, 90.0 + 1e-9, 1.0) if duty_pct is None else np.asarray(duty_pct, dtype=float)
+    out = {}
+    for k in sorted(set(table.coefficients) & set(reference.coefficients)):
+        ref = reference.per_nozzle(d, k)
+        fs = float(np.max(np.abs(ref)))
+        out[k] = 100.0 * float(np.max(np.abs(table.per_nozzle(d, k) - ref))) / fs
+    return out
