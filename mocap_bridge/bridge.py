@@ -9,6 +9,7 @@ the bridge holds a liveliness token ``<prefix>/bridge/<zenoh id>`` while it runs
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -114,6 +115,21 @@ class Bridge:
         if self.on_stats is not None:
             self.on_stats(snap)
         return snap
+
+    def wait_for_subscriber(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` until a subscriber matches ``<prefix>/*/pose``."""
+        probe = self.session.declare_publisher(f"{self.prefix}/*/pose")
+        try:
+            deadline = time.monotonic() + timeout_s
+            while True:
+                ms = probe.matching_status
+                if bool(getattr(ms, "matching", ms)):
+                    return True
+                if time.monotonic() >= deadline:
+                    return False
+                time.sleep(0.02)
+        finally:
+            probe.undeclare()
 
     # -------------------------------------------------------------- hot path
 

@@ -51,6 +51,9 @@ def register(sub) -> None:
                    help="zenoh congestion control (default block: nothing dropped silently)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: until the source ends or Ctrl-C)")
+    p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
+                   help="wait up to S seconds for a subscriber before publishing (useful for "
+                        "replay/sim; default 0)")
     p.add_argument("--quiet", action="store_true", help="no console line of statistics")
     add_zenoh_options(p)
     p.set_defaults(func=cmd_bridge)
@@ -136,6 +139,9 @@ def cmd_bridge(args: argparse.Namespace) -> int:
             print(f"bridge: {source.name} -> {bridge.prefix}/<body>/pose "
                   f"(zenoh id {session.zid()})", file=sys.stderr)
             with _stop_on_signals(stop):
+                if args.wait_subscriber > 0 and not bridge.wait_for_subscriber(args.wait_subscriber):
+                    print(f"bridge: no subscriber after {args.wait_subscriber:g} s, publishing "
+                          "anyway", file=sys.stderr)
                 bridge.run(source, stop=stop, duration_s=args.duration)
         finally:
             session.close()

@@ -62,11 +62,17 @@ def zenoh_pair():
         pub.close()
 
 
+def matching(publisher) -> bool:
+    """Whether a subscriber matches (``matching_status`` is a MatchingStatus object)."""
+    ms = publisher.matching_status
+    return bool(getattr(ms, "matching", ms))
+
+
 def subscribe_ready(pub_session, sub_session, key: str, collector: Collector):
     """Declare a subscriber and wait until the publisher side can see it."""
     s = sub_session.declare_subscriber(key, collector)
     probe = pub_session.declare_publisher(key.replace("**", "probe").replace("*", "probe"))
-    assert wait_for(lambda: probe.matching_status, 10.0), "subscriber never matched"
+    assert wait_for(lambda: matching(probe), 10.0), "subscriber never matched"
     probe.undeclare()
     return s
 

@@ -1,0 +1,78 @@
+"""Zenoh options: explicit endpoints, the default local hub, config files, errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from mocap_bridge.zenoh_net import add_zenoh_options, build_config, open_session
+from tests.mocap.conftest import Collector, free_port, subscribe_ready, wait_for
+from tpods.errors import UserError
+
+
+def _parse(argv):
+    p = argparse.ArgumentParser()
+    add_zenoh_options(p)
+    return p.parse_args(argv)
+
+
+def test_options_parse_and_build_the_config():
+    a = _parse(["--connect", "tcp/10.0.0.1:7447", "--connect", "tcp/10.0.0.2:7447",
+                "--listen", "tcp/0.0.0.0:7448", "--no-multicast", "--zenoh-mode", "client"])
+    assert a.connect == ["tcp/10.0.0.1:7447", "tcp/10.0.0.2:7447"] and a.no_multicast
+    c = build_config(connect=a.connect, listen=a.listen, multicast=False, mode=a.zenoh_mode)
+    assert json.loads(c.get_json("connect/endpoints")) == a.connect
+    assert json.loads(c.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7448"]
+    assert json.loads(c.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(c.get_json("mode")) == "client"
+    d = build_config()  # the one-machine default: peer on the local hub, multicast left on
+    assert json.loads(d.get_json("mode")) == "peer"
+    assert json.loads(d.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
+    assert json.loads(d.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0"]
+    assert json.loads(d.get_json("scouting/multicast/enabled")) in (None, True)
+
+
+def test_config_file_is_passed_through_and_options_override_it(tmp_path):
+    f = tmp_path / "z.json5"
+    f.write_text('{ mode: "peer", connect: { endpoints: ["tcp/127.0.0.1:1"] },'
+                 ' scouting: { multicast: { enabled: false } } }')
+    c = build_config(config_file=f)
+    assert json.loads(c.get_json("connect/endpoints")) == ["tcp/127.0.0.1:1"]
+    assert json.loads(c.get_json("listen/endpoints")) != ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0"]
+    c2 = build_config(config_file=f, connect=["tcp/127.0.0.1:2"])
+    assert json.loads(c2.get_json("connect/endpoints")) == ["tcp/127.0.0.1:2"]
+
+
+def test_bad_options_are_one_line_user_errors(tmp_path):
+    with pytest.raises(UserError, match="not found"):
+        build_config(config_file=tmp_path / "missing.json5")
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: ")
+    with pytest.raises(UserError, match="not a valid zenoh config"):
+        build_config(config_file=bad)
+    with pytest.raises(UserError, match="endpoint"):
+        build_config(connect=["localhost"])
+    with pytest.raises(UserError, match="mode"):
+        build_config(mode="server")
+
+
+def test_default_sessions_find_each_other_without_multicast(monkeypatch):
+    """With no endpoint options, local peers mesh through the hub (here on a free port)."""
+    hub = f"tcp/127.0.0.1:{free_port()}"
+    monkeypatch.setenv("TPODS_ZENOH_HUB", hub)
+    ns = _parse(["--no-multicast"])
+    a = open_session(ns)
+    b = open_session(ns)
+    c = open_session(ns)
+    try:
+        assert wait_for(lambda: len(b.info.peers_zid()) >= 2 and len(c.info.peers_zid()) >= 2, 15.0)
+        col = Collector()
+        sub = subscribe_ready(b, c, "demo/**", col)  # b publishes, c subscribes: not the hub
+        b.put("demo/x", b"hello")  # b and c are not the hub
+        assert wait_for(lambda: len(col) == 1, 5.0)
+        sub.undeclare()
+    finally:
+        for s in (c, b, a):
+            s.close()
