@@ -78,6 +78,10 @@ class VecEKF:
         cfg = self.cfg
         meas = np.asarray(meas, dtype=float)
         mask = np.ones(self.runs, bool) if mask is None else np.asarray(mask, bool)
+        if not mask.any():
+            self.nis = np.full(self.runs, np.nan)
+            self.triggered = np.zeros(self.runs, bool)
+            return
         P, x, R = self.P, self.x, self.R
         hph = P[:, :NZ, :NZ]
         S = hph + R
