@@ -411,6 +411,11 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
         raise UserError(f"unknown fixed parameter(s): {', '.join(sorted(unknown))}")
     z = _initial_vector(initial, names, fixed_d, pose)
     zbar, prior_info = _as_prior(prior, n)
+    for j, name in enumerate(names):
+        if name in LOG_PARAMS and not z[6 + j] > 0:
+            raise UserError(f"initial {name} must be positive, got {z[6 + j]:g}")
+    if not np.all(np.isfinite(z)):
+        raise UserError("initial values must be finite")
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     scale = np.concatenate([STATE_SCALE, [1.0 if n in LOG_PARAMS else PARAM_SCALE[n] for n in names]])
     t_rel = pose_t - pose_t[0]

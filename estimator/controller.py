@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.thrust_table import ThrustTable
+from bench.thrust_table import GF_TO_N, ThrustTable
 from estimator.model import ARM_M, SQRT1_2, PlantParams, integrate_zoh, wrap_angle
 from tpods.errors import UserError
 
@@ -46,8 +46,11 @@ class InverseTable:
         lo, hi = table.duty_range
         self.duty = np.linspace(lo, hi, n_grid)
         self.thrust = {}
+        self.coef = {}
+        unit = GF_TO_N if table.unit == "gf" else 1.0
         for k in range(1, 5):
             kk = k if k in table.coefficients else table.max_nozzles
+            self.coef[k] = np.asarray(table.coefficients[kk], float) * unit
             t = np.zeros((n_grid, 4))
             t[:, :k] = self.duty[:, None]
             self.thrust[k] = table.thrust_n(t)[:, 0]
@@ -72,7 +75,14 @@ class InverseTable:
         tmin = self.t_min(k)
         open_ = thrust_n > 0.5 * tmin
         want = np.clip(thrust_n[open_], tmin, self.t_max(k))
-        duty[open_] = np.interp(want, self.thrust[k], self.duty)
+        d = np.interp(want, self.thrust[k], self.duty)
+        # polish on the polynomial itself (Newton), the grid only gives the start
+        c = self.coef[k]
+        dc = np.polynomial.polynomial.polyder(c)
+        for _ in range(3):
+            f = np.polynomial.polynomial.polyval(d, c) - want
+            d = np.clip(d - f / np.polynomial.polynomial.polyval(d, dc), self.duty[0], self.duty[-1])
+        duty[open_] = d
         return duty
 
 

@@ -315,16 +315,37 @@ def marginal_information(fisher: np.ndarray, n_nuisance: int = 6) -> np.ndarray:
 
 
 def safe_inverse(A: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive (semi)definite matrix after equilibration."""
+    """Inverse of a symmetric positive semi-definite (information) matrix, after equilibration.
+
+    Directions without information (zero diagonal, or eigenvalues below 1e-13 of the
+    largest after equilibration) get an infinite variance instead of a pseudo-inverse's
+    misleading finite one.
+    """
+    A = 0.5 * (A + A.T)
+    n = len(A)
     d = np.sqrt(np.abs(np.diag(A)))
-    d[d == 0] = 1.0
-    An = A / np.outer(d, d)
+    ok = d > 0
+    out = np.zeros((n, n))
+    out[~ok, ~ok] = np.inf
+    if not ok.any():
+        return out
+    dd = d[ok]
+    An = A[np.ix_(ok, ok)] / np.outer(dd, dd)
     try:
-        inv = np.linalg.inv(An)
+        L = np.linalg.cholesky(An)
+        Li = np.linalg.inv(L)
+        inv = Li.T @ Li
+        if not np.all(np.isfinite(inv)) or np.linalg.cond(An) > 1e13:
+            raise np.linalg.LinAlgError
     except np.linalg.LinAlgError:
-        inv = np.linalg.pinv(An, rcond=1e-14, hermitian=True)
-    inv = inv / np.outer(d, d)
-    return 0.5 * (inv + inv.T)
+        w, V = np.linalg.eigh(An)
+        small = w < 1e-13 * max(w.max(), 1e-300)
+        inv = (V[:, ~small] / w[~small]) @ V[:, ~small].T
+        lost = (V[:, small] ** 2).sum(axis=1) > 1e-9
+        inv[lost, lost] = np.inf
+    inv = inv / np.outer(dd, dd)
+    out[np.ix_(ok, ok)] = 0.5 * (inv + inv.T)
+    return out
 
 
 @dataclass
@@ -368,6 +389,8 @@ def crlb_from_fisher(fisher: np.ndarray, names: Sequence[str]) -> tuple[np.ndarr
     M = marginal_information(fisher, 6)
     cov = safe_inverse(M)
     sign, logdet = np.linalg.slogdet(M)
+    if not np.all(np.isfinite(cov)):
+        sign = 0.0
     return M, cov, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(logdet if sign > 0 else -np.inf)
 
 
