@@ -26,6 +26,7 @@ import json
 import math
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, NamedTuple
 
 SCHEMA = "tpods.pose/1"
@@ -194,29 +195,37 @@ def pose_key(prefix: str, body: str) -> str:
 # ------------------------------------------------------------------ payload
 
 
-def _num(v: float) -> str:
-    return repr(float(v))
+_HEAD = '{"schema":"' + SCHEMA + '","body":%s,"frame":%d,"t":%r,"t_recv":%r,'
+_FMT_POSE = _HEAD + ('"x":%.17g,"y":%.17g,"z":%.17g,"qx":%.17g,"qy":%.17g,"qz":%.17g,"qw":%.17g,'
+                     '"yaw":%.17g,"occluded":false')
+_FMT_OCC = _HEAD + ('"x":null,"y":null,"z":null,"qx":null,"qy":null,"qz":null,"qw":null,'
+                    '"yaw":null,"occluded":true')
+
+
+@lru_cache(maxsize=4096)
+def _json_str(s: str) -> str:
+    return json.dumps(s)
 
 
 def encode_pose(body: str, frame: int, t: float, t_recv: float,
                 pose: tuple[float, ...] | None, t_src: float | None = None) -> bytes:
     """Encode one pose payload (schema ``tpods.pose/1``).
 
+    Every value keeps full double precision (17 significant digits), so a decoded
+    payload holds exactly the floats that were encoded.
+
     Args:
         pose: table-frame ``(x, y, z, qx, qy, qz, qw, yaw)`` (m, unit quaternion, rad),
             or None when the body is occluded. Any non-finite value makes it occluded.
     """
-    head = (f'{{"schema":"{SCHEMA}","body":{json.dumps(body)},"frame":{int(frame)},'
-            f'"t":{_num(t)},"t_recv":{_num(t_recv)},')
-    tail = "" if t_src is None else f',"t_src":{_num(t_src)}'
-    if pose is not None and all(math.isfinite(v) for v in pose):
-        x, y, z, qx, qy, qz, qw, yaw = pose
-        body_s = (f'"x":{_num(x)},"y":{_num(y)},"z":{_num(z)},"qx":{_num(qx)},"qy":{_num(qy)},'
-                  f'"qz":{_num(qz)},"qw":{_num(qw)},"yaw":{_num(yaw)},"occluded":false')
+    head = (_json_str(body), frame, float(t), float(t_recv))
+    if pose is not None and math.isfinite(sum(pose)):
+        text = _FMT_POSE % (head + tuple(pose))
     else:
-        body_s = ('"x":null,"y":null,"z":null,"qx":null,"qy":null,"qz":null,"qw":null,'
-                  '"yaw":null,"occluded":true')
-    return (head + body_s + tail + "}").encode()
+        text = _FMT_OCC % head
+    if t_src is not None:
+        text += ',"t_src":%r' % float(t_src)  # noqa: UP031 (one format family, fast path)
+    return (text + "}").encode()
 
 
 def _is_num(v: Any) -> bool:

@@ -100,8 +100,14 @@ def test_encode_decode_round_trip_and_occlusion():
     raw = encode_pose("tpods 1", 42, 1000.5, 1000.51, pose, t_src=3.25)
     d = decode_pose(raw)
     assert d["schema"] == SCHEMA and d["body"] == "tpods 1" and d["frame"] == 42
-    assert (d["x"], d["y"], d["z"], d["qx"], d["qy"], d["qz"], d["qw"], d["yaw"]) == pose
+    assert (d["x"], d["y"], d["z"], d["qx"], d["qy"], d["qz"], d["qw"], d["yaw"]) == pose  # exact
     assert d["t"] == 1000.5 and d["t_recv"] == 1000.51 and d["t_src"] == 3.25
+    t_epoch = 1763770000.1234567  # times keep full double precision
+    assert decode_pose(encode_pose("b", 1, t_epoch, t_epoch, pose))["t"] == t_epoch
+    import numpy as np  # numpy scalars (e.g. from a live producer) encode as plain numbers
+    d_np = decode_pose(encode_pose("b", np.int64(3), np.float64(2.5), np.float64(2.5),
+                                   tuple(np.float64(v) for v in pose), t_src=np.float64(1.5)))
+    assert d_np["frame"] == 3 and d_np["t"] == 2.5 and d_np["t_src"] == 1.5
     assert d["occluded"] is False
     occ = decode_pose(encode_pose("b", 7, 1.0, 1.0, None))
     assert occ["occluded"] is True and occ["x"] is None and occ["yaw"] is None
