@@ -269,29 +269,29 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     }
     _write_json(out / "run.json", meta)
 
-    # ---- check both devices before anything can open
-    ident = valves.identify()
-    meta["devices"]["valves"] = {"url": str(valves.url), "model": ident.model,
-                                 "firmware": ident.firmware, "n_channels": ident.n_channels}
-    steps = plan_steps(config, ident.n_channels)
-    valves.off()
-    check = scale.read("IP")
-    unit = check.unit
-    if reading_to_gf(check) is None:
-        raise DeviceError(f"the balance reads in {unit!r}; set it to grams (g)")
-    meta["devices"]["scale"] = {"url": str(scale.url), "version": scale.version(),
-                                "unit": unit, "settings": scale.settings}
-    _write_json(out / "run.json", meta)
-
     rec = _Recorder(out / "raw.csv", t_start)
-    rec.add(check, -1, "check", -1, 0, 0.0)
     status, error = "failed", None
     guard = None
     window = 0
-    bar = tqdm(total=round(config.planned_s, 1), unit="s", desc="characterise", file=sys.stderr,
-               disable=not progress, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}")
+    bar = None
     t_loop = math.nan
     try:
+        # ---- check both devices before anything can open
+        ident = valves.identify()
+        meta["devices"]["valves"] = {"url": str(valves.url), "model": ident.model,
+                                     "firmware": ident.firmware, "n_channels": ident.n_channels}
+        steps = plan_steps(config, ident.n_channels)
+        valves.off()
+        check = scale.read("IP")
+        if reading_to_gf(check) is None:
+            raise DeviceError(f"the balance reads in {check.unit!r}; set it to grams (g)")
+        meta["devices"]["scale"] = {"url": str(scale.url), "version": scale.version(),
+                                    "unit": check.unit, "settings": scale.settings}
+        _write_json(out / "run.json", meta)
+        rec.add(check, -1, "check", -1, 0, 0.0)
+        bar = tqdm(total=round(config.planned_s, 1), unit="s", desc="characterise", file=sys.stderr,
+                   disable=not progress,
+                   bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}")
         scale.zero()
         with valves.safe(config.watchdog_ms) as guard:
             valves.set_freq(config.pwm_hz)
@@ -339,7 +339,8 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
         status, error = "failed", str(exc) or exc.__class__.__name__
         raise
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         t_end = time.monotonic()
         rec.close()
         with contextlib.suppress(Exception):

@@ -57,9 +57,12 @@ class EmulatedValveController:
     # ------------------------------------------------------------- state
     @property
     def duties(self) -> tuple[float, ...]:
-        """Current duty of each channel in percent (0 = closed)."""
-        with self._lock:
-            return tuple(self._duties)
+        """Current duty of each channel in percent (0 = closed).
+
+        Lock-free (the list is replaced, never mutated), so listeners and other
+        emulators may read it from any thread without lock-order deadlocks.
+        """
+        return tuple(self._duties)
 
     def add_listener(self, callback: Callable[[float, tuple[float, ...]], None]) -> None:
         """Call ``callback(t, duties)`` on every change (from the thread making it)."""
