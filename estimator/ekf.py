@@ -583,3 +583,90 @@ def run_filterpy(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None,
         xs[k] = f.x.ravel()
         sig[k] = np.sqrt(np.diag(f.P))
     return EkfResult(sched.pose_t.copy(), xs, sig, f.P.copy(), use.copy(), trig, nis)
+
+
+# --------------------------------------------------------------------------------------
+# Methods on a whole run: EKF alone, LS-initialised EKF
+
+FILTER_METHODS = ("ekf", "ls-ekf")
+LS_STARTS = ("reuse", "handoff")
+
+
+@dataclass
+class FilterEstimate:
+    """Result of :func:`estimate_filter`: the filter run and, for ls-ekf, the batch fit."""
+
+    method: str
+    result: EkfResult
+    ls: object | None = None
+    ls_window_s: float | None = None
+    ls_start: str | None = None
+
+    def to_dict(self) -> dict:
+        r = self.result
+        P = r.P
+        sm, si = math.sqrt(P[6, 6]), math.sqrt(P[7, 7])
+        d = {
+            "method": self.method,
+            "mass_kg": r.mass_kg, "mass_sigma_kg": sm,
+            "izz_kgm2": r.izz_kgm2, "izz_sigma_kgm2": si,
+            "corr_mass_izz": float(P[6, 7] / (sm * si)) if sm > 0 and si > 0 else None,
+            "final_state": dict(zip(STATE_NAMES, r.x[-1].tolist(), strict=True)),
+            "final_sigma": dict(zip(STATE_NAMES, r.sigma[-1].tolist(), strict=True)),
+            "t0_s": float(r.t[0]), "t1_s": float(r.t[-1]), "n_poses": int(len(r.t)),
+            "n_updates": int(r.updated.sum()),
+            "nis_mean": float(np.nanmean(r.nis)) if r.updated.any() else None,
+            "underweighted_updates": int(r.triggered.sum()),
+        }
+        if self.ls is not None:
+            d["ls_window_s"] = self.ls_window_s
+            d["ls_start"] = self.ls_start
+            d["ls"] = {"mass_kg": self.ls.mass_kg, "mass_sigma_kg": self.ls.mass_sigma_kg,
+                       "izz_kgm2": self.ls.izz_kgm2, "izz_sigma_kgm2": self.ls.izz_sigma_kgm2,
+                       "converged": self.ls.converged, "message": self.ls.message,
+                       "n_poses": int(len(self.ls.t))}
+        return d
+
+
+def estimate_filter(pose_t, pose, cmd_t, thrust_n, method: str = "ekf", cfg: EkfConfig = PAPER,
+                    x0=None, P0=None, ls_window_s: float = 20.0, ls_start: str = "reuse",
+                    ls_kwargs: dict | None = None) -> FilterEstimate:
+    """Run ``ekf`` or ``ls-ekf`` on one pose history.
+
+    ``ls-ekf``: batch least squares (:func:`estimator.batch.batch_ls`) on the poses of
+    the first ``ls_window_s`` seconds gives the mean and full covariance at
+    ``pose_t[0]``. ``ls_start="reuse"`` (the paper) then filters the whole run from
+    there, so the window's poses are used twice (by the fit and by the filter) and the
+    filter is over-confident; ``"handoff"`` propagates the fit through the window
+    without updates and filters only the later poses, each pose used once.
+    Raises ValueError for a bad method and UserError when the batch fit fails.
+    """
+    from tpods.errors import UserError
+
+    if method not in FILTER_METHODS:
+        raise ValueError(f"method must be one of {', '.join(FILTER_METHODS)}")
+    if method == "ekf":
+        return FilterEstimate(method, run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, x0, P0))
+    if ls_start not in LS_STARTS:
+        raise ValueError(f"ls_start must be one of {', '.join(LS_STARTS)}")
+    from estimator.batch import batch_ls
+
+    pose_t = np.asarray(pose_t, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    win = pose_t <= pose_t[0] + ls_window_s
+    if win.sum() < 4:
+        raise UserError(f"the LS window of {ls_window_s:g} s holds fewer than 4 poses")
+    kw = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2],
+          "fixed": {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr, "kb": cfg.kb, "ax": cfg.ax,
+                    "ay": cfg.ay}}
+    kw.update(ls_kwargs or {})
+    ls = batch_ls(pose_t[win], pose[win], cmd_t, thrust_n, **kw)
+    if not ls.converged:
+        raise UserError(f"batch least squares on the first {ls_window_s:g} s did not converge "
+                        f"({ls.message}); cannot start ls-ekf from it")
+    if ls.z0[6] <= 0 or ls.z0[7] <= 0 or not np.all(np.isfinite(ls.cov)):
+        raise UserError("batch least squares gave a non-physical start (mass or Izz <= 0)")
+    cov = 0.5 * (ls.cov + ls.cov.T)
+    use = None if ls_start == "reuse" else ~win
+    res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, cov, use=use)
+    return FilterEstimate(method, res, ls, ls_window_s, ls_start)

@@ -1,0 +1,133 @@
+"""Figures of the filters: error and 3-sigma histories (paper Figs. 7, 8, 14) and the
+Monte Carlo plots (Figs. 9, 10). Matplotlib with the Agg backend, PNG files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+_LABELS = (("mass", "kg"), ("Izz", "kg m$^2$"))
+
+
+def plot_error_bounds(t, est, sigma, path, truth=None, title: str = "") -> Path:
+    """m and Izz error (or estimate, without truth) inside +/- 3 sigma, two panels.
+
+    Args:
+        t: (N,) s. est: (N, 2) estimates of m (kg) and Izz (kg m^2). sigma: (N, 2).
+        truth: (m, Izz) or None (then the estimate is drawn with its 3-sigma band).
+    """
+    plt = _plt()
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for j, ax in enumerate(axes):
+        name, unit = _LABELS[j]
+        s3 = 3 * sigma[:, j]
+        if truth is not None:
+            e = est[:, j] - truth[j]
+            ax.fill_between(t, -s3, s3, color="tab:blue", alpha=0.2, label=r"$\pm 3\sigma$")
+            ax.plot(t, e, color="tab:red", lw=1, label="error")
+            ax.axhline(0, color="k", lw=0.5)
+            ax.set_ylabel(f"{name} error [{unit}]")
+            lim = max(np.percentile(np.abs(e), 99), np.percentile(s3, 50)) * 1.5
+            if np.isfinite(lim) and lim > 0:
+                ax.set_ylim(-lim, lim)
+        else:
+            ax.fill_between(t, est[:, j] - s3, est[:, j] + s3, color="tab:blue", alpha=0.2,
+                            label=r"$\pm 3\sigma$")
+            ax.plot(t, est[:, j], color="tab:red", lw=1, label="estimate")
+            ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_mc_runs(t, ex_err, ex_sigma, path, title: str = "") -> Path:
+    """Fig. 9 style: errors of individual Monte Carlo runs with their +/- 3 sigma envelopes.
+
+    ex_err, ex_sigma: (K, N, 2) for m and Izz.
+    """
+    plt = _plt()
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for j, ax in enumerate(axes):
+        name, unit = _LABELS[j]
+        for k in range(ex_err.shape[0]):
+            ax.plot(t, ex_err[k, :, j], lw=0.6, color="tab:red", alpha=0.5)
+            ax.plot(t, 3 * ex_sigma[k, :, j], lw=0.6, color="tab:blue", alpha=0.5)
+            ax.plot(t, -3 * ex_sigma[k, :, j], lw=0.6, color="tab:blue", alpha=0.5)
+        lim = np.percentile(3 * ex_sigma[:, len(t) // 20:, j], 95) * 1.5
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-lim, lim)
+        ax.set_ylabel(f"{name} error [{unit}]")
+        ax.grid(alpha=0.3)
+    axes[0].plot([], [], color="tab:red", label="error (one line per run)")
+    axes[0].plot([], [], color="tab:blue", label=r"$\pm 3\sigma$ of that run")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title(title or "Monte Carlo runs")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_mc_averages(res, path, title: str = "") -> Path:
+    """Fig. 10 style: bias, sample std and filter sigma of m and Izz, and the average NEES."""
+    plt = _plt()
+    t = res.t
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8.5), sharex=True)
+    for j, ax in enumerate(axes[:2]):
+        name, unit = _LABELS[j]
+        c = 6 + j
+        ax.plot(t, res.bias[:, c], color="tab:red", lw=1, label="mean error (bias)")
+        ax.plot(t, 3 * res.std[:, c], color="tab:green", lw=1, label=r"$\pm 3\times$ sample std")
+        ax.plot(t, -3 * res.std[:, c], color="tab:green", lw=1)
+        ax.plot(t, 3 * res.sigma[:, c], color="tab:blue", lw=1, ls="--",
+                label=r"$\pm 3\times$ filter $\sigma$")
+        ax.plot(t, -3 * res.sigma[:, c], color="tab:blue", lw=1, ls="--")
+        lim = np.percentile(3 * np.maximum(res.std[len(t) // 20:, c], res.sigma[len(t) // 20:, c]),
+                            95) * 1.5
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-lim, lim)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    ax = axes[2]
+    ax.semilogy(t, res.nees_param, color="tab:red", lw=1, label="average NEES (m, Izz)")
+    ax.axhline(res.bounds_param[0], color="tab:red", ls=":", lw=1)
+    ax.axhline(res.bounds_param[1], color="tab:red", ls=":", lw=1, label="95 % bounds (2 dof)")
+    ax.semilogy(t, res.nees_full, color="tab:purple", lw=1, label="average NEES (full state)")
+    ax.axhline(res.bounds_full[0], color="tab:purple", ls=":", lw=1)
+    ax.axhline(res.bounds_full[1], color="tab:purple", ls=":", lw=1, label="95 % bounds (8 dof)")
+    if np.any(res.triggered > 0):
+        ax2 = ax.twinx()
+        ax2.plot(t, res.triggered, color="0.5", lw=0.8)
+        ax2.set_ylabel("underweighted fraction", color="0.4")
+        ax2.set_ylim(0, 1.05)
+    ax.set_ylabel("NEES")
+    ax.set_xlabel("time [s]")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper right", fontsize=7)
+    axes[0].set_title(title or f"Monte Carlo averages ({res.config.runs} runs)")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
