@@ -49,7 +49,8 @@ def _bridge_proc(port: int, ep: str, ready, stop, out) -> None:
 
     session = open_session(connect=[ep], no_multicast=True)
     src = ViconUDPSource(port=port, bind="127.0.0.1")
-    bridge = Bridge(session, prefix="bench/mocap")
+    bridge = Bridge(session, prefix="bench/mocap",
+                    express=os.environ.get("TPODS_BENCH_MOCAP_EXPRESS", "0") == "1")
     ok = bridge.wait_for_subscriber(20.0)
     ready.set()
     stop_ev = threading.Event()
@@ -211,6 +212,7 @@ def run() -> list[dict]:
     p50, p99 = (np.percentile(lat_ms, [50, 99]) if k else (np.nan, np.nan))
     raw_p99 = float(np.percentile(raw_paced["lat_ms"], 99))
     cpu_us = bstats["cpu_s"] / max(bstats["published"], 1) * 1e6
+    load = os.getloadavg()[0]
     ok_rate = lost == 0 and sent_rate >= 0.98 * TARGET_POSES_S
     return [
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "poses/s delivered (UDP->zenoh)",
@@ -219,7 +221,7 @@ def run() -> list[dict]:
          "target": f">= {TARGET_POSES_S} poses/s, zero loss: offered {sent_rate:.0f}/s, "
                    f"lost {lost} of {n_sent}, malformed {bstats['malformed']}; reference = raw "
                    f"zenoh put max {raw_max['rate']:.0f}/s ({raw_max['received']}/{raw_max['sent']}); "
-                   f"bridge CPU {cpu_us:.1f} us/pose"},
+                   f"bridge CPU {cpu_us:.1f} us/pose; load avg {load:.2f} on {os.cpu_count()} cpus"},
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "added latency p99, ms",
          "value": float(p99), "reference": raw_p99, "ratio": raw_p99 / float(p99) if k else 0.0,
          "ok": bool(k and p99 < TARGET_P99_MS),

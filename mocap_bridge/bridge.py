@@ -33,11 +33,14 @@ class Bridge:
             shows up as UDP frame gaps, which are counted) or ``"drop"``.
         stats_period_s: period of the stats messages and of ``on_stats`` calls.
         on_stats: called with each stats snapshot (e.g. to print the console line).
+        express: send each pose at once instead of letting Zenoh batch them (lower
+            latency at low rates, more system calls at high rates).
     """
 
     def __init__(self, session: Any, prefix: str = DEFAULT_PREFIX, axis_map: AxisMap | None = None,
                  congestion: str = "block", stats_period_s: float = 1.0,
-                 on_stats: Callable[[dict[str, Any]], None] | None = None) -> None:
+                 on_stats: Callable[[dict[str, Any]], None] | None = None,
+                 express: bool = False) -> None:
         import zenoh
 
         self.session = session
@@ -52,6 +55,7 @@ class Bridge:
         self._encoding = zenoh.Encoding(ENCODING)
         self.stats_period_s = stats_period_s
         self.on_stats = on_stats
+        self.express = express
         self.stats = BridgeStats()
         self.stats_key = f"{self.prefix}/stats"
         self._pubs: dict[str, Any] = {}
@@ -140,7 +144,8 @@ class Bridge:
         pub = self._pubs.get(name)
         if pub is None:
             pub = self._pubs[name] = self.session.declare_publisher(
-                pose_key(self.prefix, name), encoding=self._encoding, congestion_control=self._cc)
+                pose_key(self.prefix, name), encoding=self._encoding, congestion_control=self._cc,
+                express=self.express)
         return st, pub
 
     def publish(self, batch: list[PoseSample], in_table_frame: bool = False) -> int:

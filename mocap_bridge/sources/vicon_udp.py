@@ -50,10 +50,8 @@ def parse_datagram(data: bytes) -> tuple[int, list[tuple[int, str, tuple[float, 
     if n != expected:
         raise MalformedDatagram(f"{count} items need {expected} bytes, got {n}")
     items = []
-    off = HEADER.size
-    for _ in range(count):
-        item_id, size, raw_name, tx, ty, tz, rx, ry, rz = ITEM.unpack_from(data, off)
-        off += ITEM.size
+    for item_id, size, raw_name, tx, ty, tz, rx, ry, rz in ITEM.iter_unpack(
+            memoryview(data)[HEADER.size:]):
         if size != ITEM_DATA_SIZE:
             raise MalformedDatagram(f"item size {size}, expected {ITEM_DATA_SIZE}")
         raw = raw_name.split(b"\0", 1)[0]
