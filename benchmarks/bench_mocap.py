@@ -214,7 +214,7 @@ def run() -> list[dict]:
     cpu_us = bstats["cpu_s"] / max(bstats["published"], 1) * 1e6
     load = os.getloadavg()[0]
     ok_rate = lost == 0 and sent_rate >= 0.98 * TARGET_POSES_S
-    return [
+    rows = [
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "poses/s delivered (UDP->zenoh)",
          "value": delivered_rate, "reference": raw_max["rate"],
          "ratio": delivered_rate / raw_max["rate"], "ok": ok_rate,
@@ -229,6 +229,11 @@ def run() -> list[dict]:
                    f"{np.percentile(udp_ms, 99) if k else np.nan:.2f} ms); reference = raw zenoh put "
                    f"p99 paced at {offered:.0f}/s ({raw_paced['received']}/{raw_paced['sent']})"},
     ]
+    for r in rows:  # plain Python types for the JSON report
+        for k in ("value", "reference", "ratio"):
+            r[k] = float(r[k])
+        r["ok"] = bool(r["ok"])
+    return rows
 
 
 if __name__ == "__main__":  # pragma: no cover
