@@ -189,4 +189,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"record: {counters['recorded']} poses of {len(rec.bodies)} bodies written to {rec.out} "
           f"({counters['occluded']} occluded, {counters['malformed']} malformed, "
           f"{counters['not_increasing']} out of order)")
+    if counters.get("write_errors"):
+        raise UserError(f"{counters['write_errors']} samples could not be written to {rec.out} "
+                        f"({rec.last_error})")
     return 0

@@ -76,6 +76,7 @@ class Recorder:
         self._names: dict[str, str] = {}
         self._lock = threading.Lock()
         self._closed = False
+        self.last_error = ""
         self._write_meta()
 
     def _write_meta(self) -> None:
@@ -162,7 +163,11 @@ class Recorder:
 def subscribe(session: Any, key: str, recorder: Recorder):
     """Declare a subscriber on ``key`` feeding ``recorder``; returns it (undeclare when done)."""
     def on_sample(sample: Any) -> None:
-        recorder.handle(sample.payload.to_bytes())
+        try:
+            recorder.handle(sample.payload.to_bytes())
+        except OSError as exc:  # disk full, folder removed: count, keep the session alive
+            recorder.counters["write_errors"] = recorder.counters.get("write_errors", 0) + 1
+            recorder.last_error = f"{exc.strerror or exc}"
 
     try:
         return session.declare_subscriber(key, on_sample)

@@ -206,3 +206,32 @@ def test_replay_refuses_bad_folders_with_one_line(tmp_path):
     (bad / "poses.csv").write_text("t,x,y,psi\n0,0,0,0\n0.1,nan,0,0\n")
     with pytest.raises(UserError, match="line 3"):
         ReplaySource(bad)
+
+
+def test_recorder_subscriber_counts_write_errors(tmp_path):
+    rec = Recorder(tmp_path / "r")
+
+    class FakeSession:
+        def declare_subscriber(self, key, cb):
+            self.cb = cb
+            return self
+
+    class FakeSample:
+        class payload:  # noqa: N801 - mimics zenoh's attribute
+            @staticmethod
+            def to_bytes():
+                return encode_pose("m", 1, 1.0, 1.0, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0))
+
+    fs = FakeSession()
+    subscribe(fs, "tpods/mocap/**", rec)
+    orig = rec.handle
+
+    def failing(payload, t_rx=None):  # the way a full disk fails a write
+        raise OSError(28, "No space left on device")
+
+    rec.handle = failing
+    fs.cb(FakeSample())
+    assert rec.counters["write_errors"] == 1 and "No space" in rec.last_error
+    rec.handle = orig
+    fs.cb(FakeSample())
+    assert rec.close()["recorded"] == 1
