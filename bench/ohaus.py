@@ -294,7 +294,10 @@ class OhausScout:
                                   f"for {self.silence_timeout:g} s")
             r = parse_weight_line(raw, now)
             if r is None:
-                if raw.strip() not in (b"OK!",):
+                if raw.strip() == b"ES" and self.continuous:
+                    raise DeviceError("OHAUS balance refused continuous printing (ES to 'CP'); "
+                                      "enable continuous/auto print in its menu or use another model")
+                if raw.strip() != b"OK!":
                     self._garbage(raw)
                 continue
             self._last_valid = now

@@ -65,7 +65,12 @@ class EmulatedValveController:
         return tuple(self._duties)
 
     def add_listener(self, callback: Callable[[float, tuple[float, ...]], None]) -> None:
-        """Call ``callback(t, duties)`` on every change (from the thread making it)."""
+        """Call ``callback(t, new_duties)`` on every change, from the thread making it.
+
+        Called just before ``duties`` switches to the new value (so a listener can
+        first advance its own state under the old duties up to ``t``). Keep it short
+        and never call back into this emulator's commands from it.
+        """
         self._listeners.append(callback)
 
     def closed_since(self) -> float | None:

@@ -182,3 +182,35 @@ def test_pyserial_loop_url():
         with pytest.raises(DeviceError, match="sent no reading"):
             s.read("IP")
         assert s.n_garbage == 1
+
+
+def test_drivers_over_socket_url():
+    """The Wi-Fi bridge transport: pyserial's socket:// handler against a loopback TCP emulator."""
+    from bench.emulators import serve_tcp
+
+    ev = EmulatedValveController(4)
+    es = EmulatedScout(ev, seed=2, lag_s=0.0, print_rate_hz=50, garbage_prob=0.0)
+    with serve_tcp(ev) as tv, serve_tcp(es) as ts:
+        assert tv.url.startswith("socket://127.0.0.1:")
+        with ValveController(tv.url) as v, OhausScout(ts.url) as s:
+            assert v.identify().n_channels == 4
+            with v.safe(300) as guard:
+                v.set_duty(1, 70)
+                assert s.read("IP").value == pytest.approx(ThrustTable.default().per_nozzle(70, 1), abs=1)
+                vals = []
+                for r in s.readings(0.3):
+                    vals.append(r.value)
+                    guard.heartbeat()
+                assert len(vals) >= 8
+            s.stop_continuous()
+        assert ev.duties == (0, 0, 0, 0) and ev.lines[-1][1] == "STATE?"
+
+
+def test_continuous_refused_is_a_clear_error():
+    from tests.bench.fakeport import ScriptedPort
+
+    port = ScriptedPort([(b"CP\r\n", b"ES\r\n")])
+    s = OhausScout(port)
+    s.start_continuous()
+    with pytest.raises(DeviceError, match="refused continuous printing"):
+        s.next_reading(time.monotonic() + 1)

@@ -1,0 +1,100 @@
+"""Serve a byte-stream emulator on a loopback TCP port (``socket://127.0.0.1:PORT``).
+
+Same emulator interface as :mod:`bench.emulators.pty` (``receive`` / ``tick``); one
+client at a time, like a module's Wi-Fi serial bridge. A new connection replaces
+the previous one.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import threading
+import time
+
+from bench.emulators.pty import Emulator
+
+
+class TcpServer:
+    """A running TCP server: ``url`` is ``socket://HOST:PORT``; ``stop()`` ends it."""
+
+    def __init__(self, emulator: Emulator, host: str = "127.0.0.1", port: int = 0,
+                 max_idle_s: float = 0.02) -> None:
+        self.emulator = emulator
+        self._max_idle_s = max_idle_s
+        self._srv = socket.create_server((host, port))
+        self._srv.setblocking(False)
+        self.host, self.port = self._srv.getsockname()[:2]
+        self.url = f"socket://{self.host}:{self.port}"
+        self._conn: socket.socket | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name=f"tcp-{self.port}", daemon=True)
+        self._thread.start()
+
+    def _send(self, data: bytes) -> None:
+        if self._conn is None or not data:
+            return
+        try:
+            self._conn.sendall(data)
+        except OSError:
+            self._drop()
+
+    def _drop(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def _loop(self) -> None:
+        next_tick: float | None = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if next_tick is not None and now >= next_tick:
+                out, next_tick = self.emulator.tick(now)
+                self._send(out)
+                now = time.monotonic()
+            wait = self._max_idle_s if next_tick is None else min(self._max_idle_s, max(0.0, next_tick - now))
+            socks = [self._srv] + ([self._conn] if self._conn is not None else [])
+            try:
+                ready, _, _ = select.select(socks, [], [], wait)
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                continue
+            if self._srv in ready:
+                try:
+                    conn, _ = self._srv.accept()
+                except OSError:
+                    continue
+                self._drop()
+                conn.setblocking(True)
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._conn = conn
+            if self._conn is not None and self._conn in ready:
+                try:
+                    data = self._conn.recv(4096)
+                except OSError:
+                    data = b""
+                if not data:
+                    self._drop()
+                    continue
+                self._send(self.emulator.receive(data, time.monotonic()))
+                next_tick = time.monotonic()
+
+    def stop(self) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._drop()
+        self._srv.close()
+
+    def __enter__(self) -> TcpServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def serve_tcp(emulator: Emulator, host: str = "127.0.0.1", port: int = 0) -> TcpServer:
+    """Serve ``emulator`` on ``host:port`` (0: a free port); returns the server (``.url``)."""
+    return TcpServer(emulator, host, port)
