@@ -185,6 +185,9 @@ def run_filter_method(args) -> int:
                           (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
                           title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
                                 f"{run.path.name}")
+    if r.diverged:
+        print("tpods: warning: the filter diverged (non-physical parameters or innovations far "
+              "larger than their covariance); try --method ls-ekf", file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(out, default=str) + "\n")
         return 0

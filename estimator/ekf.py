@@ -413,6 +413,17 @@ class EkfResult:
     def izz_kgm2(self) -> float:
         return float(self.x[-1, 7])
 
+    @property
+    def diverged(self) -> bool:
+        """Non-physical parameters, or a mean NIS over the last 10 % of updates above 10 (3 expected)."""
+        if self.x[-1, 6] <= 0 or self.x[-1, 7] <= 0 or not np.all(np.isfinite(self.x[-1])):
+            return True
+        nis = self.nis[self.updated]
+        if len(nis) == 0:
+            return False
+        tail = nis[-max(1, len(nis) // 10):]
+        return bool(np.nanmean(tail) > 10.0)
+
     def rmse(self, mass_kg: float, izz_kgm2: float, t_from: float | None = None) -> tuple[float, float]:
         """RMS error of m and Izz over every pose time (from ``t_from``), kg and kg m^2."""
         sel = slice(None) if t_from is None else self.t >= t_from
@@ -617,6 +628,7 @@ class FilterEstimate:
             "n_updates": int(r.updated.sum()),
             "nis_mean": float(np.nanmean(r.nis)) if r.updated.any() else None,
             "underweighted_updates": int(r.triggered.sum()),
+            "diverged": r.diverged,
         }
         if self.ls is not None:
             d["ls_window_s"] = self.ls_window_s

@@ -38,7 +38,8 @@ def plot_error_bounds(t, est, sigma, path, truth=None, title: str = "") -> Path:
             ax.plot(t, e, color="tab:red", lw=1, label="error")
             ax.axhline(0, color="k", lw=0.5)
             ax.set_ylabel(f"{name} error [{unit}]")
-            lim = max(np.percentile(np.abs(e), 99), np.percentile(s3, 50)) * 1.5
+            late = t >= t[0] + 0.1 * (t[-1] - t[0])
+            lim = max(np.max(np.abs(e[late])), np.max(s3[late])) * 1.3
             if np.isfinite(lim) and lim > 0:
                 ax.set_ylim(-lim, lim)
         else:
