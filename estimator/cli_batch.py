@@ -129,9 +129,10 @@ def register(sub, est, rep) -> None:
                    help="thrust table TOML (default: the paper's Table 2)")
     d.add_argument("--noise-pos", type=positive_float, default=0.01, help="position sigma, m")
     d.add_argument("--noise-yaw-deg", type=positive_float, default=1.0, help="yaw sigma, deg")
-    d.add_argument("--candidates", type=int, default=48, help="random candidates (default 48)")
+    d.add_argument("--candidates", type=int, default=64, help="random candidates (default 64)")
     d.add_argument("--refine", type=int, default=2, help="Nelder-Mead refinements (default 2)")
-    d.add_argument("--refine-evals", type=int, default=40, help="evaluations per refinement")
+    d.add_argument("--refine-evals", type=int, default=60,
+                   help="evaluations per refinement (default 60)")
     d.add_argument("--omega-range", type=float_list(2), default=[0.2, 4.0], metavar="LO,HI",
                    help="frequency search range, rad/s (default 0.2,4)")
     d.add_argument("--compare", nargs="*", default=[], metavar="INPUT",

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from bench.thrust_table import ThrustTable
-from estimator.controller import InverseTable, OrbitFollower, allocate, geometry_matrix, run_orbit_follower
+from estimator.controller import (
+    InverseTable,
+    OrbitFollower,
+    allocate,
+    geometry_matrix,
+    run_orbit_follower,
+)
 from estimator.design import DesignSettings, SineInput, evaluate_commands, evaluate_sine, search
 from estimator.inputs import translate_rotate
 from estimator.model import PlantParams
