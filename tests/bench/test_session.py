@@ -24,7 +24,7 @@ def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp
     try:
         v, s = b.paths
         r = subprocess.run([tpods_exe, "bench", "characterize", "--valves", v, "--scale", s,
-                            "--dwell", "0.2", "--settle", "0.1", "--zero-settle", "0.1",
+                            "--dwell", "0.2", "--settle", "0.12", "--zero-settle", "0.15",
                             "--zero-dwell", "0.05", "--out", str(out)],
                            capture_output=True, text=True, timeout=120)
     finally:
@@ -51,6 +51,7 @@ def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp
     fitted = ThrustTable.load(table_path)
     errs = max_error_pct_full_scale(fitted, ThrustTable.default(), np.arange(10.0, 90.01, 0.5))
     assert sorted(errs) == [1, 2, 3, 4]
+    print("max error, % of full scale:", errs)
     assert max(errs.values()) < 1.0, errs
     assert fitted.extra["fit"]["nozzles"]["1"]["order"] in (3, 4)
     assert (tmp_path / "fit_orders.png").stat().st_size > 10_000
