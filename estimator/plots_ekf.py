@@ -114,7 +114,9 @@ def plot_mc_averages(res, path, title: str = "") -> Path:
     ax.semilogy(t, res.nees_param, color="tab:red", lw=1, label="average NEES (m, Izz)")
     ax.axhline(res.bounds_param[0], color="tab:red", ls=":", lw=1)
     ax.axhline(res.bounds_param[1], color="tab:red", ls=":", lw=1, label="95 % bounds (2 dof)")
-    ax.semilogy(t, res.nees_full, color="tab:purple", lw=1, label="average NEES (full state)")
+    ok = np.isfinite(res.nees_full)
+    ax.semilogy(t[ok], res.nees_full[ok], color="tab:purple", lw=1,
+                label="average NEES (full state)")
     ax.axhline(res.bounds_full[0], color="tab:purple", ls=":", lw=1)
     ax.axhline(res.bounds_full[1], color="tab:purple", ls=":", lw=1, label="95 % bounds (8 dof)")
     if np.any(res.triggered > 0):

@@ -82,3 +82,34 @@ def test_small_monte_carlo_ekf_is_consistent_near_the_truth():
     # slightly over-confident at times (seeds 0-5 give 69-100 % of times inside)
     assert res.nees_inside("param") > 0.5
     assert np.all(res.within_3sigma() >= 0.9)
+
+
+def test_fused_batch_physics_matches_model():
+    from estimator.ekf import _JAC_POS, propagate
+    from estimator.ekf_vec import propagate_batch, rhs_batch, rhs_jac_batch
+    from estimator.model import dynamics, jac_params, jac_state, wrench
+
+    rng = np.random.default_rng(2)
+    s = rng.normal(size=(7, 6))
+    s[0, 3:5] = 0.0  # zero speed: the kb term's derivative is taken as 0
+    m, izz = rng.uniform(0.5, 4, 7), rng.uniform(1e-3, 8e-3, 7)
+    thr = rng.uniform(0, 0.4, 4)
+    for known in ((0.0,) * 5, (0.05, 2e-4, 1e-3, 0.01, -0.02)):
+        kw = dict(zip(("ct", "cr", "kb", "ax", "ay"), known, strict=True))
+        sd, jac = rhs_jac_batch(s, wrench(thr), m, izz, known)
+        np.testing.assert_allclose(sd, dynamics(s, thr, m, izz, **kw), rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(rhs_batch(s, wrench(thr), m, izz, known), sd, rtol=1e-15)
+        full = np.zeros((7, 8, 8))
+        full[:, :6, :6] = jac_state(s, thr, m, izz, **kw)
+        full[:, :6, 6:] = jac_params(s, thr, m, izz, **kw, names=("mass", "izz"))
+        ours = np.zeros((7, 8, 8))
+        for q, (i, j) in enumerate(_JAC_POS):
+            ours[:, i, j] = jac[:, q]
+        np.testing.assert_allclose(ours, full, rtol=1e-12, atol=1e-12)
+        x = np.column_stack([s * 0.1, m, izz])
+        segs, ws = [0.004, 0.0045], [tuple(wrench(thr)), tuple(wrench(thr[::-1]))]
+        xb, pb = propagate_batch(x, segs, ws, known)
+        for r in range(7):
+            xr, pr = propagate(x[r], segs, ws, known)
+            np.testing.assert_allclose(xb[r], xr, rtol=1e-13, atol=1e-15)
+            np.testing.assert_allclose(pb[r], pr, rtol=1e-11, atol=1e-13)
