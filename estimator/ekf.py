@@ -9,8 +9,9 @@ Two implementations of one filter:
   same nonlinear propagation and sets ``F`` to the analytic transition matrix, with an
   angle-wrapping residual and filterpy's Joseph-form update (:func:`run_filterpy`).
 
-Physics: :mod:`estimator.model` (``_rhs_scalar`` for the state; the Jacobian below is
-the scalar form of ``model.jac_state``/``jac_params`` and is tested against them).
+Physics: :mod:`estimator.model` is the source of truth; for speed the lean path uses a
+fused scalar form of ``model.dynamics``, ``jac_state`` and ``jac_params``
+(:func:`_rhs_jac`, one cos/sin per RK4 stage), tested equal to them.
 The state transition matrix is integrated by the same RK4 scheme as
 :func:`estimator.propagate.rk4_stm`, one step per zero-order-hold segment (segments
 split at every pose time and every command switch, and at ``max_step_s``).
@@ -36,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimator.model import ARM_M, _rhs_scalar, wrench
+from estimator.model import ARM_M, wrench
 from estimator.propagate import zoh_segments
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r", "mass", "izz")
@@ -96,6 +97,8 @@ class EkfConfig:
             raise ValueError("underweighting alpha must be >= 0")
         if self.max_step_s <= 0:
             raise ValueError("max_step_s must be positive")
+        object.__setattr__(self, "_q_nz", tuple((i, float(q)) for i, q in enumerate(self.q_psd)
+                                               if q))
 
     @property
     def P0(self) -> np.ndarray:
@@ -165,20 +168,32 @@ def _put_index(n: int) -> np.ndarray:
     return idx
 
 
-def _jac_values(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay):
-    """Non-zero entries (in ``_JAC_POS`` order) of ``d zdot / d z``, the 8x8 augmented Jacobian."""
+def _rhs_jac(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals):
+    """Plant derivative (6-tuple, as ``model.dynamics``) and its Jacobian entries appended to ``vals``."""
     c = math.cos(psi)
     s = math.sin(psi)
-    sp = math.hypot(u, v)
-    if sp > 0.0:
-        dsu = kb * u / sp / izz
-        dsv = kb * v / sp / izz
+    uc = u * c
+    vs = v * s
+    us = u * s
+    vc = v * c
+    fxn = fx - ct * u
+    fyn = fy - ct * v
+    im = 1.0 / m
+    ii = 1.0 / izz
+    if kb:
+        sp = math.hypot(u, v)
+        mzn = mz - cr * r + kb * sp
+        dsu = kb * u / sp * ii if sp > 0.0 else 0.0
+        dsv = kb * v / sp * ii if sp > 0.0 else 0.0
     else:
+        mzn = mz - cr * r
         dsu = dsv = 0.0
-    return [-u * s - v * c, c, -s, u * c - v * s, s, c, 1.0,
-            -ax * s + ay * c, -ct / m, r, v, -(fx - ct * u) / (m * m),
-            -ax * c - ay * s, -r, -ct / m, -u, -(fy - ct * v) / (m * m),
-            dsu, dsv, -cr / izz, -(mz - cr * r + kb * sp) / (izz * izz)]
+    vals += (-us - vc, c, -s, uc - vs, s, c, 1.0,
+             -ax * s + ay * c, -ct * im, r, v, -fxn * im * im,
+             -ax * c - ay * s, -r, -ct * im, -u, -fyn * im * im,
+             dsu, dsv, -cr * ii, -mzn * ii * ii)
+    return (uc - vs, us + vc, r, fxn * im + r * v + ax * c + ay * s,
+            fyn * im - r * u - ax * s + ay * c, mzn * ii)
 
 
 def _rk4_state(z, h, fx, fy, mz, known, vals):
@@ -192,21 +207,14 @@ def _rk4_state(z, h, fx, fy, mz, known, vals):
     x, y, psi, u, v, r, m, izz = z
     ct, cr, kb, ax, ay = known
     h2 = 0.5 * h
-    k1 = _rhs_scalar(x, y, psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    s2 = (x + h2 * k1[0], y + h2 * k1[1], psi + h2 * k1[2], u + h2 * k1[3], v + h2 * k1[4],
-          r + h2 * k1[5])
-    k2 = _rhs_scalar(*s2, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    s3 = (x + h2 * k2[0], y + h2 * k2[1], psi + h2 * k2[2], u + h2 * k2[3], v + h2 * k2[4],
-          r + h2 * k2[5])
-    k3 = _rhs_scalar(*s3, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    s4 = (x + h * k3[0], y + h * k3[1], psi + h * k3[2], u + h * k3[3], v + h * k3[4],
-          r + h * k3[5])
-    k4 = _rhs_scalar(*s4, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
+    k1 = _rhs_jac(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
+    p2, u2, v2, r2 = psi + h2 * k1[2], u + h2 * k1[3], v + h2 * k1[4], r + h2 * k1[5]
+    k2 = _rhs_jac(p2, u2, v2, r2, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
+    p3, u3, v3, r3 = psi + h2 * k2[2], u + h2 * k2[3], v + h2 * k2[4], r + h2 * k2[5]
+    k3 = _rhs_jac(p3, u3, v3, r3, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
+    p4, u4, v4, r4 = psi + h * k3[2], u + h * k3[3], v + h * k3[4], r + h * k3[5]
+    k4 = _rhs_jac(p4, u4, v4, r4, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
     h6 = h / 6.0
-    vals += _jac_values(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    vals += _jac_values(s2[2], s2[3], s2[4], s2[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    vals += _jac_values(s3[2], s3[3], s3[4], s3[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-    vals += _jac_values(s4[2], s4[3], s4[4], s4[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
     return [x + h6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
             y + h6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
             psi + h6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]),
@@ -283,9 +291,9 @@ def ekf_predict(z, P, seg_dt, seg_w, cfg: EkfConfig):
     """EKF prediction over hold segments. Returns ``(z (8,), P (8, 8), Phi (8, 8))``."""
     z1, phi = propagate(z, seg_dt, seg_w, cfg.known, cfg.max_step_s)
     P1 = _dot(_dot(phi, P), phi.T)
-    dt = float(sum(seg_dt))
-    for i, q in enumerate(cfg.q_psd):
-        if q:
+    if cfg._q_nz:
+        dt = float(sum(seg_dt))
+        for i, q in cfg._q_nz:
             P1[i, i] += q * dt
     return z1, P1, phi
 

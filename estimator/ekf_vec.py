@@ -51,12 +51,14 @@ def rhs_batch(s, w, m, izz, known):
     return rhs_jac_batch(s, w, m, izz, known, with_jac=False)[0]
 
 
-def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
+def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True, out64=None):
     """Fused plant right-hand side and augmented-Jacobian entries for many states.
 
     Args:
         s: (R, 6) states. w: (3,) body wrench (Fx, Fy, Mz) shared by all. m, izz: (R,).
         known: (ct, cr, kb, ax, ay).
+        out64: optional (R, 64) array (zero outside the Jacobian pattern) that receives the
+            flattened 8x8 Jacobians in place; then ``jac`` is that array.
     Returns:
         ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf._JAC_POS``; the same
         expressions as :func:`estimator.model.dynamics`, ``jac_state`` and ``jac_params``.
@@ -67,7 +69,6 @@ def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
     c, sn = np.cos(psi), np.sin(psi)
     R = len(s)
     out = np.empty((R, 6))
-    jac = np.empty((R, 21))
     uc, vs, us, vc = u * c, v * sn, u * sn, v * c
     out[:, 0] = uc - vs
     out[:, 1] = us + vc
@@ -82,49 +83,48 @@ def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
         mzn = mz - cr * r + (kb * np.hypot(u, v) if kb else 0.0)
         out[:, 5] = mzn * inv_i
         return out, None
+    J = np.zeros((R, NX * NX)) if out64 is None else out64
     if kb:
         sp = np.hypot(u, v)
         safe = np.where(sp > 0, sp, 1.0)
         mzn = mz - cr * r + kb * sp
-        jac[:, 17] = np.where(sp > 0, kb * u / safe, 0.0) * inv_i
-        jac[:, 18] = np.where(sp > 0, kb * v / safe, 0.0) * inv_i
+        J[:, 43] = np.where(sp > 0, kb * u / safe, 0.0) * inv_i
+        J[:, 44] = np.where(sp > 0, kb * v / safe, 0.0) * inv_i
     else:
         mzn = mz - cr * r
-        jac[:, 17] = 0.0
-        jac[:, 18] = 0.0
+        J[:, 43] = 0.0
+        J[:, 44] = 0.0
     out[:, 5] = mzn * inv_i
-    jac[:, 0] = -us - vc
-    jac[:, 1] = c
-    jac[:, 2] = -sn
-    jac[:, 3] = uc - vs
-    jac[:, 4] = sn
-    jac[:, 5] = c
-    jac[:, 6] = 1.0
-    jac[:, 7] = -ax * sn + ay * c
-    jac[:, 8] = -ct * inv_m
-    jac[:, 9] = r
-    jac[:, 10] = v
-    jac[:, 11] = -fxn * inv_m * inv_m
-    jac[:, 12] = -ax * c - ay * sn
-    jac[:, 13] = -r
-    jac[:, 14] = jac[:, 8]
-    jac[:, 15] = -u
-    jac[:, 16] = -fyn * inv_m * inv_m
-    jac[:, 19] = -cr * inv_i
-    jac[:, 20] = -mzn * inv_i * inv_i
-    return out, jac
+    J[:, 2] = -us - vc
+    J[:, 3] = c
+    J[:, 4] = -sn
+    J[:, 10] = uc - vs
+    J[:, 11] = sn
+    J[:, 12] = c
+    J[:, 21] = 1.0
+    J[:, 26] = -ax * sn + ay * c
+    J[:, 27] = -ct * inv_m
+    J[:, 28] = r
+    J[:, 29] = v
+    J[:, 30] = -fxn * inv_m * inv_m
+    J[:, 34] = -ax * c - ay * sn
+    J[:, 35] = -r
+    J[:, 36] = J[:, 27]
+    J[:, 37] = -u
+    J[:, 38] = -fyn * inv_m * inv_m
+    J[:, 45] = -cr * inv_i
+    J[:, 47] = -mzn * inv_i * inv_i
+    return out, (J if out64 is not None else J[:, _JAC_FLAT])
 
 
 def _rk4_stm_step(s, h, w, m, izz, known, W):
     """One RK4 step of states (R, 6) and transition matrices, using workspace W (10, R, 64)."""
-    k1, j1 = rhs_jac_batch(s, w, m, izz, known)
-    k2, j2 = rhs_jac_batch(s + 0.5 * h * k1, w, m, izz, known)
-    k3, j3 = rhs_jac_batch(s + 0.5 * h * k2, w, m, izz, known)
-    k4, j4 = rhs_jac_batch(s + h * k3, w, m, izz, known)
+    k1, _ = rhs_jac_batch(s, w, m, izz, known, out64=W[0])
+    k2, _ = rhs_jac_batch(s + 0.5 * h * k1, w, m, izz, known, out64=W[1])
+    k3, _ = rhs_jac_batch(s + 0.5 * h * k2, w, m, izz, known, out64=W[2])
+    k4, _ = rhs_jac_batch(s + h * k3, w, m, izz, known, out64=W[3])
     s = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
     R = len(s)
-    for i, j in enumerate((j1, j2, j3, j4)):
-        W[i][:, _JAC_FLAT] = j
     A = W.reshape(_NW, R, NX, NX)
     np.matmul(A[1:4], A[0:3], out=A[4:7])
     np.matmul(A[2:4], A[4:6], out=A[7:9])
