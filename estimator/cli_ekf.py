@@ -310,7 +310,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     print(f"  avg NEES state  mean {s['nees_full_mean']:.3g}, bounds [{bf[0]:.3g}, {bf[1]:.3g}], "
           f"inside {100 * s['nees_full_inside_frac']:.0f} % of times")
     print(f"  final errors inside 3 sigma: mass {100 * s['within_3sigma_mass']:.1f} %, "
-          f"Izz {100 * s['within_3sigma_izz']:.1f} %")
+          f"Izz {100 * s['within_3sigma_izz']:.1f} %; runs with final (m, Izz) NEES above the "
+          f"99.9 % chi-square point: {100 * s['final_outlier_frac']:.1f} %")
     if cfg.filter.underweight > 0:
         print(f"  underweighted updates: {100 * s['underweighted_frac']:.2f} %")
     if s["ls_failed"]:

@@ -135,6 +135,14 @@ class McResult:
     ex_sigma: np.ndarray
     elapsed_s: float = 0.0
     ls_failed: int = 0
+    final_cov_param: np.ndarray | None = None
+
+    def final_nees_param(self) -> np.ndarray:
+        """(R,) NEES of the final (m, Izz) error of every run (2 dof)."""
+        e = self.final_err[:, 6:8]
+        if self.final_cov_param is None:
+            return np.sum((e / self.final_sigma[:, 6:8]) ** 2, axis=1)
+        return np.einsum("ri,ri->r", e, np.linalg.solve(self.final_cov_param, e[:, :, None])[:, :, 0])
 
     def within_3sigma(self) -> np.ndarray:
         """(2,) fraction of runs whose final m and Izz errors lie inside 3 sigma."""
@@ -179,6 +187,8 @@ class McResult:
             "nees_full_bounds": self.bounds_full.tolist(),
             "nees_full_inside_frac": self.nees_inside("full"),
             "nees_full_inside_frac_late": self.nees_inside("full", 0.1 * self.t[-1]),
+            "final_nees_param_median": float(np.median(self.final_nees_param())),
+            "final_outlier_frac": float(np.mean(self.final_nees_param() > chi2.ppf(0.999, 2))),
             "underweighted_frac": float(np.mean(self.triggered)),
             "rmse_mass_kg_mean": float(np.mean(self.rmse[:, 0])),
             "rmse_izz_kgm2_mean": float(np.mean(self.rmse[:, 1])),
@@ -396,7 +406,8 @@ def run_montecarlo(cfg: McConfig, progress: bool = False,
     final_sigma = np.sqrt(filt.P[:, idx, idx])
     return McResult(cfg, t, bias, std, sigma, nees_p, nees_f, nees_bounds(r, 2),
                     nees_bounds(r, NX), trig, truth, e, final_sigma, np.sqrt(sq / n),
-                    ex_err, ex_sig, time.perf_counter() - t_start, ls_failed)
+                    ex_err, ex_sig, time.perf_counter() - t_start, ls_failed,
+                    filt.P[:, 6:8, 6:8].copy())
 
 
 def config_dict(cfg: McConfig) -> dict:
