@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import socket
 import subprocess
-import time
 
 import pytest
 
@@ -52,10 +51,19 @@ def test_bridge_udp_source_cli_duration(tpods_exe, tmp_path):
     ep = f"tcp/127.0.0.1:{free_port()}"
     p = subprocess.Popen([tpods_exe, "mocap", "bridge", "--source", f"vicon-udp:{port}",
                           "--bind", "127.0.0.1", "--listen", ep, "--no-multicast",
-                          "--duration", "2.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          "--duration", "4"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
+
+    def bound() -> bool:  # the bridge holds the port once our own bind fails
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                return True
+            return False
+
+    assert wait_for(bound, 60.0, 0.05), "the bridge never bound its UDP port"
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    time.sleep(1.0)
     for f in range(1, 6):
         tx.sendto(build_datagram(f, [(1, "m", (1.0, 2.0, 3.0, 0.0, 0.0, 0.1))]), ("127.0.0.1", port))
     tx.sendto(b"junk", ("127.0.0.1", port))
