@@ -13,9 +13,14 @@ Output folder:
   ``check``, ``zero_settle``, ``zero``, ``settle`` or ``dwell``.
 - ``steps.csv``: per step ``step,n_open,duty_pct,t_start_s,t_end_s,n,n_unstable,
   mean_raw_gf,zero_before_gf,zero_after_gf,drift_gf,thrust_gf,std_gf,sem_gf``.
-- ``run.json``: configuration, device identities, timing, counts, exit status
+- ``run.json``: configuration, device identities, ``t0_unix`` (wall-clock time of
+  ``t_s = 0``), timing, counts, exit status
   (``running`` while it runs, then ``success`` / ``aborted`` / ``failed``) and
   whether OFF was confirmed.
+
+Choose ``settle_s`` and ``zero_settle_s`` of at least five time constants of the
+balance's response (about 0.3 s for a Scout): the residual of the step response
+biases each mean by roughly ``lag / dwell * exp(-settle / lag)`` of the step.
 
 The pure parts (``plan_steps``, ``summarize_steps``) work on plain arrays and frames.
 """
@@ -54,20 +59,27 @@ class Terminated(BaseException):
 
 @contextlib.contextmanager
 def sigterm_raises() -> Iterator[None]:
-    """Within the block SIGTERM raises :class:`Terminated`, so ``finally`` clauses run."""
+    """Within the block SIGTERM raises :class:`Terminated` and SIGINT raises
+    KeyboardInterrupt, so ``finally`` clauses (closing the valves) run.
+
+    SIGINT is set explicitly because a process started in the background by a
+    non-interactive shell inherits SIGINT ignored, and Ctrl-C must still stop a session.
+    """
 
     def handler(signum, frame):
         raise Terminated("terminated (SIGTERM)")
 
     try:
-        old = signal.signal(signal.SIGTERM, handler)
+        old_term = signal.signal(signal.SIGTERM, handler)
+        old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     except ValueError:  # not the main thread: leave signals alone
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGINT, old_int)
 
 
 @dataclass(frozen=True)
@@ -264,6 +276,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "software": f"tpods {tpods.__version__}",
         "status": "running",
+        "t0_unix": time.time(),
         "config": asdict(config),
         "devices": {},
     }

@@ -41,7 +41,8 @@ def _session(out: Path, vs, ss, *args: str) -> subprocess.Popen:
 def _full_session(tmp: Path) -> list[dict]:
     ev, es, vs, ss = _bench(seed=4)
     try:
-        p = _session(tmp / "full", vs, ss, "--dwell", "1.5", "--settle", "1", "--zero-settle", "1.5",
+        # settle = 5 lag time constants (0.3 s): shorter settles bias the means low
+        p = _session(tmp / "full", vs, ss, "--dwell", "2", "--settle", "1.5", "--zero-settle", "1.5",
                      "--zero-dwell", "0.5", "--zero-every", "9")
         _, err = p.communicate(timeout=600)
         if p.returncode != 0:
