@@ -267,7 +267,7 @@ def propagate(z, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: flo
     Returns:
         ``(z_end (8,) ndarray, Phi (8, 8))``.
     """
-    zl = [float(a) for a in z]
+    zl = z.tolist() if isinstance(z, np.ndarray) else [float(a) for a in z]
     vals: list[float] = []
     hs: list[float] = []
     for dt, w in zip(seg_dt, seg_w, strict=True):
@@ -357,7 +357,8 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None):
         squared (with the plain S) and whether underweighting was active.
     """
     R = cfg.R if R is None else R
-    r0, r1, r2 = R[0, 0], R[1, 1], R[2, 2]
+    rd = R.diagonal()
+    r0, r1, r2 = rd.tolist()
     (a, d, e), (_, b, f), (_, _, c) = P[:NZ, :NZ].tolist()
     zl = z[:NZ].tolist()
     y0 = meas[0] - zl[0]
@@ -378,7 +379,7 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None):
     K = _dot(P[:, :NZ], np.array(si))
     z = z + _dot(K, np.array([y0, y1, y2]))
     A = _I8 - _dot(K, _H)
-    P = _dot(_dot(A, P), A.T) + _dot(K * np.array([r0, r1, r2]), K.T)
+    P = _dot(_dot(A, P), A.T) + _dot(K * rd, K.T)
     P += P.T
     P *= 0.5
     return z, P, (nis, triggered)
