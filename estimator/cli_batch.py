@@ -60,7 +60,7 @@ def name_list(text: str) -> tuple[str, ...]:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    from estimator import cli_ekf
+    from estimator import cli_ekf, cli_realism
 
     p = est.add_parser(
         "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
@@ -88,6 +88,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write estimate.json, residuals.csv and residuals.png (Fig. 5) here")
     cli_ekf.add_batch_options(p)
+    cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
     p.set_defaults(func=cmd_batch)
 
     c = est.add_parser(
@@ -107,6 +108,7 @@ def register(sub, est, rep) -> None:
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     c.add_argument("--out", default=None, metavar="DIR",
                    help="write crlb.json and sensitivities.png (Fig. 6) here")
+    cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
 
     d = sub.add_parser(
@@ -187,6 +189,10 @@ def _truth_errors(out: dict[str, Any], truth: dict | None, mass: float, izz: flo
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
+    from estimator import cli_realism
+
+    if (rc := cli_realism.before_batch(args)) is not None:  # issue 9: --model
+        return rc
     if args.method != "ls":
         from estimator import cli_ekf
 
@@ -207,6 +213,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
                        max_iter=args.max_iter)
     out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
     out.update(res.to_dict())
+    cli_realism.annotate(out, args)
     _truth_errors(out, run.truth, res.mass_kg, res.izz_kgm2)
     truth = run.truth
     if truth and "mass_kg" in truth and "izz_kgm2" in truth and {"mass", "izz"} <= set(res.names):
@@ -327,8 +334,11 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     source = "command line" if (args.mass or args.izz) else ("run truth" if truth else "paper nominal")
     params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
               **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
+    from estimator import cli_realism
+
     c = crlb(pose_t, cmd_t, thrust, params, s0=s0, sigma_pos_m=args.sigma_pos,
-             sigma_yaw_rad=math.radians(args.sigma_yaw_deg), keep_sensitivities=bool(args.out))
+             sigma_yaw_rad=math.radians(args.sigma_yaw_deg), keep_sensitivities=bool(args.out),
+             names=cli_realism.crlb_names(args))
     out = {"sequence": kind, "path": str(args.run_dir), "n_poses": c.n_poses,
            "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,
            "plant_source": source,
@@ -337,13 +347,14 @@ def cmd_crlb(args: argparse.Namespace) -> int:
            "crlb_corr_mass_izz": float(c.cov[0, 1] / (c.sigma[0] * c.sigma[1])),
            "logdet_info": c.logdet, "sigma_pos_m": args.sigma_pos,
            "sigma_yaw_rad": math.radians(args.sigma_yaw_deg)}
+    out.update(cli_realism.crlb_extra(c, args))
     if args.out:
         from estimator.plots_batch import plot_sensitivities
 
         d = Path(args.out)
         d.mkdir(parents=True, exist_ok=True)
         (d / "crlb.json").write_text(json.dumps(out, indent=2) + "\n")
-        plot_sensitivities(pose_t, c.sens_x, c.names, [mass, izz], d / "sensitivities.png",
+        plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz], d / "sensitivities.png",
                            title=f"Sensitivities of {Path(args.run_dir).name}")
     if args.json:
         _print_json(out)
@@ -353,6 +364,8 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     print(f"  mass  sigma >= {c.mass_sigma_kg:.4g} kg      ({out['crlb_mass_rel'] * 100:.4f} %)")
     print(f"  Izz   sigma >= {c.izz_sigma_kgm2:.4g} kg m^2  ({out['crlb_izz_rel'] * 100:.4f} %)")
     print(f"  correlation {out['crlb_corr_mass_izz']:+.3f}, log det(information) {c.logdet:.3f}")
+    for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
+        print(line)
     if args.out:
         print(f"  wrote {Path(args.out) / 'crlb.json'} and sensitivities.png")
     return 0

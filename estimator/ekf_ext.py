@@ -1,0 +1,259 @@
+"""Extended-state EKF: pose, velocities and any subset of the plant parameters.
+
+The state is ``z = (x, y, psi, u, v, r, theta)`` with ``theta`` the parameters in
+``names`` (any subset of ``model.PARAM_NAMES`` holding mass and izz, e.g. the
+``friction`` model's mass, izz, ct, cr, kb); the others are fixed. It is the same filter
+as :mod:`estimator.ekf` (which is specialised and fused for the 8-state case), made
+generic in the parameters:
+
+- prediction over the zero-order-hold segments between poses (split at every command
+  switch and at most ``max_step_s`` apart, :func:`estimator.crlb.make_grid`), each by
+  :func:`estimator.propagate.rk4_stm` with the analytic Jacobians of
+  :mod:`estimator.model` (no physics here); ``P <- Phi P Phi^T + diag(q) dt``;
+- update with the pose ``(x, y, psi)``, ``H = [I3 0]``, yaw innovation wrapped to
+  (-pi, pi] (the state yaw stays continuous), Joseph form, symmetrised.
+
+The 8-state update of :mod:`estimator.ekf` is hard-wired to 8 states, so the (short)
+generic Joseph update is written here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from estimator.crlb import make_grid
+from estimator.model import ARM_M, PARAM_NAMES, STATE_NAMES
+from estimator.propagate import rk4_stm
+
+SIGMA0 = {"x": 0.1, "y": 0.1, "psi": math.radians(5.0), "u": 0.1, "v": 0.1,
+          "r": math.radians(2.0), "mass": 1.0, "izz": 2e-3, "ct": 0.3, "cr": 2e-3,
+          "kb": 1e-2, "ax": 1e-2, "ay": 1e-2}
+"""Default initial standard deviations (the paper's for the 8 states; friction and tilt
+wide enough to cover an air table with ball transfers and a 1 mrad tilt)."""
+
+X0 = {"mass": 1.0, "izz": 5e-3, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+"""Default initial parameter means (the paper's m = 1 kg, Izz = 5e-3 kg m^2; no friction, level)."""
+
+
+@dataclass(frozen=True)
+class ExtEkfConfig:
+    """Settings of the extended filter (SI units).
+
+    Attributes:
+        names: estimated parameters (must include mass and izz).
+        fixed: values of the other model parameters (arm, ct, cr, kb, ax, ay; default 0.05 m / 0).
+        sigma_meas: (3,) pose noise standard deviations (m, m, rad).
+        q_psd: process-noise spectral density per state or parameter name, units^2/s
+            (default none: the parameters are constants).
+        max_step_s: longest propagation step, s.
+    """
+
+    names: tuple[str, ...] = ("mass", "izz", "ct", "cr", "kb")
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    sigma_meas: tuple[float, float, float] = (0.01, 0.01, math.radians(1.0))
+    q_psd: Mapping[str, float] = field(default_factory=dict)
+    max_step_s: float = 0.01
+
+    def __post_init__(self):
+        bad = [n for n in self.names if n not in PARAM_NAMES]
+        if bad or len(set(self.names)) != len(self.names):
+            raise ValueError(f"names must be distinct parameters from {PARAM_NAMES}")
+        if not {"mass", "izz"} <= set(self.names):
+            raise ValueError("the extended filter estimates mass and izz plus extras")
+        if any(s <= 0 for s in self.sigma_meas):
+            raise ValueError("measurement sigmas must be positive")
+        unknown = set(self.q_psd) - set(self.labels)
+        if unknown or any(q < 0 for q in self.q_psd.values()):
+            raise ValueError(f"q_psd: non-negative values for {self.labels}")
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return STATE_NAMES + tuple(self.names)
+
+    @property
+    def R(self) -> np.ndarray:
+        return np.diag(np.square(self.sigma_meas))
+
+    def base_params(self) -> dict[str, float]:
+        d = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+        d.update({k: float(v) for k, v in self.fixed.items()})
+        return d
+
+    def default_x0(self, first_pose=None) -> np.ndarray:
+        z = np.zeros(6 + len(self.names))
+        if first_pose is not None:
+            z[:3] = first_pose
+        z[6:] = [X0[n] for n in self.names]
+        return z
+
+    def default_P0(self) -> np.ndarray:
+        return np.diag(np.square([SIGMA0[n] for n in self.labels]))
+
+
+@dataclass
+class ExtEkfResult:
+    """Filter history (SI units).
+
+    Attributes:
+        names: parameter names; t: (N,) pose times; x: (N, 6+p) posterior means;
+        sigma: (N, 6+p) their standard deviations; P: final covariance;
+        updated: (N,) pose used; nis: (N,) normalised innovation squared (NaN if not used).
+    """
+
+    names: tuple[str, ...]
+    t: np.ndarray
+    x: np.ndarray
+    sigma: np.ndarray
+    P: np.ndarray
+    updated: np.ndarray
+    nis: np.ndarray
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        return STATE_NAMES + self.names
+
+    def final(self, name: str) -> tuple[float, float]:
+        i = self.labels.index(name)
+        return float(self.x[-1, i]), float(self.sigma[-1, i])
+
+    @property
+    def mass_kg(self) -> float:
+        return self.final("mass")[0]
+
+    @property
+    def izz_kgm2(self) -> float:
+        return self.final("izz")[0]
+
+    def rmse(self, mass_kg: float, izz_kgm2: float) -> tuple[float, float]:
+        """RMS error of m and Izz over every pose time, kg and kg m^2."""
+        im, ii = self.labels.index("mass"), self.labels.index("izz")
+        return (float(np.sqrt(np.mean((self.x[:, im] - mass_kg) ** 2))),
+                float(np.sqrt(np.mean((self.x[:, ii] - izz_kgm2) ** 2))))
+
+    @property
+    def diverged(self) -> bool:
+        m, i = self.mass_kg, self.izz_kgm2
+        if not (m > 0 and i > 0 and np.all(np.isfinite(self.x[-1]))):
+            return True
+        nis = self.nis[self.updated]
+        tail = nis[-max(1, len(nis) // 10):] if len(nis) else nis
+        return bool(len(tail) and np.nanmean(tail) > 10.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        P = self.P
+        sd = np.sqrt(np.maximum(np.diag(P), 0))
+        im, ii = self.labels.index("mass"), self.labels.index("izz")
+        corr = P / np.outer(np.where(sd > 0, sd, 1), np.where(sd > 0, sd, 1))
+        return {"mass_kg": self.mass_kg, "mass_sigma_kg": float(sd[im]),
+                "izz_kgm2": self.izz_kgm2, "izz_sigma_kgm2": float(sd[ii]),
+                "corr_mass_izz": float(corr[im, ii]), "estimated": list(self.names),
+                "params": {n: float(self.x[-1, 6 + j]) for j, n in enumerate(self.names)},
+                "sigmas": {n: float(sd[6 + j]) for j, n in enumerate(self.names)},
+                "final_state": dict(zip(self.labels, self.x[-1].tolist(), strict=True)),
+                "correlation": corr.tolist(), "n_poses": int(len(self.t)),
+                "n_updates": int(self.updated.sum()),
+                "nis_mean": float(np.nanmean(self.nis)) if self.updated.any() else None,
+                "diverged": self.diverged}
+
+
+def joseph_update(z: np.ndarray, P: np.ndarray, meas, R: np.ndarray):
+    """Pose update of an (n,) state with ``H = [I3 0]``; returns ``(z, P, nis)``."""
+    y = np.asarray(meas, float) - z[:3]
+    y[2] = math.remainder(y[2], 2 * math.pi)
+    S = P[:3, :3] + R
+    Si = np.linalg.inv(S)
+    K = P[:, :3] @ Si
+    z = z + K @ y
+    A = np.eye(len(z))
+    A[:, :3] -= K
+    P = A @ P @ A.T + K @ R @ K.T
+    return z, 0.5 * (P + P.T), float(y @ Si @ y)
+
+
+def run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, x0=None, P0=None,
+                use=None, progress=None) -> ExtEkfResult:
+    """Filter a pose history with the extended-state EKF.
+
+    Args:
+        pose_t: (N,) increasing pose times, s. pose: (N, 3) x, y (m), yaw (rad).
+        cmd_t, thrust_n: (Nc,), (Nc, 4) zero-order-hold thrusts, N (zero before cmd_t[0]).
+        cfg: settings. x0: (6+p,) initial mean (default: first pose, at rest, X0);
+        P0: (6+p, 6+p) initial covariance (default SIGMA0).
+        use: optional (N,) bool, poses to update with (others: predict only).
+        progress: optional callable(k) every 1000 poses.
+    """
+    pose_t = np.asarray(pose_t, float)
+    pose = np.asarray(pose, float)
+    names = tuple(cfg.names)
+    n = 6 + len(names)
+    z = cfg.default_x0(pose[0]) if x0 is None else np.array(x0, float)
+    P = cfg.default_P0() if P0 is None else np.array(P0, float)
+    if z.shape != (n,) or P.shape != (n, n):
+        raise ValueError(f"x0 must be ({n},) and P0 ({n}, {n})")
+    use = np.ones(len(pose_t), bool) if use is None else np.asarray(use, bool)
+    grid = make_grid(cmd_t, thrust_n, pose_t, cfg.max_step_s)
+    dts = np.diff(grid.events)
+    base = cfg.base_params()
+    q = np.array([cfg.q_psd.get(lab, 0.0) for lab in cfg.labels])
+    R = cfg.R
+    N = len(pose_t)
+    xs = np.empty((N, n))
+    var = np.empty((N, n))
+    nis = np.full(N, np.nan)
+    for k in range(N):
+        if k:
+            a, b = int(grid.node_pos[k - 1]), int(grid.node_pos[k])
+            for i in range(a, b):
+                params = dict(base)
+                params.update(zip(names, z[6:].tolist(), strict=True))
+                s1, phi = rk4_stm(z[:6], grid.seg_thrust[i], float(dts[i]), params, names)
+                z = np.concatenate([s1, z[6:]])
+                P = phi @ P @ phi.T
+                if q.any():
+                    P[np.diag_indices(n)] += q * dts[i]
+        if use[k]:
+            z, P, nis[k] = joseph_update(z, P, pose[k], R)
+        xs[k] = z
+        var[k] = np.diag(P)
+        if progress is not None and k % 1000 == 0:
+            progress(k)
+    return ExtEkfResult(names, pose_t.copy(), xs, np.sqrt(np.maximum(var, 0.0)), P, use.copy(),
+                        nis)
+
+
+def estimate_ext(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, method: str = "ekf",
+                 x0=None, P0=None, ls_window_s: float = 20.0, ls_start: str = "reuse",
+                 ls_kwargs: Mapping[str, Any] | None = None):
+    """``ekf`` or ``ls-ekf`` with the extended state (same semantics as
+    :func:`estimator.ekf.estimate_filter`). Returns ``(ExtEkfResult, BatchResult or None)``.
+    """
+    from estimator.batch import batch_ls
+    from tpods.errors import UserError
+
+    if method == "ekf":
+        return run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg, x0, P0), None
+    if method != "ls-ekf":
+        raise ValueError("method must be ekf or ls-ekf")
+    pose_t = np.asarray(pose_t, float)
+    pose = np.asarray(pose, float)
+    win = pose_t <= pose_t[0] + ls_window_s
+    kw = {"names": cfg.names, "fixed": dict(cfg.fixed), "sigma_pos_m": cfg.sigma_meas[0],
+          "sigma_yaw_rad": cfg.sigma_meas[2]}
+    kw.update(ls_kwargs or {})
+    ls = batch_ls(pose_t[win], pose[win], cmd_t, thrust_n, **kw)
+    if not ls.converged or not np.all(np.isfinite(ls.cov)):
+        raise UserError(f"batch least squares on the first {ls_window_s:g} s did not converge "
+                        f"({ls.message}); cannot start ls-ekf from it")
+    use = None if ls_start == "reuse" else ~win
+    return run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, 0.5 * (ls.cov + ls.cov.T),
+                       use=use), ls
+
+
+def check_names(names: Sequence[str]) -> tuple[str, ...]:
+    """Validate parameter names for the extended filter (raises ValueError)."""
+    return ExtEkfConfig(names=tuple(names)).names
