@@ -22,7 +22,7 @@ Filter conventions (SI units throughout):
   process-noise spectral density (units^2/s, e.g. kg^2/Hz for the mass);
 - measurement ``(x, y, psi)`` with ``H = [I3 0]``; yaw residual wrapped to (-pi, pi],
   the state yaw stays continuous;
-- update: Joseph form ``P <- (I-KH) P (I-KH)^T + K R K^T``, then symmetrised;
+- update: Joseph form ``P <- (I-KH) P (I-KH)^T + K R K^T``, symmetrised every 16th update;
 - underweighting (Zanetti, DeMars & Bishop 2010): when ``alpha > 0`` and the
   largest eigenvalue of ``R^-1/2 H P H^T R^-1/2`` exceeds ``uw_trigger`` (the
   predicted measurement uncertainty dominates R in some direction), the gain uses
@@ -32,6 +32,7 @@ Filter conventions (SI units throughout):
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -162,7 +163,7 @@ def _put_index(n: int) -> np.ndarray:
     """Flat indices of the stage-Jacobian entries in an (n, 10, 8, 8) workspace."""
     idx = _PUT_CACHE.get(n)
     if idx is None:
-        idx = np.concatenate([_JAC_FLAT + (i * _NW + k) * NX * NX
+        idx = np.concatenate([_JAC_FLAT + (i * (_NW + 1) + k) * NX * NX
                               for i in range(n) for k in range(4)])
         _PUT_CACHE[n] = idx
     return idx
@@ -235,7 +236,7 @@ def _stm_from_stages(vals: list, hs: list) -> np.ndarray:
     evaluated here with three batched products over all steps at once.
     """
     n = len(hs)
-    W = np.zeros((n, _NW, NX, NX))
+    W = _workspace(n)
     W.put(_put_index(n), vals)
     phi = None
     for i in range(n):
@@ -246,12 +247,29 @@ def _stm_from_stages(vals: list, hs: list) -> np.ndarray:
         h = hs[i]
         h2 = h * h / 6.0
         h3 = h * h * h / 12.0
-        c = np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0, h2, h2, h2, h3, h3, h * h * h * h / 24.0])
-        p = _dot(c, w.reshape(_NW, NX * NX))
-        p[::NX + 1] += 1.0
+        # slab 10 of the workspace holds the identity (coefficient 1)
+        p = _dot(np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0, h2, h2, h2, h3, h3,
+                           h * h * h * h / 24.0, 1.0]), w.reshape(_NW + 1, NX * NX))
         p = p.reshape(NX, NX)
         phi = p if phi is None else _dot(p, phi)
     return phi
+
+
+_TLS = threading.local()
+
+
+def _workspace(n: int) -> np.ndarray:
+    """Per-thread (n, 11, 8, 8) scratch: slabs 0-3 stage Jacobians (zero outside their
+    pattern), 4-9 products (overwritten each step), 10 the identity."""
+    cache = getattr(_TLS, "ws", None)
+    if cache is None:
+        cache = _TLS.ws = {}
+    W = cache.get(n)
+    if W is None:
+        W = np.zeros((n, _NW + 1, NX, NX))
+        W[:, _NW] = _I8
+        cache[n] = W
+    return W
 
 
 def propagate(z, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: float = 0.01):
@@ -344,13 +362,16 @@ def _inv_sym3(a, b, c, d, e, f):
     return [[A * k, B * k, C * k], [B * k, D * k, E * k], [C * k, E * k, F * k]]
 
 
-def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None):
+def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None,
+               symmetrize: bool = True):
     """Joseph-form measurement update with the optional underweighting.
 
     Args:
         z: (8,) predicted state. P: (8, 8) predicted covariance.
         meas: (3,) measured x (m), y (m), yaw (rad, may be wrapped).
         cfg: the filter settings. R: (3, 3) diagonal measurement covariance (default cfg.R).
+        symmetrize: replace P by (P + P^T)/2 afterwards (:func:`run_ekf` does it every
+            16th update; the Joseph form is symmetric up to rounding).
 
     Returns:
         ``(z, P, info)`` with ``info = (nis, triggered)``: the normalised innovation
@@ -380,8 +401,9 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None):
     z = z + _dot(K, np.array([y0, y1, y2]))
     A = _I8 - _dot(K, _H)
     P = _dot(_dot(A, P), A.T) + _dot(K * rd, K.T)
-    P += P.T
-    P *= 0.5
+    if symmetrize:
+        P += P.T
+        P *= 0.5
     return z, P, (nis, triggered)
 
 
@@ -509,7 +531,7 @@ def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=N
         if k:
             x, P, _ = ekf_predict(x, P, sched.seg_dt[k], sched.seg_w[k], cfg)
         if use[k]:
-            x, P, (nis[k], trig[k]) = ekf_update(x, P, meas[k], cfg, R)
+            x, P, (nis[k], trig[k]) = ekf_update(x, P, meas[k], cfg, R, (k & 15) == 0)
         xs[k] = x
         sig[k] = P.diagonal()
         if keep_cov:
