@@ -27,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     from estimator.cli import register as register_estimator
     from mocap_bridge.cli import register as register_mocap
     from tpods.demo import register as register_demo
+    from tpods.run_cli import register as register_run
 
     parser = _Parser(
         prog="tpods",
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_bench(sub)
     register_calibration(sub)
     register_mocap(sub)
+    register_run(sub)
     register_demo(sub)
     return parser
 
