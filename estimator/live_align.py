@@ -151,6 +151,15 @@ class LiveAligner:
         """Release every pending pose (end of stream)."""
         return self.pop_ready(math.inf)
 
+    @property
+    def pending(self) -> int:
+        """Number of poses waiting for their command."""
+        return len(self._pending)
+
+    def next_deadline(self) -> float | None:
+        """Host time at which the oldest pending pose is released by timeout (None: none pending)."""
+        return self._pending[0][3] + self.max_wait_s if self._pending else None
+
     # --------------------------------------------------------------- commands
     @property
     def first_command_t(self) -> float | None:

@@ -1,0 +1,320 @@
+"""The input player: play a duty sequence on a module's valves and announce each command.
+
+:func:`play` sends each row of an input sequence to a protocol-v1 valve controller
+(``DUTY*``) at its time on the lab clock, records it in ``commands.csv`` (flushed per
+row) and publishes it on ``tpods/<body>/cmd``. Safety is structural: the controller
+watchdog is armed and fed only while the loop is alive (``ValveController.safe``), and
+every exit path (end, Ctrl-C, SIGTERM, exception) sends OFF, confirms it with STATE?,
+writes a closing all-zero row and publishes an ``end`` command.
+
+Command payload (JSON, encoding ``application/json``), schema ``tpods.cmd/1``::
+
+    {"schema": "tpods.cmd/1", "body": "tpods1", "seq": 17, "kind": "set",
+     "t": 1763770000.123,          # lab clock (host clock at scale 1), s: when the valves switched
+     "duty": [50.0, 64.1, 70.0, 64.1]}   # percent per valve, 0 = closed
+
+``kind`` is ``set`` (a command sent to the valves), ``hold`` (the command in force,
+re-announced when nothing was sent for ``heartbeat_s``: late subscribers learn the
+state, and the live estimator learns that nothing changed up to ``t``) or ``end``
+(all valves closed, the run is over). ``seq`` counts every message of the player.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tpods.clock import LabClock
+from tpods.errors import UserError
+
+CMD_SCHEMA = "tpods.cmd/1"
+CMD_KINDS = ("set", "hold", "end")
+DEFAULT_PREFIX = "tpods"
+
+
+def cmd_key(body: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """``<prefix>/<body>/cmd`` with the body name sanitised into one key chunk."""
+    from mocap_bridge.pose import sanitize_chunk
+
+    return f"{prefix.strip('/')}/{sanitize_chunk(body)}/cmd"
+
+
+def encode_command(body: str, seq: int, t: float, duty_pct, kind: str = "set") -> bytes:
+    """One command payload (schema ``tpods.cmd/1``); duties in percent, ``t`` lab seconds."""
+    d = ",".join(repr(float(x)) for x in duty_pct)
+    return ('{"schema":"%s","body":%s,"seq":%d,"kind":"%s","t":%r,"duty":[%s]}'  # noqa: UP031
+            % (CMD_SCHEMA, json.dumps(body), int(seq), kind, float(t), d)).encode()
+
+
+def decode_command(payload: bytes | bytearray | memoryview | str,
+                   counters: dict[str, int] | None = None, n_channels: int = 4
+                   ) -> dict[str, Any] | None:
+    """Decode and validate a command payload; None (and ``counters['malformed']`` + 1) if bad."""
+    def bad() -> None:
+        if counters is not None:
+            counters["malformed"] = counters.get("malformed", 0) + 1
+        return None
+
+    try:
+        d = json.loads(bytes(payload) if not isinstance(payload, str) else payload)
+    except (ValueError, UnicodeDecodeError):
+        return bad()
+    if not isinstance(d, dict) or d.get("schema") != CMD_SCHEMA:
+        return bad()
+    t, duty, seq, kind = d.get("t"), d.get("duty"), d.get("seq"), d.get("kind", "set")
+    if (not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t)
+            or not isinstance(seq, int) or isinstance(seq, bool) or kind not in CMD_KINDS
+            or not isinstance(duty, list) or len(duty) != n_channels):
+        return bad()
+    try:
+        vals = [float(x) for x in duty]
+    except (TypeError, ValueError):
+        return bad()
+    if any(isinstance(x, bool) for x in duty) or not all(math.isfinite(x) and 0.0 <= x <= 100.0
+                                                        for x in vals):
+        return bad()
+    d["t"] = float(t)
+    d["duty"] = vals
+    return d
+
+
+class CommandLog:
+    """``commands.csv`` (``t,d1..dn``, run-folder format) appended and flushed per row."""
+
+    def __init__(self, path: Path, n_channels: int = 4) -> None:
+        self.path = path
+        self.fh = path.open("w", buffering=1)
+        self.fh.write("t," + ",".join(f"d{i + 1}" for i in range(n_channels)) + "\n")
+        self.fh.flush()
+        self.rows = 0
+        self.last_t = -math.inf
+        self.last_duty: tuple[float, ...] | None = None
+
+    def add(self, t: float, duty_pct) -> bool:
+        """Append a row; a time not after the previous row is skipped (returns False)."""
+        if not t > self.last_t:
+            return False
+        self.fh.write("%.9g," % t + ",".join("%.6g" % float(x) for x in duty_pct) + "\n")  # noqa: UP031
+        self.fh.flush()
+        self.rows += 1
+        self.last_t = t
+        self.last_duty = tuple(float(x) for x in duty_pct)
+        return True
+
+    def close(self) -> None:
+        if not self.fh.closed:
+            self.fh.close()
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
+    tmp.replace(path)
+
+
+@dataclass
+class PlayResult:
+    """What :func:`play` did. Times in lab seconds."""
+
+    status: str
+    n_sent: int
+    n_holds: int
+    t_start: float
+    t_end: float
+    max_late_s: float
+    final_state: tuple[float, ...] | None
+    publish_errors: int = 0
+    error: str | None = None
+    out_dir: Path | None = None
+    sent: list[tuple[float, tuple[float, ...]]] = field(default_factory=list)
+
+
+def check_sequence(cmd_t: np.ndarray, duty_pct: np.ndarray, n_channels: int,
+                   duty_limits: tuple[float, float]) -> None:
+    """Refuse (UserError) a sequence the valves would refuse halfway through."""
+    cmd_t = np.asarray(cmd_t, float)
+    duty_pct = np.asarray(duty_pct, float)
+    if duty_pct.ndim != 2 or len(cmd_t) != len(duty_pct) or len(cmd_t) < 1:
+        raise UserError("the input must be (N,) times and (N, channels) duties")
+    if duty_pct.shape[1] != n_channels:
+        raise UserError(f"the input has {duty_pct.shape[1]} channels; the valve controller has "
+                        f"{n_channels}")
+    if not np.all(np.isfinite(cmd_t)) or np.any(np.diff(cmd_t) <= 0):
+        raise UserError("input times must be finite and strictly increasing")
+    lo, hi = duty_limits
+    bad = (duty_pct != 0) & ((duty_pct < lo) | (duty_pct > hi))
+    if np.any(bad) or not np.all(np.isfinite(duty_pct)):
+        row = int(np.argwhere(bad | ~np.isfinite(duty_pct))[0][0])
+        raise UserError(f"input row {row + 1}: duty outside the allowed {lo:g}-{hi:g} % "
+                        "(0 closes; change --duty-limits to allow it)")
+
+
+def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
+         publish: Callable[[bytes], None] | None = None, body: str = "tpods1",
+         out_dir: str | Path | None = None, watchdog_ms: int = 500, pwm_hz: float = 10.0,
+         heartbeat_s: float = 0.1, lead_s: float = 0.2, stop: threading.Event | None = None,
+         meta: dict[str, Any] | None = None, progress: bool = False) -> PlayResult:
+    """Play ``(cmd_t (N,), duty_pct (N, n))`` on an open :class:`bench.valves.ValveController`.
+
+    Row ``i`` is sent at lab time ``t_start + cmd_t[i] - cmd_t[0]`` with ``t_start`` =
+    now + ``lead_s``. Each sent command is stamped with the midpoint of its exchange,
+    written to ``out_dir/commands.csv`` (times from ``t_start``) and handed to
+    ``publish`` (a payload, e.g. a Zenoh put); ``hold`` messages are published when
+    nothing was sent for ``heartbeat_s`` lab seconds. ``stop`` ends the run early
+    (status ``aborted``). KeyboardInterrupt and SIGTERM (with
+    :func:`bench.session.sigterm_raises`) propagate after the valves are closed and
+    the files written. Publishing errors are counted, never allowed to stop the
+    closing of the valves.
+    """
+    from tqdm import tqdm
+
+    import tpods
+    from bench.session import Terminated
+
+    clock = clock or LabClock()
+    cmd_t = np.asarray(cmd_t, float)
+    duty_pct = np.asarray(duty_pct, float)
+    out = Path(out_dir) if out_dir is not None else None
+    ident = valves.identify()
+    check_sequence(cmd_t, duty_pct, ident.n_channels, valves.duty_limits)
+    n_ch = ident.n_channels
+    seq = 0
+    pub_errors = 0
+
+    def announce(t: float, duty, kind: str) -> None:
+        nonlocal seq, pub_errors
+        if publish is None:
+            return
+        seq += 1
+        try:
+            publish(encode_command(body, seq, t, duty, kind))
+        except Exception:  # the network must never keep the valves open
+            pub_errors += 1
+
+    rec = None
+    meta_all: dict[str, Any] = {
+        "kind": "input-play", "software": f"tpods {tpods.__version__}",
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "status": "running", "body": body,
+        "valves": {"url": str(valves.url), "model": ident.model, "firmware": ident.firmware,
+                   "n_channels": n_ch},
+        "time_scale": clock.scale, "clock_origin": clock.origin,
+        "watchdog_ms": watchdog_ms, "pwm_hz": pwm_hz, "heartbeat_s": heartbeat_s,
+        "planned_s": float(cmd_t[-1] - cmd_t[0]),
+    }
+    meta_all.update(meta or {})
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        if (out / "commands.csv").exists():
+            raise UserError(f"{out} already holds commands.csv; choose another --out")
+        rec = CommandLog(out / "commands.csv", n_ch)
+        _write_json(out / "run.json", meta_all)
+
+    status, error = "failed", None
+    guard = None
+    sent: list[tuple[float, tuple[float, ...]]] = []
+    n_holds = 0
+    max_late = 0.0
+    t_start = math.nan
+    current = (0.0,) * n_ch
+    bar = None
+    try:
+        with valves.safe(watchdog_ms) as guard:
+            valves.set_freq(pwm_hz)
+            t_start = clock.now() + lead_s
+            meta_all["t0_lab"] = t_start
+            if out is not None:
+                _write_json(out / "run.json", meta_all)
+            last_msg = clock.now()
+            announce(last_msg, current, "hold")
+            bar = tqdm(total=round(float(cmd_t[-1] - cmd_t[0]), 1), unit="s", desc="play",
+                       file=sys.stderr, disable=not progress,
+                       bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
+            last = len(cmd_t) - 1
+            for i in range(len(cmd_t)):
+                target = t_start + (cmd_t[i] - cmd_t[0])
+                while True:
+                    now = clock.now()
+                    if stop is not None and stop.is_set():
+                        raise _Stopped()
+                    if now >= target:
+                        break
+                    if now - last_msg >= heartbeat_s:
+                        announce(now, current, "hold")
+                        n_holds += 1
+                        last_msg = now
+                    guard.heartbeat()
+                    if guard.feed_error is not None:
+                        raise guard.feed_error
+                    wait = min(target - now, last_msg + heartbeat_s - now)
+                    if wait > 4e-4 * clock.scale:
+                        time.sleep(min(clock.real_s(wait) - 2e-4, 0.05))
+                d = tuple(float(x) for x in duty_pct[i])
+                ta = clock.now()
+                valves.set_all(d)
+                tb = clock.now()
+                t = 0.5 * (ta + tb)
+                max_late = max(max_late, ta - target)
+                current = d
+                sent.append((t, d))
+                if rec is not None:
+                    rec.add(t - t_start, d)
+                is_end = i == last and not any(d)
+                announce(t, d, "end" if is_end else "set")
+                last_msg = t
+                guard.heartbeat()
+                if progress and bar is not None:
+                    bar.update(max(0.0, min(bar.total, cmd_t[i] - cmd_t[0]) - bar.n))
+        status = "success"
+    except _Stopped:
+        status, error = "aborted", "stopped"
+    except (KeyboardInterrupt, Terminated) as exc:
+        status, error = "aborted", str(exc) or "interrupted (Ctrl-C)"
+        raise
+    except Exception as exc:
+        status, error = "failed", str(exc) or exc.__class__.__name__
+        raise
+    finally:
+        # safe() has sent OFF and confirmed it (or raised) by now
+        if bar is not None:
+            bar.close()
+        t_end = clock.now()
+        if any(current):  # aborted with valves open: the closing row and the end message
+            sent.append((t_end, (0.0,) * n_ch))
+            if rec is not None and math.isfinite(t_start):
+                rec.add(t_end - t_start, (0.0,) * n_ch)
+            announce(t_end, (0.0,) * n_ch, "end")
+        elif status != "success":
+            announce(t_end, (0.0,) * n_ch, "end")
+        if rec is not None:
+            rec.close()
+        final = guard.final_state if guard is not None else None
+        meta_all.update({
+            "status": status, "error": error,
+            "valves_closed_confirmed": final is not None and not any(final),
+            "final_state": list(final) if final is not None else None,
+            "counts": {"sent": len(sent), "holds": n_holds, "publish_errors": pub_errors,
+                       "watchdog_feeds": guard.feeds if guard is not None else 0},
+            "timing": {"elapsed_lab_s": (t_end - t_start) if math.isfinite(t_start) else None,
+                       "max_late_ms": 1e3 * max_late},
+        })
+        if out is not None:
+            with contextlib.suppress(OSError):
+                _write_json(out / "run.json", meta_all)
+    return PlayResult(status, len(sent), n_holds, t_start, t_end, max_late,
+                      guard.final_state if guard else None, pub_errors, error, out, sent)
+
+
+class _Stopped(Exception):
+    """``stop`` was set (in-process abort)."""

@@ -1,0 +1,238 @@
+"""``tpods run play`` (the input player) and ``tpods run plant`` (a simulated module)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+import time
+from pathlib import Path
+
+from tpods.argtypes import fraction, nonneg_float, positive_float
+from tpods.errors import UserError
+
+
+def register(sub) -> None:
+    """Add the ``run`` group to the `tpods` parser."""
+    from mocap_bridge.zenoh_net import add_zenoh_options
+    from tpods.cli import group
+
+    g = group(sub, "run", "run a module: play an input on its valves, simulate a module")
+
+    p = g.add_parser(
+        "play", help="play an input sequence on a module's valves",
+        description="Send an input sequence to a protocol-v1 valve controller, publish each command "
+                    "on tpods/<body>/cmd (JSON, schema tpods.cmd/1) and record commands.csv. The "
+                    "controller watchdog is armed and fed; every valve is closed (OFF confirmed by "
+                    "STATE?) on every exit path.")
+    p.add_argument("--valves", required=True, metavar="URL",
+                   help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...)")
+    p.add_argument("--input", default="phase-sine",
+                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    p.add_argument("--duration", type=positive_float, default=120.0, metavar="S",
+                   help="seconds of input (a longer commands.csv is cut; default 120)")
+    p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    p.add_argument("--out", default=None, metavar="RUN_DIR",
+                   help="write commands.csv and run.json here")
+    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+    p.add_argument("--amplitude", type=nonneg_float, default=20.0,
+                   help="phase-sine amplitude, duty percent (default 20)")
+    p.add_argument("--omega", type=positive_float, default=1.0, help="phase-sine rad/s (default 1)")
+    p.add_argument("--pwm-hz", type=positive_float, default=10.0, help="PWM frequency (default 10)")
+    p.add_argument("--watchdog-ms", type=int, default=500, help="controller watchdog, ms (default 500)")
+    p.add_argument("--duty-limits", default="10,90",
+                   help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
+    p.add_argument("--heartbeat", type=positive_float, default=0.1, metavar="S",
+                   help="re-announce the command in force after S s without one (default 0.1)")
+    p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
+    p.add_argument("--prefix", default="tpods", help="key prefix (default tpods)")
+    _clock_options(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_zenoh_options(p)
+    p.set_defaults(func=cmd_play)
+
+    s = g.add_parser(
+        "plant", help="serve a simulated module behind an emulated valve controller",
+        description="Serve an emulated protocol-v1 valve controller on a pty (prints its path) and "
+                    "simulate the module it drives: poses with mocap noise published on "
+                    "tpods/mocap/<body>/pose through the bridge, or sent as Vicon Tracker UDP "
+                    "datagrams. Runs until Ctrl-C, SIGTERM or --duration.")
+    s.add_argument("--mass", type=positive_float, default=2.268, help="true mass, kg (default 2.268)")
+    s.add_argument("--izz", type=positive_float, default=3.78e-3,
+                   help="true Izz, kg m^2 (default 3.78e-3)")
+    s.add_argument("--friction", default=None, metavar="CT,CR,KB",
+                   help="true friction terms (default none)")
+    s.add_argument("--thrust-table", default=None, metavar="F",
+                   help="true thrust table (default the paper's Table 2)")
+    s.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+    s.add_argument("--noise-pos", type=nonneg_float, default=0.01, help="m (default 0.01)")
+    s.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="deg (default 1)")
+    s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
+    s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
+                   help="publish through the bridge over zenoh (default) or send Tracker UDP")
+    s.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="stop after S s (default: Ctrl-C)")
+    s.add_argument("--truth-out", default=None, metavar="DIR",
+                   help="on exit write truth.csv and switches.csv here")
+    _clock_options(s)
+    add_zenoh_options(s)
+    s.set_defaults(func=cmd_plant)
+
+
+def _clock_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--time-scale", type=positive_float, default=1.0, metavar="X",
+                   help="lab seconds per real second: >1 only with a simulated module "
+                        "(default 1, real time)")
+    p.add_argument("--clock-origin", type=float, default=None, metavar="EPOCH_S",
+                   help="host time at which lab and host clocks coincide; give the same value to "
+                        "the player and the simulated module (default now)")
+
+
+def _clock(args):
+    from tpods.clock import LabClock
+
+    if args.time_scale != 1.0 and args.clock_origin is None:
+        raise UserError("--time-scale other than 1 needs --clock-origin (the same on every process)")
+    return LabClock(args.time_scale, args.clock_origin if args.clock_origin is not None else time.time())
+
+
+def cmd_play(args: argparse.Namespace) -> int:
+    from bench.session import Terminated, parse_duty_steps, sigterm_raises
+    from bench.valves import ValveController
+    from estimator.inputs import make_input
+    from mocap_bridge.zenoh_net import open_session
+    from tpods.player import cmd_key, play
+
+    lim = parse_duty_steps(args.duty_limits.replace(":", ","))
+    if len(lim) != 2 or not 0 < lim[0] <= lim[1] <= 100:
+        raise UserError(f"--duty-limits must be LOW,HIGH within 0-100, got {args.duty_limits!r}")
+    if args.watchdog_ms < 50:
+        raise UserError("--watchdog-ms must be at least 50")
+    if not args.prefix.strip("/"):
+        raise UserError("--prefix must not be empty")
+    clock = _clock(args)
+    cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
+    out = Path(args.out) if args.out else None
+    key = cmd_key(args.body, args.prefix)
+    session = open_session(args)
+    try:
+        import zenoh
+
+        pub = session.declare_publisher(key, encoding=zenoh.Encoding("application/json"),
+                                        express=True)
+        with sigterm_raises():
+            try:
+                with ValveController(args.valves, baudrate=args.valves_baud,
+                                     duty_limits=(lim[0], lim[1])) as valves:
+                    print(f"play: {args.input} for {cmd_t[-1] - cmd_t[0]:g} s on {args.valves}, "
+                          f"commands on {key}"
+                          + (f" (time scale {clock.scale:g})" if clock.scale != 1 else ""),
+                          file=sys.stderr)
+                    res = play(valves, cmd_t, duty, clock=clock, publish=pub.put, body=args.body,
+                               out_dir=out, watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
+                               heartbeat_s=args.heartbeat, progress=not args.no_progress,
+                               meta={"input": args.input, "duration_s": args.duration,
+                                     "cmd_rate_hz": args.cmd_rate})
+            except Terminated:
+                print("tpods: terminated; valves closed" + (f"; commands in {out}" if out else ""),
+                      file=sys.stderr)
+                return 143
+            except KeyboardInterrupt:
+                print("tpods: interrupted; valves closed" + (f"; commands in {out}" if out else ""),
+                      file=sys.stderr)
+                return 130
+        pub.undeclare()
+    finally:
+        session.close()
+    print(f"play {res.status}: {res.n_sent} commands sent, {res.n_holds} holds announced, "
+          f"latest send {res.max_late_s * 1e3:.1f} ms behind schedule (lab), "
+          f"valves closed (STATE? {' '.join(f'{x:g}' for x in res.final_state or ())})")
+    if out:
+        print(f"wrote {out}/commands.csv, run.json")
+    return 0
+
+
+def cmd_plant(args: argparse.Namespace) -> int:
+    import signal
+
+    import numpy as np
+
+    from bench.emulators import EmulatedValveController, serve_pty
+    from bench.thrust_table import load_thrust_table
+    from estimator.model import PlantParams
+    from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
+
+    clock = _clock(args)
+    table = load_thrust_table(args.thrust_table)
+    ct = cr = kb = 0.0
+    if args.friction:
+        try:
+            ct, cr, kb = (float(x) for x in args.friction.split(","))
+        except ValueError:
+            raise UserError(f"--friction must be CT,CR,KB, got {args.friction!r}") from None
+    params = PlantParams(args.mass, args.izz, ct=ct, cr=cr, kb=kb)
+    noise = MocapNoise(args.noise_pos, math.radians(args.noise_yaw_deg), args.occlusion)
+    stop = threading.Event()
+    valves = EmulatedValveController(4)
+    session = bridge = source = None
+    bridge_thread = None
+    if args.mocap == "zenoh":
+        from mocap_bridge.bridge import Bridge
+        from mocap_bridge.sources.sim import PushSource
+        from mocap_bridge.zenoh_net import open_session
+
+        session = open_session(args)
+        source = PushSource("plant")
+        sink = push_sink(source, args.body)
+        bridge = Bridge(session)
+        bridge_thread = threading.Thread(target=bridge.run, args=(source, stop), daemon=True)
+    elif args.mocap.startswith("udp:"):
+        host, _, port = args.mocap[4:].rpartition(":")
+        try:
+            sink = udp_sink((host or "127.0.0.1", int(port)), args.body)
+        except ValueError:
+            raise UserError(f"--mocap udp:HOST:PORT, got {args.mocap!r}") from None
+    else:
+        raise UserError(f"--mocap must be zenoh or udp:HOST:PORT, got {args.mocap!r}")
+    plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
+                      noise=noise, seed=args.seed)
+    old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    server = serve_pty(valves)
+    try:
+        if bridge_thread is not None:
+            bridge_thread.start()
+        plant.start()
+        print(f"valves: {server.path}", flush=True)
+        print(f"plant: m {args.mass:g} kg, Izz {args.izz:g} kg m^2, {args.pose_rate:g} Hz poses "
+              f"of {args.body} ({args.mocap}); Ctrl-C to stop", file=sys.stderr, flush=True)
+        try:
+            stop.wait(args.duration)
+        except KeyboardInterrupt:
+            pass
+    finally:
+        stop.set()
+        plant.stop()
+        server.stop()
+        if source is not None:
+            source.finish()
+        if bridge_thread is not None:
+            bridge_thread.join(timeout=5.0)
+        if session is not None:
+            session.close()
+        signal.signal(signal.SIGTERM, old)
+    if args.truth_out:
+        d = Path(args.truth_out)
+        d.mkdir(parents=True, exist_ok=True)
+        t, s = plant.truth_arrays()
+        np.savetxt(d / "truth.csv", np.column_stack([t, s]), delimiter=",",
+                   header="t_lab,x,y,psi,u,v,r", comments="", fmt="%.12g")
+        with (d / "switches.csv").open("w") as fh:
+            fh.write("t_lab,d1,d2,d3,d4\n")
+            for ts, du in plant.switches:
+                fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
+    print(f"plant: {plant.frames} poses ({plant.occluded} occluded), {len(plant.switches)} valve "
+          f"changes, {valves.watchdog_trips} watchdog trip(s)", file=sys.stderr)
+    return 0
