@@ -17,6 +17,9 @@ def register(sub) -> None:
     rep = group(sub, "report", "generate the paper-comparison reports")
     cli_batch.register(sub, est, rep)
     cli_ekf.register(sub, est, rep)
+    from estimator import cli_realism  # issue 9: tpods report realism
+
+    cli_realism.register(sub, est, rep)
     from estimator import cli_live
 
     cli_live.register(est)
