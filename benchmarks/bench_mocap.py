@@ -120,6 +120,15 @@ class _Sink:
         self.items.append((sample.payload.to_bytes(), time.time()))
 
 
+def _handler(sink: _Sink):
+    """Run the sink in Zenoh's receive thread (no hand-over to a Python thread), unless
+    TPODS_BENCH_MOCAP_INDIRECT=1. Same subscriber for the bridge and the reference."""
+    import zenoh
+
+    indirect = os.environ.get("TPODS_BENCH_MOCAP_INDIRECT", "0") == "1"
+    return zenoh.handlers.Callback(sink, indirect=indirect)
+
+
 def _collect(sink: _Sink, expected: int, timeout: float) -> None:
     deadline = time.monotonic() + timeout
     while len(sink.items) < expected and time.monotonic() < deadline:
@@ -131,7 +140,7 @@ def _raw(ctx, session, ep: str, n: int, rate_hz: float) -> dict:
     from mocap_bridge.pose import decode_pose
 
     sink = _Sink()
-    sub = session.declare_subscriber("bench/raw/**", sink)
+    sub = session.declare_subscriber("bench/raw/**", _handler(sink))
     go, out = ctx.Event(), ctx.Queue()
     p = ctx.Process(target=_raw_proc, args=(ep, n, rate_hz, go, out))
     p.start()
@@ -164,7 +173,7 @@ def run() -> list[dict]:
         raw_paced = _raw(ctx, session, ep, int(offered * min(seconds, 3.0)), offered)
 
         sink = _Sink()
-        sub = session.declare_subscriber("bench/mocap/**", sink)
+        sub = session.declare_subscriber("bench/mocap/**", _handler(sink))
         port = _free_port(socket.SOCK_DGRAM)
         ready, stop, go = ctx.Event(), ctx.Event(), ctx.Event()
         bout, sout = ctx.Queue(), ctx.Queue()
