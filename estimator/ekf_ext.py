@@ -246,9 +246,13 @@ def estimate_ext(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, method: str =
           "sigma_yaw_rad": cfg.sigma_meas[2]}
     kw.update(ls_kwargs or {})
     ls = batch_ls(pose_t[win], pose[win], cmd_t, thrust_n, **kw)
-    if not ls.converged or not np.all(np.isfinite(ls.cov)):
+    if not ls.converged:
         raise UserError(f"batch least squares on the first {ls_window_s:g} s did not converge "
                         f"({ls.message}); cannot start ls-ekf from it")
+    if not np.all(np.isfinite(ls.cov)):
+        bad = [lab for lab, v in zip(cfg.labels, np.diag(ls.cov), strict=True) if not np.isfinite(v)]
+        raise UserError(f"the first {ls_window_s:g} s do not determine {', '.join(bad)} (infinite "
+                        "variance); use a longer --ls-window")
     use = None if ls_start == "reuse" else ~win
     return run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, 0.5 * (ls.cov + ls.cov.T),
                        use=use), ls
