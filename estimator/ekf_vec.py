@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.ekf import _JAC_FLAT, _NW, NX, NZ, PAPER, EkfConfig, make_schedule
+from estimator.ekf import _JAC_FLAT, _NW, NX, NZ, PAPER, EkfConfig
 from estimator.model import wrench
 from estimator.propagate import segment_thrust, zoh_segments
 
@@ -299,4 +299,4 @@ def run_ekf_vec(t, pose, mask, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None,
     return VecResult(np.asarray(t, float), xs, sig, nis, trig, f.P)
 
 
-__all__ = ["VecEKF", "VecResult", "run_ekf_vec", "shared_schedule", "make_schedule"]
+__all__ = ["VecEKF", "VecResult", "propagate_batch", "run_ekf_vec", "shared_schedule"]

@@ -286,7 +286,7 @@ def make_scenario(cfg: McConfig):
 
     cmd_t, duty = make_input(cfg.input, cfg.duration_s, cfg.cmd_rate_hz, cfg.amplitude_pct,
                              cfg.omega_rad_s)
-    thrust = load_thrust_table(None).thrust_n(duty, clamp=True)
+    thrust = load_thrust_table(None).thrust_n(duty)
     t = pose_times(cmd_t[0], cmd_t[-1], cfg.pose_rate_hz)
     return t, cmd_t, thrust
 
