@@ -114,7 +114,7 @@ def run_filter_method(args) -> int:
     """Run ``tpods estimate batch --method ekf|ls-ekf``."""
     from bench.thrust_table import load_thrust_table
     from estimator.batch import parse_window
-    from estimator.ekf import STATE_NAMES, estimate_filter
+    from estimator.ekf import STATE_NAMES, estimate_filter, initial_rates
     from tpods.runfolder import read_run
 
     if tuple(getattr(args, "estimate", ("mass", "izz"))) != ("mass", "izz"):
@@ -136,7 +136,16 @@ def run_filter_method(args) -> int:
         raise UserError(f"--initial {', '.join(bad)}: the filters start only x, y, psi, u, v, r, "
                         "m, izz (give known friction/tilt with --fixed)")
     x0 = np.array(cfg.x0, dtype=float)
-    x0[:3] = run.pose[0]  # start at the first pose unless told otherwise
+    # start at the first pose, with velocities from a line fit of the first 0.25 s (the
+    # run or window need not begin at rest), unless --initial says otherwise
+    x0[:3] = run.pose[0]
+    if args.method == "ekf" and not {"u", "v", "r"} & set(initial):
+        rates, rsig = initial_rates(run.pose_t, run.pose)
+        if np.all(np.isfinite(rsig)):
+            x0[3:6] = rates
+            s0 = np.array(cfg.sigma0)
+            s0[3:6] = np.maximum(s0[3:6], 3 * rsig)
+            cfg = cfg.with_(sigma0=tuple(s0.tolist()))
     for k, v in initial.items():
         x0[STATE_NAMES.index(k)] = v
     if x0[6] <= 0 or x0[7] <= 0:

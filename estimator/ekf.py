@@ -713,3 +713,34 @@ def estimate_filter(pose_t, pose, cmd_t, thrust_n, method: str = "ekf", cfg: Ekf
     use = None if ls_start == "reuse" else ~win
     res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, cov, use=use)
     return FilterEstimate(method, res, ls, ls_window_s, ls_start)
+
+
+def initial_rates(pose_t, pose, span_s: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame velocities (u, v, r) at ``pose_t[0]`` from a straight-line fit of the poses.
+
+    Fits x, y and the unwrapped yaw linearly over the first ``span_s`` seconds (at least 3
+    poses). Returns ``(rates (3,), sigmas (3,))``: the fitted u, v (m/s) and r (rad/s), and
+    the standard deviations of the fitted slopes from the fit residuals. Use it to start a
+    filter on a run (or a window) that does not begin at rest.
+    """
+    t = np.asarray(pose_t, dtype=float)
+    p = np.asarray(pose, dtype=float)
+    n = max(3, int(np.searchsorted(t, t[0] + span_s, side="right")))
+    n = min(n, len(t))
+    if n < 3:
+        return np.zeros(3), np.full(3, np.inf)
+    tt = t[:n] - t[0]
+    yaw = np.unwrap(p[:n, 2])
+    X = np.column_stack([np.ones(n), tt])
+    Y = np.column_stack([p[:n, 0], p[:n, 1], yaw])
+    coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
+    res = Y - X @ coef
+    dof = max(n - 2, 1)
+    s2 = np.sum(res**2, axis=0) / dof
+    var_slope = s2 * np.linalg.inv(X.T @ X)[1, 1]
+    xd, yd, r = coef[1]
+    c, s = math.cos(coef[0, 2]), math.sin(coef[0, 2])
+    u = xd * c + yd * s
+    v = -xd * s + yd * c
+    sig_uv = math.sqrt(max(var_slope[0], var_slope[1]))
+    return np.array([u, v, r]), np.array([sig_uv, sig_uv, math.sqrt(var_slope[2])])

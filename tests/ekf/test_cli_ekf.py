@@ -89,3 +89,15 @@ def test_report_ekf_command(tpods_exe, tmp_path):
     text = (tmp_path / "rep" / "report.md").read_text()
     assert "0.227" in text and "RMSE" in text
     assert (tmp_path / "rep" / "fig7_ekf.png").exists()
+
+
+def test_batch_ekf_window_starting_in_motion(tpods_exe, run_dir):
+    """A window that starts mid-run: velocities from the first poses, no divergence."""
+    p = _tpods(tpods_exe, "estimate", "batch", str(run_dir), "--method", "ekf", "--window", "6:",
+               "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert not out["diverged"] and "diverged" not in p.stderr
+    assert out["t0_s"] >= 6.0
+    assert abs(out["mass_kg"] - 1.9) < 0.1 * 1.9
+    assert abs(out["izz_kgm2"] - 3.2e-3) < 0.05 * 3.2e-3

@@ -209,3 +209,14 @@ def test_underweighting_changes_the_update_only_while_triggered():
         assert f.triggered == tr
         np.testing.assert_allclose(f.x.ravel(), zr, rtol=1e-10, atol=1e-15)
         np.testing.assert_allclose(f.P, Pr, rtol=1e-8, atol=1e-18)
+
+
+def test_initial_rates_from_poses():
+    from estimator.ekf import initial_rates
+
+    res = sim_run(2.0, 3.3e-3, seed=9, duration=12.0)
+    for t0 in (3.0, 8.0):
+        k = np.searchsorted(res.pose_t, t0)
+        rates, sig = initial_rates(res.pose_t[k:], res.pose[k:])
+        assert np.all(np.abs(rates - res.states[k, 3:6]) <= 4 * sig + 0.02)
+        assert np.all(sig < 0.1)
