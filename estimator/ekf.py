@@ -20,7 +20,7 @@ Filter conventions (SI units throughout):
 
 - prediction: ``P <- Phi P Phi^T + Q dt`` with ``Q = diag(q_psd)`` the continuous
   process-noise spectral density (units^2/s, e.g. kg^2/Hz for the mass);
-- measurement ``(x, y, psi)`` with ``H = [I3 0]``; yaw residual wrapped to (-pi, pi],
+- measurement ``(x, y, psi)`` with ``H = [I3 0]``; yaw residual wrapped to [-pi, pi),
   the state yaw stays continuous;
 - update: Joseph form ``P <- (I-KH) P (I-KH)^T + K R K^T``, symmetrised every 16th update;
 - underweighting (Zanetti, DeMars & Bishop 2010): when ``alpha > 0`` and the
@@ -155,12 +155,12 @@ _JAC_POS = [(0, 2), (0, 3), (0, 4), (1, 2), (1, 3), (1, 4), (2, 5),
             (4, 2), (4, 3), (4, 4), (4, 5), (4, 6),
             (5, 3), (5, 4), (5, 5), (5, 7)]
 _JAC_FLAT = np.array([i * NX + j for i, j in _JAC_POS])
-_NW = 10  # RK4-STM workspace per step: 4 stage Jacobians, 3 + 2 + 1 products
+_NW = 10  # RK4-STM slabs per step: 4 stage Jacobians, 3 + 2 + 1 products (+ identity)
 _PUT_CACHE: dict[int, np.ndarray] = {}
 
 
 def _put_index(n: int) -> np.ndarray:
-    """Flat indices of the stage-Jacobian entries in an (n, 10, 8, 8) workspace."""
+    """Flat indices of the stage-Jacobian entries in an (n, 11, 8, 8) workspace."""
     idx = _PUT_CACHE.get(n)
     if idx is None:
         idx = np.concatenate([_JAC_FLAT + (i * (_NW + 1) + k) * NX * NX
