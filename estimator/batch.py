@@ -192,6 +192,8 @@ class _Problem:
         self.zbar, self.prior_info = zbar, prior_info
         self.grid = make_grid(cmd_t, thrust_n, pose_t, max_step)
         self.islog = np.array([False] * 6 + [n in LOG_PARAMS for n in names])
+        self._eval_cache = None
+        self._stm_cache = None
 
     def to_z(self, q):
         z = np.array(q, dtype=float)
@@ -210,7 +212,15 @@ class _Problem:
         return d
 
     def evaluate(self, z):
-        """``(cost, residuals (N,3), states (M,6))``; cost inf for an invalid point."""
+        """``(cost, residuals (N,3), states (M,6))``; cost inf for an invalid point (cached)."""
+        key = np.asarray(z, float).tobytes()
+        if self._eval_cache is not None and self._eval_cache[0] == key:
+            return self._eval_cache[1]
+        out = self._evaluate(z)
+        self._eval_cache = (key, out)
+        return out
+
+    def _evaluate(self, z):
         d = self.params(z)
         if not (np.all(np.isfinite(z)) and 0 < d["mass"] < 1e12 and 0 < d["izz"] < 1e12):
             return math.inf, None, None
@@ -231,10 +241,14 @@ class _Problem:
         return cost, res, states
 
     def stm(self, z, states):
-        """(N, 6, 6+p) top rows of Phi(t_k, t0) along the reference trajectory ``states``."""
+        """(N, 6, 6+p) top rows of Phi(t_k, t0) along the reference trajectory ``states`` (cached)."""
+        key = np.asarray(z, float).tobytes()
+        if self._stm_cache is not None and self._stm_cache[0] == key:
+            return self._stm_cache[1]
         with np.errstate(all="ignore"):
             _, phi = trajectory_stm(z[:6], None, None, self.pose_t, self.params(z), self.names,
                                     grid=self.grid, states=states)
+        self._stm_cache = (key, phi)
         return phi
 
     def normal(self, z, res, states):
@@ -347,7 +361,7 @@ def _first_horizon(t_rel, pose, horizon0_s, yaw_limit_rad=1.0, min_poses=12):
     return max(h, float(t_rel[min(min_poses, len(t_rel) - 1)]))
 
 
-def _next_horizon(h, span, z, Lam_q, full: _Problem, t_rel_full, yaw_3sigma_rad=0.5):
+def _next_horizon(h, span, z, Lam_q, full: _Problem, t_rel_full, yaw_3sigma_rad=1.0):
     """Longest horizon (at least 2h) where the predicted yaw's 3 sigma stays below the limit."""
     cost, _, states = full.evaluate(z)
     if not math.isfinite(cost) or Lam_q is None:
@@ -442,8 +456,10 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
         if last:
             break
         h = _next_horizon(h, span, z, Lq, full, t_rel)
-    # covariance at the final point
-    Lam, _ = prob.normal(z, res, states)
+    # Covariance: when converged, Lambda of the last linearisation (the final correction
+    # was below tol, so it is the same to ~tol); otherwise Lambda at the returned point.
+    if not converged or Lam is None:
+        Lam, _ = prob.normal(z, res, states)
     cov = safe_inverse(Lam)
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     params = prob.params(z)
