@@ -488,7 +488,6 @@ class LiveEstimator:
             return None
         z = self.z
         sig = np.sqrt(np.maximum(self.P.diagonal(), 0.0))
-        self._seq += 1
         return {
             "schema": EST_SCHEMA, "body": self.body, "seq": self._seq,
             "t": self.t_last, "frame": self.frame_last,
@@ -509,6 +508,8 @@ class LiveEstimator:
         msg = self.estimate()
         if msg is None:
             return
+        self._seq += 1
+        msg["seq"] = self._seq
         msg["t_pub"] = time.time()
         try:
             self.publish(msg)
@@ -710,4 +711,4 @@ def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) 
     return (f"live: {head} | in {rates.get('poses_hz', 0):.0f} poses/s "
             f"{rates.get('cmds_hz', 0):.0f} cmds/s | used {c.updates} occl {a.occluded} "
             f"dup {a.duplicates} old {a.too_old} late-cmd {a.cmds_late} "
-            f"timeout {a.released_by_timeout} bad {c.malformed} | backlog {backlog + a.pending}")
+            f"timeout {a.released_by_timeout} bad {c.malformed} | backlog {backlog + est.aligner.pending}")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import socket
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -102,6 +103,7 @@ class PlantLoop:
         self.switches: list[tuple[float, tuple[float, ...]]] = []
         """Every duty change seen: (lab time, duties %)."""
         self._thrust = self._thrust_of(valves.duties)
+        self._t_state = -math.inf
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.t_begin: float | None = None
@@ -116,10 +118,15 @@ class PlantLoop:
     def _thrust_of(self, duties) -> np.ndarray:
         return self.table.thrust_n(np.asarray([duties], float), clamp=True)[0]
 
-    def _on_duties(self, _t_emulator: float, duties: tuple[float, ...]) -> None:
-        thrust = self._thrust_of(duties)
-        with self._lock:  # stamped under the lock: no pose can be integrated past it unseen
+    def _on_duties(self, t_emulator: float, duties: tuple[float, ...]) -> None:
+        # the emulator's own (monotonic) time of the command: the moment its bytes were read
+        age = time.monotonic() - t_emulator
+        with self._lock:  # appended under the lock: no pose is integrated past it unseen
             t = self.clock.now()
+            if 0.0 <= age < 1.0:
+                t -= age * self.clock.scale
+            t = max(t, self._t_state)
+            thrust = self._thrust_of(duties)
             self._switch_t.append(t)
             self._switch_thrust.append(thrust)
             self.switches.append((t, tuple(duties)))
@@ -194,3 +201,54 @@ class PlantLoop:
         n = len(self._truth_t)
         return (np.asarray(self._truth_t[:n], float),
                 np.asarray(self._truth_s[:n], float).reshape(-1, 6))
+
+
+class SimulatedModule:
+    """A whole simulated module on the lab side: an emulated valve controller served on a
+    pty (``valves_path``, what the player opens), a :class:`PlantLoop` following it, and a
+    bridge publishing its poses over ``session`` (``<prefix>/<body>/pose``).
+
+    Use as a context manager; ``plant.truth_arrays()`` and ``valves.log`` hold the truth.
+    """
+
+    def __init__(self, session, params: PlantParams, table, *, clock: LabClock | None = None,
+                 body: str = "tpods1", pose_rate_hz: float = 120.0, noise: MocapNoise | None = None,
+                 seed: int | None = 0, prefix: str = "tpods/mocap", n_channels: int = 4) -> None:
+        from bench.emulators import EmulatedValveController
+        from mocap_bridge.bridge import Bridge
+        from mocap_bridge.sources.sim import PushSource
+
+        self.valves = EmulatedValveController(n_channels)
+        self.source = PushSource(f"plant:{body}")
+        self.bridge = Bridge(session, prefix=prefix)
+        self.plant = PlantLoop(self.valves, params, table, push_sink(self.source, body),
+                               clock=clock, pose_rate_hz=pose_rate_hz, noise=noise, seed=seed)
+        self._stop = threading.Event()
+        self._bridge_thread = threading.Thread(target=self.bridge.run, args=(self.source, self._stop),
+                                               name="module-bridge", daemon=True)
+        self.server = None
+        self.valves_path: str | None = None
+
+    def start(self) -> SimulatedModule:
+        from bench.emulators import serve_pty
+
+        self.server = serve_pty(self.valves)
+        self.valves_path = self.server.path
+        self._bridge_thread.start()
+        self.plant.start()
+        return self
+
+    def stop(self) -> None:
+        self.plant.stop()
+        self.source.finish()
+        self._bridge_thread.join(timeout=5.0)
+        self._stop.set()
+        self._bridge_thread.join(timeout=5.0)
+        if self.server is not None:
+            self.server.stop()
+
+    def __enter__(self) -> SimulatedModule:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

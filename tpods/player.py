@@ -229,6 +229,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     t_start = math.nan
     current = (0.0,) * n_ch
     bar = None
+    stamp = _Stamper()
     try:
         with valves.safe(watchdog_ms) as guard:
             valves.set_freq(pwm_hz)
@@ -264,7 +265,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                 ta = clock.now()
                 valves.set_all(d)
                 tb = clock.now()
-                t = 0.5 * (ta + tb)
+                t = ta + stamp.half_rtt(tb - ta)
                 max_late = max(max_late, ta - target)
                 current = d
                 sent.append((t, d))
@@ -314,6 +315,23 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                 _write_json(out / "run.json", meta_all)
     return PlayResult(status, len(sent), n_holds, t_start, t_end, max_late,
                       guard.final_state if guard else None, pub_errors, error, out, sent)
+
+
+class _Stamper:
+    """When did the valves switch? Half the command's round trip after it was sent, but
+    never more than the median half round trip of the last 64 commands: a reply that
+    comes back late because the host was busy says nothing about when the controller
+    acted on the command (it acts on receipt)."""
+
+    def __init__(self) -> None:
+        self._recent: list[float] = []
+
+    def half_rtt(self, rtt: float) -> float:
+        half = 0.5 * max(rtt, 0.0)
+        self._recent.append(half)
+        if len(self._recent) > 64:
+            del self._recent[0]
+        return min(half, float(np.median(self._recent)))
 
 
 class _Stopped(Exception):
