@@ -127,6 +127,8 @@ def register(sub, est, rep) -> None:
                    help="table size in metres, module starting at its centre (default 2,2)")
     d.add_argument("--margin", type=nonneg_float, default=0.0,
                    help="keep the module centre this far from the table edge, m (default 0)")
+    d.add_argument("--max-yaw-rate", type=positive_float, default=None, metavar="RAD_S",
+                   help="also require |r| <= this along the predicted trajectory (default: no limit)")
     d.add_argument("--thrust-table", default=None, metavar="F",
                    help="thrust table TOML (default: the paper's Table 2)")
     d.add_argument("--noise-pos", type=positive_float, default=0.01, help="position sigma, m")
@@ -389,7 +391,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     table = load_thrust_table(args.thrust_table)
     settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
                               math.radians(args.noise_yaw_deg), PlantParams(args.mass, args.izz),
-                              tuple(args.table_size), args.margin)
+                              tuple(args.table_size), args.margin, args.max_yaw_rate)
     compared = []
     for spec in args.compare:
         cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
@@ -411,6 +413,7 @@ def cmd_design(args: argparse.Namespace) -> int:
 
     def row(e):
         return {"label": e.label, "logdet_info": e.logdet, "feasible": e.feasible,
+                "max_yaw_rate_rad_s": float(np.abs(e.crlb.states[:, 5]).max()),
                 "excursion_x_m": e.excursion_m[0], "excursion_y_m": e.excursion_m[1],
                 "crlb_mass_sigma_kg": e.crlb.mass_sigma_kg,
                 "crlb_izz_sigma_kgm2": e.crlb.izz_sigma_kgm2,
@@ -422,7 +425,8 @@ def cmd_design(args: argparse.Namespace) -> int:
            "evaluated": res.evaluated, "improvement_logdet": best.logdet - res.paper.logdet,
            "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
                         "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
-                        "margin_m": args.margin, "mass_kg": args.mass, "izz_kgm2": args.izz},
+                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
+                        "mass_kg": args.mass, "izz_kgm2": args.izz},
            "commands_csv": str(d / "commands.csv")}
     (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
     for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):

@@ -5,7 +5,7 @@ marginalised (Schur complement, :mod:`estimator.crlb`), evaluated at an assumed 
 Candidates ``d_i(t) = mean + A sin(w t + phase_i)`` keep every open duty inside the
 thrust table's valid range; a candidate is feasible only if its predicted trajectory
 (from rest at the table centre) keeps the module's centre inside the table, less a
-margin. The search: random candidates, then a Nelder-Mead refinement of the best
+margin (and, optionally, keeps the yaw rate below a limit). The search: random candidates, then a Nelder-Mead refinement of the best
 few on the feasible set (infeasible points score -inf).
 """
 
@@ -79,6 +79,7 @@ class DesignSettings:
     plant: PlantParams = field(default_factory=lambda: PlantParams(2.268, 3.78e-3))
     table_size_m: tuple[float, float] = (2.0, 2.0)
     margin_m: float = 0.0
+    max_yaw_rate_rad_s: float | None = None
 
 
 def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSettings,
@@ -91,6 +92,8 @@ def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSetti
     exc = np.abs(c.states[:, :2] - c.states[0, :2]).max(axis=0)
     half = np.asarray(settings.table_size_m, float) / 2 - settings.margin_m
     feasible = bool(np.all(exc <= half)) and math.isfinite(c.logdet)
+    if settings.max_yaw_rate_rad_s is not None:
+        feasible = feasible and bool(np.abs(c.states[:, 5]).max() <= settings.max_yaw_rate_rad_s)
     return Evaluation(c.logdet, c, (float(exc[0]), float(exc[1])), feasible, label, spec,
                       np.asarray(cmd_t), np.asarray(duty_pct))
 

@@ -90,3 +90,12 @@ def test_orbit_follower_tracks_its_setpoint_and_holds_yaw():
     assert err.max() < 0.02  # within 2 cm of a 10 cm orbit
     assert np.abs(states[:, 2]).max() < 0.02  # yaw held near zero
     assert np.ptp(states[:, 0]) > 0.15  # it does move along the orbit
+
+
+def test_yaw_rate_limit_makes_a_spinning_input_infeasible():
+    s = DesignSettings(duration_s=10.0, table_size_m=(10, 10))
+    free = evaluate_sine(SineInput.paper(), TABLE, s)
+    r_max = float(np.abs(free.crlb.states[:, 5]).max())
+    assert free.feasible and r_max > 0.1
+    s.max_yaw_rate_rad_s = 0.5 * r_max
+    assert not evaluate_sine(SineInput.paper(), TABLE, s).feasible
