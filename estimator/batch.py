@@ -13,13 +13,17 @@ with ``H_k = [I_3 0] Phi(t_k, t0)`` and the residuals ``r_k = z_k - y(t_k)`` (ya
 residual wrapped to (-pi, pi], predicted yaw continuous), and solves the normal
 equations ``Lambda dz = lambda``.
 
-Guards: the normal equations are solved in scaled variables (each component divided by
-its characteristic size, :data:`estimator.crlb.PARAM_SCALE`); a step that raises the
-cost is retried with Levenberg-Marquardt damping; iterations are capped; ``converged``
-is True only when the largest scaled correction fell below ``tol``. Because wrapped
-yaw residuals make the cost multi-modal far from the truth, the fit grows its horizon
-(first ``horizon0_s`` seconds, then 4x longer, ...), each stage starting from the last
-estimate; a stage ends when every correction is below a tenth of its own sigma.
+Guards: the normal equations are solved in scaled variables (mass and Izz in log space,
+so a correction is relative; other parameters divided by :data:`estimator.crlb.PARAM_SCALE`;
+states by 1 m, 1 rad, 1 m/s, 1 rad/s) and equilibrated; a step that raises the cost is
+retried with Levenberg-Marquardt damping, and no log-parameter moves by more than a
+factor e per step; iterations are capped; ``converged`` is True only when the largest
+scaled correction fell below ``tol``. Because wrapped yaw residuals make the cost
+multi-modal far from the truth, the fit grows its horizon: first ``horizon0_s`` seconds
+(or until the measured yaw has turned 1 rad), then the longest horizon over which the
+predicted yaw's 3-sigma uncertainty stays below 1 rad (at least twice as long), each stage
+starting from the last estimate and ending when every correction is below a tenth of its
+sigma. Only those start-up stages carry a weak pseudo-prior on log m and log Izz.
 
 The default prior is diffuse (no a priori information); ``prior=(zbar, Pbar)`` adds one.
 """
