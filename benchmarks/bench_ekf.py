@@ -3,6 +3,7 @@ looping the single filter."""
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -54,36 +55,52 @@ def _plain_filterpy(res, n_poses: int, cfg=PAPER) -> float:
     return n_poses / (time.perf_counter() - t0)
 
 
-def _single(res) -> float:
+def _single(res) -> tuple[float, float]:
+    """(updates per wall second, updates per CPU second of this process), best of 2."""
     make_schedule(res.pose_t, res.cmd_t, res.thrust_n)  # warm caches
-    t0 = time.perf_counter()
-    run_ekf(res.pose_t, res.pose, res.cmd_t, res.thrust_n, PAPER, first_pose_start(PAPER, res.pose))
-    return len(res.pose_t) / (time.perf_counter() - t0)
+    best = (0.0, 0.0)
+    for _ in range(2):
+        t0, c0 = time.perf_counter(), time.process_time()
+        run_ekf(res.pose_t, res.pose, res.cmd_t, res.thrust_n, PAPER,
+                first_pose_start(PAPER, res.pose))
+        n = len(res.pose_t)
+        best = max(best, (n / (time.perf_counter() - t0), n / (time.process_time() - c0)))
+    return best
+
+
+def _load() -> str:
+    try:
+        return f"load avg {os.getloadavg()[0]:.1f}"
+    except OSError:
+        return "load avg n/a"
 
 
 def run() -> list[dict]:
     rows = []
     res = simulate_paper(120.0, 0)
-    ours = _single(res)
+    ours, ours_cpu = _single(res)
     ref = _plain_filterpy(res, 600)
     rows.append({"case": "ekf single 120 Hz", "metric": "pose updates per s (predict+update)",
                  "value": ours, "reference": ref, "ratio": ours / ref, "ok": ours >= 20000,
-                 "target": ">= 20000 /s; reference: filterpy EKF, numerical Jacobian "
-                           "(600 poses); 50 Hz commands split 1/3 of the intervals"})
+                 "target": f">= 20000 /s; {ours_cpu:.3g} per CPU s, {_load()}; reference: "
+                           "filterpy EKF, numerical Jacobian (600 poses); 50 Hz commands split "
+                           "1/3 of the intervals"})
     from estimator.inputs import phase_sine
 
     cmd_t, duty = phase_sine(20.0, 50.0)
     fast = simulate(cmd_t, duty, PlantParams(2.268, 3.78e-3), config=SimConfig(pose_rate_hz=2000))
-    ours2 = _single(fast)
+    ours2, ours2_cpu = _single(fast)
     rows.append({"case": "ekf single 2 kHz", "metric": "pose updates per s (predict+update)",
                  "value": ours2, "reference": ref, "ratio": ours2 / ref, "ok": ours2 >= 20000,
-                 "target": ">= 20000 /s (mocap streaming at 2 kHz, 20 s)"})
+                 "target": f">= 20000 /s (2 kHz stream, 20 s); {ours2_cpu:.3g} per CPU s, "
+                           f"{_load()}"})
 
     # Monte Carlo: 500 runs x 120 s x 120 Hz, against simulate + single filter per run
     cfg = McConfig(runs=500, duration_s=120.0)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     mc = run_montecarlo(cfg)
     t_mc = time.perf_counter() - t0
+    c_mc = time.process_time() - c0
     n_sub = 3
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -96,8 +113,8 @@ def run() -> list[dict]:
     t_loop = (time.perf_counter() - t0) / n_sub * cfg.runs
     rows.append({"case": "ekf montecarlo 500x120s", "metric": "wall time, s",
                  "value": t_mc, "reference": t_loop, "ratio": t_loop / t_mc, "ok": t_mc < 60.0,
-                 "target": f"< 60 s incl. simulation; reference: simulate + single filter per "
-                           f"run, {n_sub} runs scaled to 500; "
+                 "target": f"< 60 s incl. simulation ({c_mc:.0f} CPU s, {_load()}); reference: "
+                           f"simulate + single filter per run, {n_sub} runs scaled to 500; "
                            f"{len(mc.t) * cfg.runs / t_mc:.3g} run-poses/s"})
     return rows
 
