@@ -261,6 +261,7 @@ class TruthStream:
         self.s = np.array(s0, float)
         self.rng = rng
         self.runs = len(truth)
+        self._noise_scale = np.array([cfg.noise_pos_m, cfg.noise_pos_m, cfg.noise_yaw_rad])
 
     def advance(self, k: int):
         if k:
@@ -269,8 +270,7 @@ class TruthStream:
                     n = max(1, math.ceil(dt / self.cfg.truth_max_step_s - 1e-9))
                     self.s = _rk4_batch(self.s, w, dt / n, n, self.mass, self.izz, self.known)
         cfg = self.cfg
-        noise = self.rng.standard_normal((self.runs, 3)) * np.array(
-            [cfg.noise_pos_m, cfg.noise_pos_m, cfg.noise_yaw_rad])
+        noise = self.rng.standard_normal((self.runs, 3)) * self._noise_scale
         pose = self.s[:, :3] + noise
         pose[:, 2] = (pose[:, 2] + math.pi) % (2 * math.pi) - math.pi
         keep = np.ones(self.runs, bool)
@@ -384,9 +384,9 @@ def run_montecarlo(cfg: McConfig, progress: bool = False,
         e[:, 6:8] -= truth
         e[:, 2] = (e[:, 2] + math.pi) % (2 * math.pi) - math.pi
         var = P[:, idx, idx]
-        bias[k] = e.mean(axis=0)
-        std[k] = e.std(axis=0, ddof=1)
-        sigma[k] = np.sqrt(var.mean(axis=0))
+        np.sum(e, axis=0, out=bias[k])
+        np.einsum("ri,ri->i", e, e, out=std[k])  # sums; turned into mean / std below
+        np.sum(var, axis=0, out=sigma[k])
         if k % cfg.nees_every == 0 or k == n - 1:
             nees_f[k] = np.mean(np.einsum("ri,ri->r", e, np.linalg.solve(P, e[:, :, None])[:, :, 0]))
         else:
@@ -403,6 +403,9 @@ def run_montecarlo(cfg: McConfig, progress: bool = False,
             if on_step is not None:
                 on_step(k)
     bar.close()
+    bias /= r
+    std = np.sqrt(np.maximum(std - r * bias**2, 0.0) / (r - 1))
+    sigma = np.sqrt(sigma / r)
     final_sigma = np.sqrt(filt.P[:, idx, idx])
     return McResult(cfg, t, bias, std, sigma, nees_p, nees_f, nees_bounds(r, 2),
                     nees_bounds(r, NX), trig, truth, e, final_sigma, np.sqrt(sq / n),

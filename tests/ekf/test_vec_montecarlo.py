@@ -113,3 +113,14 @@ def test_fused_batch_physics_matches_model():
             xr, pr = propagate(x[r], segs, ws, known)
             np.testing.assert_allclose(xb[r], xr, rtol=1e-13, atol=1e-15)
             np.testing.assert_allclose(pb[r], pr, rtol=1e-11, atol=1e-13)
+
+
+def test_monte_carlo_statistics_match_the_runs():
+    """Streamed sums give the same bias, sample std and filter sigma as the stored runs."""
+    res = run_montecarlo(McConfig(runs=6, duration_s=2.0, seed=3, n_examples=6))
+    np.testing.assert_allclose(res.bias[:, 6:8], res.ex_err.mean(axis=0), atol=1e-15)
+    np.testing.assert_allclose(res.std[:, 6:8], res.ex_err.std(axis=0, ddof=1), rtol=1e-8,
+                               atol=1e-12)
+    np.testing.assert_allclose(res.sigma[:, 6:8], np.sqrt((res.ex_sigma**2).mean(axis=0)),
+                               rtol=1e-12)
+    np.testing.assert_allclose(res.final_err[:, 6:8], res.ex_err[:, -1], rtol=0, atol=0)
