@@ -286,6 +286,9 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         d.mkdir(parents=True, exist_ok=True)
     res = run_montecarlo(cfg, progress=True)
     summ = res.summary()
+    if res.interrupted:
+        print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
+              file=sys.stderr)
     if d is not None:
         (d / "montecarlo.json").write_text(json.dumps(
             {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
@@ -302,9 +305,10 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
                      title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
         plot_mc_averages(res, d / "mc_averages.png",
                          title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
+    code = 130 if res.interrupted else 0
     if args.json:
         sys.stdout.write(json.dumps(summ) + "\n")
-        return 0
+        return code
     s = summ
     b = s["nees_param_bounds"]
     bf = s["nees_full_bounds"]
@@ -327,7 +331,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         print(f"  {s['ls_failed']} runs whose LS fit failed started from the ekf initialisation")
     if d is not None:
         print(f"  wrote {d / 'montecarlo.json'}, history.csv, runs.csv, mc_runs.png, mc_averages.png")
-    return 0
+    return code
 
 
 def cmd_report_ekf(args: argparse.Namespace) -> int:

@@ -136,6 +136,7 @@ class McResult:
     elapsed_s: float = 0.0
     ls_failed: int = 0
     final_cov_param: np.ndarray | None = None
+    interrupted: bool = False
 
     def final_nees_param(self) -> np.ndarray:
         """(R,) NEES of the final (m, Izz) error of every run (2 dof)."""
@@ -193,6 +194,8 @@ class McResult:
             "rmse_mass_kg_mean": float(np.mean(self.rmse[:, 0])),
             "rmse_izz_kgm2_mean": float(np.mean(self.rmse[:, 1])),
             "ls_failed": self.ls_failed,
+            "interrupted": self.interrupted,
+            "t_end_s": float(self.t[-1]),
             "elapsed_s": self.elapsed_s,
         }
 
@@ -373,44 +376,56 @@ def run_montecarlo(cfg: McConfig, progress: bool = False,
     idx = np.arange(NX)
     bar = tqdm(total=n, desc=f"{cfg.method} x {r} runs", unit="pose", unit_scale=True,
                disable=not progress, mininterval=0.5)
-    for k in range(n):
-        s, pose, keep = stream.advance(k)
-        if k:
-            filt.predict_w(stream.seg_dt[k], stream.seg_w[k])
-        filt.update(pose, keep & (t[k] > t_skip))
-        x, P = filt.x, filt.P
-        e = x.copy()
-        e[:, :6] -= s
-        e[:, 6:8] -= truth
-        e[:, 2] = (e[:, 2] + math.pi) % (2 * math.pi) - math.pi
-        var = P[:, idx, idx]
-        np.sum(e, axis=0, out=bias[k])
-        np.einsum("ri,ri->i", e, e, out=std[k])  # sums; turned into mean / std below
-        np.sum(var, axis=0, out=sigma[k])
-        if k % cfg.nees_every == 0 or k == n - 1:
-            nees_f[k] = np.mean(np.einsum("ri,ri->r", e, np.linalg.solve(P, e[:, :, None])[:, :, 0]))
-        else:
-            nees_f[k] = np.nan
-        a, b, c = P[:, 6, 6], P[:, 6, 7], P[:, 7, 7]
-        em, ei = e[:, 6], e[:, 7]
-        nees_p[k] = np.mean((c * em * em - 2 * b * em * ei + a * ei * ei) / (a * c - b * b))
-        trig[k] = np.mean(filt.triggered)
-        ex_err[:, k] = e[:ke, 6:8]
-        ex_sig[:, k] = np.sqrt(var[:ke, 6:8])
-        sq += e[:, 6:8] ** 2
-        if (k + 1) % 240 == 0 or k == n - 1:
-            bar.update(k + 1 - bar.n)
-            if on_step is not None:
-                on_step(k)
+    done = 0  # time steps completed
+    interrupted = False
+    try:
+        for k in range(n):
+            s, pose, keep = stream.advance(k)
+            if k:
+                filt.predict_w(stream.seg_dt[k], stream.seg_w[k])
+            filt.update(pose, keep & (t[k] > t_skip))
+            x, P = filt.x, filt.P
+            e = x.copy()
+            e[:, :6] -= s
+            e[:, 6:8] -= truth
+            e[:, 2] = (e[:, 2] + math.pi) % (2 * math.pi) - math.pi
+            var = P[:, idx, idx]
+            np.sum(e, axis=0, out=bias[k])
+            np.einsum("ri,ri->i", e, e, out=std[k])  # sums; turned into mean / std below
+            np.sum(var, axis=0, out=sigma[k])
+            if k % cfg.nees_every == 0 or k == n - 1:
+                nees_f[k] = np.mean(np.einsum("ri,ri->r", e, np.linalg.solve(P, e[:, :, None])[:, :, 0]))
+            else:
+                nees_f[k] = np.nan
+            a, b, c = P[:, 6, 6], P[:, 6, 7], P[:, 7, 7]
+            em, ei = e[:, 6], e[:, 7]
+            nees_p[k] = np.mean((c * em * em - 2 * b * em * ei + a * ei * ei) / (a * c - b * b))
+            trig[k] = np.mean(filt.triggered)
+            ex_err[:, k] = e[:ke, 6:8]
+            ex_sig[:, k] = np.sqrt(var[:ke, 6:8])
+            sq_k = sq + e[:, 6:8] ** 2
+            if (k + 1) % 240 == 0 or k == n - 1:
+                bar.update(k + 1 - bar.n)
+                if on_step is not None:
+                    on_step(k)
+            sq, e_last, P_last, done = sq_k, e, P, k + 1
+    except KeyboardInterrupt:
+        interrupted = True  # keep what was computed: the statistics of the first `done` poses
     bar.close()
+    if done == 0:
+        raise KeyboardInterrupt
+    if done < n:
+        t, bias, std, sigma = t[:done], bias[:done], std[:done], sigma[:done]
+        nees_p, nees_f, trig = nees_p[:done], nees_f[:done], trig[:done]
+        ex_err, ex_sig = ex_err[:, :done], ex_sig[:, :done]
     bias /= r
     std = np.sqrt(np.maximum(std - r * bias**2, 0.0) / (r - 1))
     sigma = np.sqrt(sigma / r)
-    final_sigma = np.sqrt(filt.P[:, idx, idx])
+    final_sigma = np.sqrt(P_last[:, idx, idx])
     return McResult(cfg, t, bias, std, sigma, nees_p, nees_f, nees_bounds(r, 2),
-                    nees_bounds(r, NX), trig, truth, e, final_sigma, np.sqrt(sq / n),
+                    nees_bounds(r, NX), trig, truth, e_last, final_sigma, np.sqrt(sq / done),
                     ex_err, ex_sig, time.perf_counter() - t_start, ls_failed,
-                    filt.P[:, 6:8, 6:8].copy())
+                    P_last[:, 6:8, 6:8].copy(), interrupted)
 
 
 def config_dict(cfg: McConfig) -> dict:

@@ -124,3 +124,15 @@ def test_monte_carlo_statistics_match_the_runs():
     np.testing.assert_allclose(res.sigma[:, 6:8], np.sqrt((res.ex_sigma**2).mean(axis=0)),
                                rtol=1e-12)
     np.testing.assert_allclose(res.final_err[:, 6:8], res.ex_err[:, -1], rtol=0, atol=0)
+
+
+def test_monte_carlo_interrupt_keeps_the_statistics_so_far():
+    def stop(k):
+        if k >= 479:
+            raise KeyboardInterrupt
+
+    res = run_montecarlo(McConfig(runs=4, duration_s=6.0, seed=1), on_step=stop)
+    assert res.interrupted
+    assert len(res.t) == 479 and res.bias.shape == (479, 8) and res.ex_err.shape[1] == 479
+    np.testing.assert_allclose(res.final_err[:, 6:8], res.ex_err[:, -1])
+    assert res.summary()["interrupted"] and np.all(np.isfinite(res.rmse))
