@@ -76,7 +76,8 @@ class LiveConfig:
     ls_start: str = "reuse"
     max_wait_s: float = DEFAULT_MAX_WAIT_S
     publish_rate_hz: float = 10.0
-    catchup_chunk: int = 64
+    catchup_budget_s: float = 0.0005
+    ls_in_process: bool = True
     n_channels: int = 4
 
     def __post_init__(self) -> None:
@@ -92,6 +93,13 @@ class LiveConfig:
             raise UserError("the publish rate must be >= 0 Hz (0: every update)")
         if self.ls_window_s <= 0:
             raise UserError("the LS window must be positive")
+
+
+_EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d,"t_pub":%r,'
+            '"method":"%s","phase":"%s","mass_kg":%r,"mass_sigma_kg":%r,"izz_kgm2":%r,'
+            '"izz_sigma_kgm2":%r,"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
+            '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
+            '"nis":%s}')
 
 
 def encode_estimate(d: dict[str, Any]) -> bytes:
@@ -232,6 +240,28 @@ class LiveRecorder:
             self.write_meta()
 
 
+def _ls_init() -> None:
+    """The background fit yields the CPU to the live loop (lower priority)."""
+    import os
+
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(10)
+
+
+def _ls_warm() -> None:
+    import estimator.batch  # noqa: F401
+
+
+def _ls_job(pose_t, pose, cmd_t, thrust_n, kw):
+    """Batch LS on the first window (runs in the background worker). Returns (result, s)."""
+    from estimator.batch import batch_ls
+
+    t_a = time.perf_counter()
+    res = batch_ls(pose_t, pose, cmd_t, thrust_n, **kw)
+    res.fisher = None  # not needed back here
+    return res, time.perf_counter() - t_a
+
+
 def _json_default(o: Any) -> Any:
     if isinstance(o, np.generic):
         return o.item()
@@ -255,6 +285,7 @@ class LiveCounters:
     publish_errors: int = 0
     catchup_updates: int = 0
     max_backlog: int = 0
+    max_queue: int = 0
 
 
 class LiveEstimator:
@@ -275,7 +306,11 @@ class LiveEstimator:
         self.config = config or LiveConfig()
         self.body = body
         self.publish = publish
+        self._body_json = json.dumps(body)
         self.recorder = recorder
+        self._R = self.config.ekf.R
+        self.publish_bytes: Callable[[bytes], None] | None = None
+        """Alternative to ``publish``: called with the encoded payload (the fast path)."""
         self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s,
                                    n_channels=self.config.n_channels)
         self.counters = LiveCounters()
@@ -291,7 +326,10 @@ class LiveEstimator:
         self.ls_result = None
         self.ls_error: str | None = None
         self.ls_elapsed_s: float | None = None
-        self._ls_thread: threading.Thread | None = None
+        self._ls_future = None
+        self._pool = None
+        if self.config.method == "ls-ekf":
+            self._executor()
         self._cu: dict[str, Any] | None = None
         self.restart_t: float | None = None
         self.end_seen_t: float | None = None
@@ -366,7 +404,7 @@ class LiveEstimator:
             z, P, _ = ekf_predict(z, P, seg_dt, seg_w, cfg)
         nis = math.nan
         if use:
-            z, P, (nis, _) = ekf_update(z, P, meas, cfg)
+            z, P, (nis, _) = ekf_update(z, P, meas, cfg, self._R)
         return z, P, nis
 
     def _start_filter(self, meas) -> None:
@@ -392,11 +430,13 @@ class LiveEstimator:
             self.hist_pose.append(meas)
             self.counters.updates += 1
             n += 1
-            sig = np.sqrt(np.maximum(self.P.diagonal(), 0.0))
-            self.history.append((p.t, self.z[6], sig[6], self.z[7], sig[7]))
+            P = self.P
+            self.history.append((p.t, float(self.z[6]), math.sqrt(max(P[6, 6], 0.0)),
+                                 float(self.z[7]), math.sqrt(max(P[7, 7], 0.0))))
             if self.recorder is not None:
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
-                self.recorder.estimate(p.t, p.frame, self.phase, self.z, sig)
+                self.recorder.estimate(p.t, p.frame, self.phase, self.z,
+                                       np.sqrt(np.maximum(P.diagonal(), 0.0)))
             if self.config.publish_rate_hz == 0:
                 self._publish(now)
         if self.config.method == "ls-ekf":
@@ -407,20 +447,34 @@ class LiveEstimator:
 
     # ------------------------------------------------------------------ ls-ekf
     def _ls_tick(self, block: bool = False) -> None:
-        if self.phase == "ekf" and self._ls_thread is None and self.hist_t \
+        if self.phase == "ekf" and self._ls_future is None and self.hist_t \
                 and self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s:
             self._start_ls()
-        if self._ls_thread is not None and self.phase == "ls-running":
-            if block:
-                self._ls_thread.join()
-            if not self._ls_thread.is_alive():
+        if self._ls_future is not None and self.phase == "ls-running":
+            if block or self._ls_future.done():
                 self._ls_done()
         if self._cu is not None:
             self._catch_up(block)
 
-    def _start_ls(self) -> None:
-        from estimator.batch import batch_ls
+    def _executor(self):
+        """One background worker for the batch fit: a separate process (the live loop keeps
+        its interpreter to itself), or a thread when processes are not wanted/available."""
+        if self._pool is None:
+            import concurrent.futures as cf
+            import multiprocessing as mp
 
+            if self.config.ls_in_process:
+                try:
+                    self._pool = cf.ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"),
+                                                        initializer=_ls_init)
+                    self._pool.submit(_ls_warm)  # import numpy/scipy now, not at the window's end
+                except Exception:  # no process pool here: a thread does it
+                    self._pool = None
+            if self._pool is None:
+                self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
+        return self._pool
+
+    def _start_ls(self) -> None:
         t0 = self.hist_t[0]
         n = int(np.searchsorted(np.asarray(self.hist_t), t0 + self.config.ls_window_s, "right"))
         pose_t = np.asarray(self.hist_t[:n]) - t0
@@ -433,25 +487,26 @@ class LiveEstimator:
                         "ax": cfg.ax, "ay": cfg.ay}}
         self._ls_n = n
         self.phase = "ls-running"
+        try:
+            self._ls_future = self._executor().submit(_ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
+        except Exception:  # a broken process pool: fall back to a thread
+            import concurrent.futures as cf
 
-        def work() -> None:
-            t_a = time.perf_counter()
-            try:
-                res = batch_ls(pose_t, pose, cmd_t - t0, thrust, **kw)
-                if not res.converged:
-                    self.ls_error = f"did not converge ({res.message})"
-                elif res.z0[6] <= 0 or res.z0[7] <= 0 or not np.all(np.isfinite(res.cov)):
-                    self.ls_error = "non-physical start (mass or Izz <= 0)"
-                else:
-                    self.ls_result = res
-            except Exception as exc:  # reported, the EKF carries on
-                self.ls_error = f"{exc.__class__.__name__}: {exc}"
-            self.ls_elapsed_s = time.perf_counter() - t_a
-
-        self._ls_thread = threading.Thread(target=work, name="live-ls", daemon=True)
-        self._ls_thread.start()
+            self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
+            self._ls_future = self._pool.submit(_ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
 
     def _ls_done(self) -> None:
+        try:
+            res, self.ls_elapsed_s = self._ls_future.result()
+            if not res.converged:
+                self.ls_error = f"did not converge ({res.message})"
+            elif res.z0[6] <= 0 or res.z0[7] <= 0 or not np.all(np.isfinite(res.cov)):
+                self.ls_error = "non-physical start (mass or Izz <= 0)"
+            else:
+                self.ls_result = res
+        except Exception as exc:  # reported, the EKF carries on
+            self.ls_error = f"{exc.__class__.__name__}: {exc}"
+        self.close_pool()
         if self.ls_result is None:
             self.phase = "ls-failed"
             print(f"live: batch LS on the first window failed ({self.ls_error}); "
@@ -462,20 +517,31 @@ class LiveEstimator:
                     "t": None, "n_win": self._ls_n}
         self.phase = "catching-up"
 
+    def close_pool(self) -> None:
+        """Stop the background worker (idempotent)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
     def _catch_up(self, block: bool) -> None:
+        """Re-filter buffered poses from the LS start for at most ``catchup_budget_s``."""
         cu = self._cu
-        chunk = len(self.hist_t) if block else self.config.catchup_chunk
-        end = min(len(self.hist_t), cu["i"] + chunk)
         reuse = self.config.ls_start == "reuse"
         z, P, t_prev = cu["z"], cu["P"], cu["t"]
-        for i in range(cu["i"], end):
-            t = self.hist_t[i]
-            use = reuse or i >= cu["n_win"]
-            z, P, _ = self._step(z, P, t_prev, t, self.hist_pose[i], use)
+        i = cu["i"]
+        n_win = cu["n_win"]
+        hist_t, hist_pose = self.hist_t, self.hist_pose
+        deadline = time.perf_counter() + self.config.catchup_budget_s
+        while i < len(hist_t):
+            t = hist_t[i]
+            z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win)
             t_prev = t
+            i += 1
             self.counters.catchup_updates += 1
-        cu.update(z=z, P=P, t=t_prev, i=end)
-        if end >= len(self.hist_t):  # caught up with the live filter: take over
+            if not block and time.perf_counter() > deadline:
+                break
+        cu.update(z=z, P=P, t=t_prev, i=i)
+        if i >= len(hist_t):  # caught up with the live filter: take over
             self.z, self.P, self.t_last = z, P, t_prev
             self._cu = None
             self.phase = "ls-ekf"
@@ -503,19 +569,29 @@ class LiveEstimator:
 
     def _publish(self, now: float) -> None:
         self._last_pub = now
-        if self.publish is None:
-            return
-        msg = self.estimate()
-        if msg is None:
+        if self.z is None or (self.publish is None and self.publish_bytes is None):
             return
         self._seq += 1
-        msg["seq"] = self._seq
-        msg["t_pub"] = time.time()
         try:
-            self.publish(msg)
+            if self.publish_bytes is not None:
+                self.publish_bytes(self._encode())
+            else:
+                msg = self.estimate()
+                msg["seq"] = self._seq
+                self.publish(msg)
             self.counters.estimates_published += 1
         except Exception:
             self.counters.publish_errors += 1
+
+    def _encode(self) -> bytes:
+        """The current estimate as a ``tpods.estimate/1`` payload (same keys as :meth:`estimate`)."""
+        z = self.z.tolist()
+        d = self.P.diagonal().tolist()
+        sg = [math.sqrt(v) if v > 0 else 0.0 for v in d]
+        nis = "null" if math.isnan(self.last_nis) else repr(float(self.last_nis))
+        return (_EST_FMT % (self._body_json, self._seq, self.t_last, self.frame_last, time.time(),
+                            self.config.method, self.phase, z[6], sg[6], z[7], sg[7],
+                            *z[:6], *sg[:6], self.counters.updates, nis)).encode()
 
     def finish(self) -> dict[str, Any] | None:
         """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
@@ -525,6 +601,7 @@ class LiveEstimator:
                     self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s:
                 self._start_ls()
             self._ls_tick(block=True)
+            self.close_pool()
         self._publish(time.time())
         return self.estimate()
 
@@ -607,10 +684,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     pub = session.declare_publisher(k["estimate"], encoding=zenoh.Encoding(ENCODING),
                                     express=True)
 
-    def publish(msg: dict[str, Any]) -> None:
-        pub.put(encode_estimate(msg))
-
-    estimator.publish = publish
+    estimator.publish_bytes = pub.put
     subs = [session.declare_subscriber(k["pose"], on_pose),
             session.declare_subscriber(k["cmd"], on_cmd)]
     t_start = time.monotonic()
@@ -636,6 +710,10 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
             except queue.Empty:
                 item = None
             batch = 0
+            if item is not None:
+                qs = q.qsize() + 1
+                if qs > estimator.counters.max_queue:
+                    estimator.counters.max_queue = qs
             while item is not None:
                 kind, payload, arr = item
                 if kind == 0:
@@ -689,9 +767,10 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
         else:
             with contextlib.suppress(Exception):
                 estimator.process(math.inf)
+        estimator.close_pool()
         with contextlib.suppress(Exception):
             pub.undeclare()
-        estimator.publish = None
+        estimator.publish_bytes = None
     if status == "success" and stop.is_set():
         status = "stopped"
     return LiveRun(status, estimator.summary(), time.monotonic() - t_start, rates)
