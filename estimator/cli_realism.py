@@ -80,17 +80,42 @@ def before_batch(args: argparse.Namespace) -> int | None:
         print(f"model selection on {run.path} (--model auto):", file=out)
         for line in sel.table_lines():
             print(line, file=out)
+        _start_at(args, sel.fits[model])
     args.model = model
     args.estimate = resolve_names(model, args.estimate)
     args.fixed = fixed_for(model, {k: v for k, v in args.fixed.items()})
     if args.method != "ls" and model != DEFAULT_MODEL:
         return run_ext_filter(args)
+    if args.method == "ls" and model != DEFAULT_MODEL and not hasattr(args, "model_selection"):
+        # fit the nested smaller models first: the larger fit then starts at (and can only
+        # improve on) their optimum, which is more robust than the paper's start alone
+        from estimator.model_select import fit_models
+
+        run, cmd_t, thrust = _run_thrusts(args)
+        order = list(MODELS)
+        fits = fit_models(run.pose_t, run.pose, cmd_t, thrust, order[:order.index(model) + 1],
+                          fixed={k: v for k, v in args.fixed.items() if k not in args.estimate},
+                          initial=args.initial, sigma_pos_m=args.sigma_pos,
+                          sigma_yaw_rad=math.radians(args.sigma_yaw_deg))
+        _start_at(args, fits[model])
     return None
+
+
+def _start_at(args: argparse.Namespace, fit) -> None:
+    """Start the batch fit of ``cmd_batch`` at a staged fit's optimum (when it converged)."""
+    from estimator.model import STATE_NAMES
+
+    r = fit.result
+    if r.converged and np.all(np.isfinite(r.z0)):
+        args.initial = dict(zip(STATE_NAMES + tuple(r.names), r.z0.tolist(), strict=True))
+        args.start_note = f"started at the staged fit's optimum ({fit.start})"
 
 
 def annotate(out: dict[str, Any], args: argparse.Namespace) -> None:
     """Add the model option (and the auto-selection record) to a batch JSON object."""
     out["model"] = getattr(args, "model", DEFAULT_MODEL)
+    if getattr(args, "start_note", None):
+        out["start"] = args.start_note
     sel = getattr(args, "model_selection", None)
     if sel is not None:
         out["model_selection"] = sel.to_dict()

@@ -32,6 +32,7 @@ import numpy as np
 from scipy import stats
 
 from estimator.models import MODELS, fixed_for
+from tpods.errors import UserError
 
 DEFAULT_ALPHA = 1e-3
 DEFAULT_LAGS = 20
@@ -89,6 +90,7 @@ class ModelFit:
     lb_q: np.ndarray
     lb_p: np.ndarray
     acf: np.ndarray
+    start: str = "default start"
 
     @property
     def white(self) -> bool:
@@ -105,7 +107,7 @@ class ModelFit:
                 "chi2": self.chi2, "n_obs": self.n_obs, "k": self.k, "aic": self.aic,
                 "bic": self.bic, "reduced_chi2": self.reduced_chi2,
                 "ljung_box_q": self.lb_q.tolist(), "ljung_box_p": self.lb_p.tolist(),
-                "white": self.white}
+                "white": self.white, "start": self.start}
 
 
 def diagnose(model: str, result, sigma_pos_m: float, sigma_yaw_rad: float,
@@ -271,18 +273,30 @@ def fit_models(pose_t, pose, cmd_t, thrust_n, models: Sequence[str] = tuple(MODE
         init = {k: v for k, v in (initial or {}).items() if k not in fx}
         kw = dict(names=names, fixed=fx, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
                   **kwargs)
-        fit = diagnose(m, batch_ls(pose_t, pose, cmd_t, thrust_n, initial=init, **kw),
-                       sigma_pos_m, sigma_yaw_rad, lags)
-        if prev is not None and prev.result.converged and set(prev.names) < set(names) and (
-                not fit.result.converged or fit.chi2 > prev.chi2 * (1 + 1e-9)):
+        fit: ModelFit | None = None
+        error: UserError | None = None
+        try:
+            fit = diagnose(m, batch_ls(pose_t, pose, cmd_t, thrust_n, initial=init, **kw),
+                           sigma_pos_m, sigma_yaw_rad, lags)
+        except UserError as exc:  # e.g. a start-up stage ending where the trajectory blows up
+            error = exc
+        if prev is not None and set(prev.names) < set(names) and (
+                fit is None or not fit.result.converged or fit.chi2 > prev.chi2 * (1 + 1e-9)):
             # The smaller model's optimum is a point of this one (extras at their fixed
             # values): restart there, so the nested fit can only improve on it.
             warm = _nested_start(prev, names, fx)
             kw2 = {**kw, "horizon0_s": None}
-            alt = diagnose(m, batch_ls(pose_t, pose, cmd_t, thrust_n, initial=warm, **kw2),
-                           sigma_pos_m, sigma_yaw_rad, lags)
-            if alt.result.converged and (not fit.result.converged or alt.chi2 < fit.chi2):
+            try:
+                alt = diagnose(m, batch_ls(pose_t, pose, cmd_t, thrust_n, initial=warm, **kw2),
+                               sigma_pos_m, sigma_yaw_rad, lags)
+                alt.start = f"nested start at the {prev.model} optimum"
+            except UserError as exc:
+                alt, error = None, error or exc
+            if alt is not None and (fit is None or (alt.result.converged and (
+                    not fit.result.converged or alt.chi2 < fit.chi2))):
                 fit = alt
+        if fit is None:
+            raise UserError(f"the {m} fit failed: {error}")
         out[m] = fit
         if fit.result.converged:
             prev = fit
