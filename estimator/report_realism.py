@@ -374,7 +374,37 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
     tp = truth_params(TRUTH)
     md += [f"- {n}: {s:.3g} {PARAM_UNITS[n]} ({100 * s / abs(tp[n]):.2g} % of {tp[n]:.3g})"
            for n, s in zip(names, c.sigma, strict=True)]
-    md.append("")
+    res1, cmd1, thr1 = simulate_run(TRUTH, seed_list[0], duration_s=duration_s)
+    price = {m: extended_crlb(res1, cmd1, thr1, TRUTH, m) for m in MODELS}
+    data["identifiability"]["crlb_by_model"] = {
+        m: {"mass_kg": c2.mass_sigma_kg, "izz_kgm2": c2.izz_sigma_kgm2} for m, c2 in price.items()}
+    tilt_sigma = float(np.hypot(*c.sigma[-2:]) / math.sqrt(2))
+    md += ["", "What this means:", "",
+           "- The price of not knowing friction and tilt: the bound on the mass grows from "
+           f"{price['ideal'].mass_sigma_kg:.2g} kg (ideal model, friction known) to "
+           f"{price['friction'].mass_sigma_kg:.2g} kg (friction estimated) and "
+           f"{price['friction+tilt'].mass_sigma_kg:.2g} kg (tilt too); Izz from "
+           f"{price['ideal'].izz_sigma_kgm2:.2g} to {price['friction'].izz_sigma_kgm2:.2g} and "
+           f"{price['friction+tilt'].izz_sigma_kgm2:.2g} kg m^2. Still below 1 % of the truth, "
+           f"against the paper's experimental RMSE of {PAPER_RMSE['mass_kg']} kg.",
+           "- Tilt, translational friction and the initial velocity are the weakly separable "
+           "group: a constant lab-frame push, a drag opposing the velocity and a start velocity "
+           "all produce slow drifts, told apart only by their different time courses over 14 s "
+           "(|corr(ct, ax)| about 0.9). The tilt is known only to about "
+           f"{tilt_sigma:.2g} m/s^2 per axis (1 sigma, {1e6 * tilt_sigma / 9.81:.0f} micro-rad): "
+           "a table levelled better than ~0.05 mrad is indistinguishable from a level one in "
+           "one run, which is why `--model auto` keeps `friction` on level tables.",
+           "- Rotational friction and the yaw bias are correlated (both act on the yaw rate) "
+           "but each is still determined to about 1 %: the translation phase (bias only) and "
+           "the rotation phase (friction only) separate them.",
+           "- Not identifiable from poses at all, whatever the model: the thrust scale (only "
+           "thrust/m enters, so a 5 % thrust-table error is a 5 % mass error) and the moment "
+           "arm (only d/Izz enters). Those need the bench calibration and the bifilar "
+           "measurement; friction estimation cannot fix them.",
+           "- Not tested here: the friction law itself. Real ball transfers add Coulomb "
+           "(constant) friction; the viscous model absorbs part of it, the rest shows in the "
+           "residual whiteness (Ljung-Box) and the reduced chi-square, which the selection "
+           "reports.", ""]
     # 4. Monte Carlo
     mc = monte_carlo(runs, seed, "friction+tilt", duration_s, progress=bar.update)
     bar.close()
