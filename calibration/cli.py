@@ -1,7 +1,280 @@
-"""Sub-commands of the `calibration` package (none yet: see the open issues)."""
+"""``tpods calibrate mass|bifilar|combine``: ground-truth mass and Izz (thin shell)."""
 
 from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from tpods.argtypes import float_list, nonneg_float, positive_float
+from tpods.errors import UserError
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
+    from tpods.cli import group
+
+    cal = group(sub, "calibrate", "ground-truth mass (balance) and Izz (bifilar pendulum, parts)")
+    _register_mass(cal)
+    _register_bifilar(cal)
+    _register_combine(cal)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return v
+
+
+def _print_json(obj) -> None:
+    json.dump(obj, sys.stdout, indent=2, default=float)
+    sys.stdout.write("\n")
+
+
+# ------------------------------------------------------------------------------ mass
+
+
+def _register_mass(cal) -> None:
+    p = cal.add_parser(
+        "mass", help="mass from N stable balance readings, with a GUM uncertainty",
+        description="Mean, standard deviation and combined standard uncertainty (repeatability "
+                    "s/sqrt(N) and the balance's +-accuracy as a rectangular bound, a/sqrt(3)) of "
+                    "N stable readings, in kg. Give exactly one source: --scale, --readings-from "
+                    "or --values.")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scale", metavar="URL",
+                     help="serial port or pyserial URL of an OHAUS Scout balance")
+    src.add_argument("--readings-from", metavar="FILE",
+                     help="readings taken by hand, one per line ('720.1', '720.1 g'; "
+                          "'?' marks unstable and is skipped)")
+    src.add_argument("--values", type=float_list(), metavar="V1,V2,...",
+                     help="readings on the command line, in --unit")
+    p.add_argument("--readings", type=_positive_int, default=10,
+                   help="stable readings to take from the balance (default 10)")
+    p.add_argument("--accuracy-g", type=nonneg_float, default=2.5,
+                   help="stated balance accuracy +-a in grams (default 2.5, the paper's)")
+    p.add_argument("--resolution-g", type=nonneg_float, default=0.0,
+                   help="display resolution d in grams, adds d/(2 sqrt 3) (default 0: inside "
+                        "the accuracy)")
+    p.add_argument("--unit", default="g", help="unit of numbers without one (default g)")
+    p.add_argument("--baudrate", type=_positive_int, default=9600, help="default 9600")
+    p.add_argument("--bytesize", type=int, choices=(7, 8), default=8, help="default 8")
+    p.add_argument("--parity", choices=("N", "E", "O"), default="N", help="default N")
+    p.add_argument("--stopbits", type=int, choices=(1, 2), default=1, help="default 1")
+    p.add_argument("--timeout", type=positive_float, default=5.0,
+                   help="seconds to wait for one stable reading (default 5)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_mass)
+
+
+def _scale_readings(args) -> tuple[list[float], int]:
+    from calibration.mass import take_readings
+
+    try:
+        from bench.ohaus import OhausScout
+    except ImportError:
+        raise UserError("--scale needs the OHAUS driver (bench/ohaus.py), which is not installed; "
+                        "use --readings-from FILE or --values") from None
+    from tqdm import tqdm
+
+    with OhausScout(args.scale, baudrate=args.baudrate, bytesize=args.bytesize,
+                    parity=args.parity, stopbits=args.stopbits, timeout=args.timeout) as scale, \
+            tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
+                 disable=args.json or None) as bar:
+        return take_readings(lambda: scale.read(mode="SP"), args.readings, progress=bar.update)
+
+
+def cmd_mass(args: argparse.Namespace) -> int:
+    from calibration.mass import mass_from_readings, parse_readings_text, to_kg
+
+    to_kg(1.0, args.unit)  # validates --unit
+    if args.scale:
+        readings, skipped = _scale_readings(args)
+    elif args.readings_from:
+        path = Path(args.readings_from)
+        if not path.is_file():
+            raise UserError(f"{path}: file not found")
+        try:
+            text = path.read_text()
+        except UnicodeDecodeError:
+            raise UserError(f"{path}: not a text file") from None
+        readings, skipped = parse_readings_text(text, args.unit, str(path))
+    else:
+        readings, skipped = [to_kg(v, args.unit) for v in args.values], 0
+    res = mass_from_readings(readings, args.accuracy_g * 1e-3, args.resolution_g * 1e-3,
+                             skipped=skipped)
+    if args.json:
+        _print_json(res.to_dict())
+        return 0
+    print(f"mass = {res.mass_kg:.6g} kg +- {res.u_combined_kg:.2g} kg (standard uncertainty, k=1; "
+          f"expanded U = {res.expanded_kg:.2g} kg, k=2)")
+    print(f"  {res.n_readings} stable readings, std {res.std_kg * 1e3:.3g} g"
+          + (f", {skipped} unstable skipped" if skipped else ""))
+    print(f"  Type A (repeatability s/sqrt(N)) {res.u_typeA_kg * 1e3:.3g} g; Type B (+-{args.accuracy_g:g}"
+          f" g rectangular, a/sqrt(3)) {res.u_typeB_kg * 1e3:.3g} g"
+          + (f"; resolution {res.u_resolution_kg * 1e3:.3g} g" if res.u_resolution_kg else ""))
+    return 0
+
+
+# --------------------------------------------------------------------------- bifilar
+
+
+def _register_bifilar(cal) -> None:
+    p = cal.add_parser(
+        "bifilar", help="Izz from a bifilar pendulum: stopwatch timings (Eq. 19) or a mocap trace",
+        description="Izz of a body hung from two parallel strings. --times: the paper's Eq. 19, "
+                    "Izz = m g D^2 T^2 / (16 pi^2 h), on the mean period, with an uncertainty "
+                    "budget per input. --poses: fit the nonlinear large-angle model with viscous "
+                    "and quadratic damping to the recorded yaw; Eq. 19 on the trace's period and "
+                    "the amplitude correction are reported beside it.")
+    p.add_argument("--mass", type=positive_float, required=True, metavar="KG", help="body mass, kg")
+    p.add_argument("--spacing", type=positive_float, required=True, metavar="D_M",
+                   help="horizontal separation D of the strings, m")
+    p.add_argument("--length", type=positive_float, required=True, metavar="H_M",
+                   help="unsupported vertical length h of the strings, m")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--times", type=float_list(), metavar="T1,T2,...",
+                     help="stopwatch time of --cycles full oscillations per trial, s")
+    src.add_argument("--poses", metavar="PATH",
+                     help="poses.csv (t,x,y,psi) recorded while the body swings, or its run folder")
+    p.add_argument("--cycles", type=_positive_int, default=10,
+                   help="full oscillations per timing (default 10)")
+    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
+                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
+    p.add_argument("--u-spacing", type=nonneg_float, default=1e-3, metavar="M",
+                   help="standard uncertainty of D, m (default 0.001)")
+    p.add_argument("--u-length", type=nonneg_float, default=2e-3, metavar="M",
+                   help="standard uncertainty of h, m (default 0.002)")
+    p.add_argument("--u-timing", type=nonneg_float, default=0.0, metavar="S",
+                   help="extra per-timing stopwatch error, s (default 0: the spread covers it)")
+    p.add_argument("--tare-izz", type=nonneg_float, default=0.0, metavar="KGM2",
+                   help="inertia of a fixture to subtract, kg m^2")
+    p.add_argument("--u-tare", type=nonneg_float, default=0.0, metavar="KGM2",
+                   help="standard uncertainty of --tare-izz")
+    p.add_argument("--g", type=positive_float, default=9.80665, help="m/s^2 (default 9.80665)")
+    p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
+    p.add_argument("--window", type=float_list(2), default=None, metavar="T0,T1",
+                   help="use only poses with T0 <= t <= T1, s (--poses)")
+    p.add_argument("--no-rise-ke", action="store_true",
+                   help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="DIR", help="write result.json and plots here")
+    p.set_defaults(func=cmd_bifilar)
+
+
+def _read_poses(path_text: str) -> tuple:
+    import numpy as np
+
+    from tpods.runfolder import POSE_COLUMNS, _read_table
+
+    path = Path(path_text)
+    if path.is_dir():
+        path = path / "poses.csv"
+    v = _read_table(path, POSE_COLUMNS)
+    return np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 3]), path
+
+
+def cmd_bifilar(args: argparse.Namespace) -> int:
+    from calibration import bifilar
+
+    common = dict(u_mass_kg=args.u_mass, u_spacing_m=args.u_spacing, u_length_m=args.u_length,
+                  tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare, g=args.g, u_g=args.u_g)
+    if args.times is not None:
+        res = bifilar.izz_from_times(args.times, args.cycles, args.mass, args.spacing, args.length,
+                                     u_timing_s=args.u_timing, **common)
+        source = f"{len(args.times)} timings of {args.cycles} oscillations"
+    else:
+        t, psi, path = _read_poses(args.poses)
+        if args.window:
+            keep = (t >= args.window[0]) & (t <= args.window[1])
+            t, psi = t[keep], psi[keep]
+        try:
+            res = bifilar.fit_swing_trace(t, psi, args.mass, args.spacing, args.length,
+                                          vertical_ke=not args.no_rise_ke, **common)
+        except UserError as exc:
+            raise UserError(f"{path}: {exc}") from None
+        source = str(path)
+    out_files = []
+    if args.out:
+        from calibration import plots
+
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "result.json").write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
+        out_files.append(out / "result.json")
+        out_files.append(plots.plot_budget(res, out / "budget.png"))
+        if args.poses:
+            out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
+    if args.json:
+        _print_json(res.to_dict())
+        return 0
+    rel = res.izz_sigma_kgm2 / res.izz_kgm2
+    print(f"Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} kg m^2 ({100 * rel:.2g} %, k=1)"
+          f"  [{res.method}: {source}]")
+    d = res.details
+    if res.method == "eq19-times":
+        print(f"  period T = {d['period_s']:.5g} +- {d['u_period_s']:.2g} s "
+              f"(trial std {d['period_std_s']:.2g} s)")
+        if d["worst_trial_dev"] > 0.05:
+            print(f"  warning: a timing differs by {100 * d['worst_trial_dev']:.0f} % from the "
+                  "median: a miscounted oscillation?", file=sys.stderr)
+    else:
+        print(f"  small-angle period {d['period0_s']:.5g} s; swing {d['amplitude_start_deg']:.1f} -> "
+              f"{d['amplitude_end_deg']:.1f} deg over {d['n_oscillations']:g} oscillations; "
+              f"residual rms {d['residual_rms_deg']:.2g} deg")
+        print(f"  Eq. 19 on the trace's period {d['trace_period_s']:.5g} s: "
+              f"{d['izz_small_angle_kgm2']:.6g} kg m^2 (amplitude correction "
+              f"{100 * d['amplitude_correction']:+.2f} %)")
+        print(f"  damping: viscous K1 = {d['k1_nms']:.3g} N m s, quadratic K2 = {d['k2_nms2']:.3g} N m s^2")
+    var = res.izz_sigma_kgm2**2 or 1.0
+    print("  contributions to u(Izz):")
+    for k, v in sorted(res.contributions_kgm2.items(), key=lambda kv: -kv[1]):
+        if v > 0:
+            print(f"    {k:8s} {v:.2g} kg m^2 ({100 * v * v / var:.0f} % of the variance)")
+    for f in out_files:
+        print(f"wrote {f}")
+    return 0
+
+
+# --------------------------------------------------------------------------- combine
+
+
+def _register_combine(cal) -> None:
+    p = cal.add_parser(
+        "combine", help="mass and Izz of a structure from its parts (parallel-axis theorem)",
+        description="Combine parts (mass, Izz about own centre, position in the plane) from a "
+                    "PARTS.toml into the structure's mass, centre of mass and Izz about a point "
+                    "(see calibration/examples/truss_two_modules.toml).")
+    p.add_argument("parts", metavar="PARTS.toml")
+    p.add_argument("--about", type=float_list(2), default=None, metavar="X,Y",
+                   help="report Izz about this point, m (default: the file's 'about', else the "
+                        "centre of mass)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_combine)
+
+
+def cmd_combine(args: argparse.Namespace) -> int:
+    from calibration.composite import combine, load_parts
+
+    parts, about = load_parts(args.parts)
+    if args.about is not None:
+        about = tuple(args.about)
+    res = combine(parts, about)
+    if args.json:
+        _print_json(res.to_dict())
+        return 0
+    print(f"mass = {res.mass_kg:.6g} +- {res.mass_sigma_kg:.2g} kg ({len(parts)} parts)")
+    print(f"centre of mass = ({res.com_m[0]:.5g}, {res.com_m[1]:.5g}) m")
+    print(f"Izz about ({res.about_m[0]:.5g}, {res.about_m[1]:.5g}) m = {res.izz_kgm2:.6g} +- "
+          f"{res.izz_sigma_kgm2:.2g} kg m^2")
+    print(f"Izz about the centre of mass = {res.izz_com_kgm2:.6g} +- {res.izz_com_sigma_kgm2:.2g} kg m^2")
+    for r in res.parts:
+        print(f"  {r['name']:32s} m {r['mass_kg']:.4g} kg  Izz own {r['izz_own_kgm2']:.3g}  "
+              f"+ m d^2 {r['parallel_axis_kgm2']:.3g} kg m^2")
+    return 0

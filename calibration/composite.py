@@ -1,0 +1,171 @@
+"""Mass and Izz of a structure built from parts (parallel-axis theorem).
+
+Each part: mass m_i (kg), Izz_i about its own centre of mass (kg m^2) and the
+position r_i = (x_i, y_i) (m) of that centre in the plane. About a point O:
+
+    M = sum m_i,   c = sum m_i r_i / M,   Izz_O = sum (Izz_i + m_i |r_i - O|^2)
+
+and about the composite centre Izz_c = Izz_O - M |c - O|^2. Uncertainties of the
+parts (uncorrelated) propagate to first order; about c the shift of c itself drops
+out of the derivatives because sum m_i (r_i - c) = 0.
+
+PARTS.toml (see calibration/examples/truss_two_modules.toml):
+
+    about = "com"            # or [x, y] in metres: the point Izz is reported about
+    [[part]]
+    name = "module A"
+    mass_kg = 0.720
+    izz_kgm2 = 1.2e-3        # or shape = "rod" (length_m), "box" (size_m = [a, b]),
+                             #    "disk" (radius_m), "point"
+    position_m = [-0.35, 0.0]
+    mass_sigma_kg = 1.4e-3   # optional uncertainties
+    izz_sigma_kgm2 = 2e-5
+    position_sigma_m = 0.002
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tpods.errors import UserError
+
+
+@dataclass(frozen=True)
+class Part:
+    """One rigid part; SI units, Izz about its own centre of mass."""
+
+    name: str
+    mass_kg: float
+    izz_kgm2: float
+    x_m: float
+    y_m: float
+    mass_sigma_kg: float = 0.0
+    izz_sigma_kgm2: float = 0.0
+    position_sigma_m: float = 0.0
+
+
+@dataclass
+class Composite:
+    """Mass, centre of mass and Izz (about ``about_m`` and about the centre)."""
+
+    mass_kg: float
+    mass_sigma_kg: float
+    com_m: tuple[float, float]
+    about_m: tuple[float, float]
+    izz_kgm2: float
+    izz_sigma_kgm2: float
+    izz_com_kgm2: float
+    izz_com_sigma_kgm2: float
+    parts: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def combine(parts: list[Part], about: str | tuple[float, float] = "com") -> Composite:
+    """Combine parts about ``about`` ("com" or a point (x, y), m)."""
+    if not parts:
+        raise UserError("no parts to combine")
+    m = np.array([p.mass_kg for p in parts])
+    I = np.array([p.izz_kgm2 for p in parts])
+    r = np.array([[p.x_m, p.y_m] for p in parts])
+    um = np.array([p.mass_sigma_kg for p in parts])
+    uI = np.array([p.izz_sigma_kgm2 for p in parts])
+    ur = np.array([p.position_sigma_m for p in parts])
+    M = float(m.sum())
+    c = (m[:, None] * r).sum(0) / M
+    o = c if isinstance(about, str) else np.asarray(about, float)
+    d2_o = ((r - o) ** 2).sum(1)
+    d2_c = ((r - c) ** 2).sum(1)
+    izz_o = float((I + m * d2_o).sum())
+    izz_c = float((I + m * d2_c).sum())
+    # first-order propagation (each part's x and y uncertain by ur independently)
+    var_o = (uI**2 + (d2_o * um) ** 2 + ((2 * m * ur) ** 2 * d2_o)).sum()
+    var_c = (uI**2 + (d2_c * um) ** 2 + ((2 * m * ur) ** 2 * d2_c)).sum()
+    rows = [dict(name=p.name, mass_kg=p.mass_kg, izz_own_kgm2=p.izz_kgm2, position_m=[p.x_m, p.y_m],
+                 parallel_axis_kgm2=float(p.mass_kg * d), izz_about_point_kgm2=float(p.izz_kgm2 + p.mass_kg * d))
+            for p, d in zip(parts, d2_o, strict=True)]
+    return Composite(M, float(math.sqrt((um**2).sum())), (float(c[0]), float(c[1])),
+                     (float(o[0]), float(o[1])), izz_o, float(math.sqrt(var_o)), izz_c,
+                     float(math.sqrt(var_c)), rows)
+
+
+def _num(tab: dict, key: str, where: str, default: float | None = None, positive: bool = False,
+         nonneg: bool = True) -> float:
+    if key not in tab:
+        if default is None:
+            raise UserError(f"{where}: missing {key}")
+        return default
+    v = tab[key]
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise UserError(f"{where}: {key} must be a finite number, got {v!r}")
+    if positive and v <= 0:
+        raise UserError(f"{where}: {key} must be positive, got {v!r}")
+    if nonneg and v < 0:
+        raise UserError(f"{where}: {key} must not be negative, got {v!r}")
+    return float(v)
+
+
+def _pair(tab: dict, key: str, where: str) -> tuple[float, float]:
+    v = tab.get(key)
+    if (not isinstance(v, list) or len(v) != 2
+            or not all(isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                       for x in v)):
+        raise UserError(f"{where}: {key} must be [x, y] in metres, got {v!r}")
+    return float(v[0]), float(v[1])
+
+
+def part_izz(tab: dict, mass_kg: float, where: str) -> float:
+    """Izz about the part's own centre: given, or from a simple shape."""
+    if "izz_kgm2" in tab:
+        return _num(tab, "izz_kgm2", where)
+    shape = tab.get("shape")
+    if shape == "rod":  # thin rod lying in the plane, any orientation
+        return mass_kg * _num(tab, "length_m", where, positive=True) ** 2 / 12.0
+    if shape == "box":  # a x b footprint, rotating about the vertical
+        a, b = _pair(tab, "size_m", where)
+        if a <= 0 or b <= 0:
+            raise UserError(f"{where}: size_m must be positive")
+        return mass_kg * (a * a + b * b) / 12.0
+    if shape == "disk":
+        return mass_kg * _num(tab, "radius_m", where, positive=True) ** 2 / 2.0
+    if shape == "point":
+        return 0.0
+    raise UserError(f"{where}: give izz_kgm2 or shape = rod|box|disk|point (got shape {shape!r})")
+
+
+def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]:
+    """Read PARTS.toml; returns the parts and the reference point."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: file not found")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not valid TOML ({exc})") from None
+    raw = doc.get("part")
+    if not isinstance(raw, list) or not raw:
+        raise UserError(f"{path}: no [[part]] tables")
+    parts = []
+    for i, tab in enumerate(raw, start=1):
+        name = str(tab.get("name", f"part {i}"))
+        where = f"{path}: part {i} ({name})"
+        m = _num(tab, "mass_kg", where, positive=True)
+        x, y = _pair(tab, "position_m", where)
+        parts.append(Part(name, m, part_izz(tab, m, where), x, y,
+                          _num(tab, "mass_sigma_kg", where, 0.0),
+                          _num(tab, "izz_sigma_kgm2", where, 0.0),
+                          _num(tab, "position_sigma_m", where, 0.0)))
+    about = doc.get("about", "com")
+    if isinstance(about, str):
+        if about != "com":
+            raise UserError(f"{path}: about must be \"com\" or [x, y], got {about!r}")
+    else:
+        about = _pair(doc, "about", str(path))
+    return parts, about

@@ -1,0 +1,62 @@
+"""Plots of the calibration results (matplotlib, Agg backend, PNG)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def plot_trace_fit(fit, path: str | Path) -> Path:
+    """Yaw trace, nonlinear fit and damped-sine (small-angle) fit, with residuals."""
+    path = Path(path)
+    t = fit.t - fit.t[0]
+    off = fit.details["yaw_offset_rad"]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True,
+                                   gridspec_kw={"height_ratios": [2, 1]})
+    ax1.plot(t, np.degrees(fit.psi - off), ".", ms=2, color="0.6", label="mocap yaw")
+    ax1.plot(t, np.degrees(fit.psi_fit - off), "-", lw=1, color="C0",
+             label=f"nonlinear fit: Izz = {fit.izz_kgm2:.5g} +- {fit.izz_sigma_kgm2:.2g} kg m$^2$")
+    ax1.plot(t, np.degrees(fit.psi_small - off), "--", lw=0.8, color="C3",
+             label=f"damped sine: Eq. 19 gives {fit.details['izz_small_angle_kgm2']:.5g} "
+                   f"({100 * fit.details['amplitude_correction']:+.2f} % correction)")
+    ax1.set_ylabel("yaw - equilibrium (deg)")
+    ax1.legend(loc="upper right", fontsize=8)
+    ax1.set_title("Bifilar pendulum: trace fit")
+    ax2.plot(t, np.degrees(fit.psi - fit.psi_fit), ".", ms=2, color="C0", label="nonlinear fit")
+    ax2.plot(t, np.degrees(fit.psi - fit.psi_small), ".", ms=1, color="C3", alpha=0.4,
+             label="damped sine")
+    rms = fit.details["residual_rms_deg"]
+    ax2.axhline(0, color="k", lw=0.5)
+    ax2.set_ylabel("residual (deg)")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(loc="upper right", fontsize=8, title=f"fit rms {rms:.3g} deg")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_budget(result, path: str | Path) -> Path:
+    """Bar chart of the per-input contributions to u(Izz)."""
+    path = Path(path)
+    items = [(k, v) for k, v in result.contributions_kgm2.items() if v > 0]
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    if items:
+        names, vals = zip(*items, strict=True)
+        ax.barh(names, vals, color="C0")
+    total = result.izz_sigma_kgm2
+    ax.axvline(total, color="C3", lw=1, label=f"combined u = {total:.3g}")
+    ax.set_xlabel("contribution to u(Izz), kg m$^2$")
+    rel = total / result.izz_kgm2 if result.izz_kgm2 else math.nan
+    ax.set_title(f"Izz = {result.izz_kgm2:.5g} kg m$^2$ ({100 * rel:.2g} %)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
