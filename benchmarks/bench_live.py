@@ -150,15 +150,17 @@ def _stream(ctx, session, ep: str, seconds: float, rate_hz: float, key: str, sta
 
 
 def _latencies(pub_t: np.ndarray, items, t_key: str = "t_pub"):
-    frames, lat = [], []
+    """(frames, latency ms) of the first message that includes each pose (the estimator
+    publishes its final estimate once more at the end: not a latency)."""
+    first: dict[int, float] = {}
     for b, _t in items:
         d = json.loads(b)
         f = d.get("frame")
-        if not isinstance(f, int) or not 1 <= f <= len(pub_t):
+        if not isinstance(f, int) or not 1 <= f <= len(pub_t) or f in first:
             continue
-        frames.append(f)
-        lat.append(d[t_key] - pub_t[f - 1])
-    return np.asarray(frames), np.asarray(lat) * 1e3
+        first[f] = d[t_key] - pub_t[f - 1]
+    frames = np.fromiter(first.keys(), dtype=np.int64, count=len(first))
+    return frames, np.fromiter(first.values(), dtype=float, count=len(first)) * 1e3
 
 
 def run() -> list[dict]:
@@ -221,6 +223,8 @@ def run() -> list[dict]:
             c = summ.get("counters", {})
             if os.environ.get("TPODS_BENCH_LIVE_DEBUG"):
                 print(method, json.dumps(c), st.get("err", "")[-2000:])
+                slow = np.nonzero(lat_ms > 20)[0]
+                print("slow frames", frames[slow][:20], lat_ms[slow][:20])  # noqa: T201
             n = len(pub_t)
             order = np.argsort(frames)
             frames, lat_ms = frames[order], lat_ms[order]
