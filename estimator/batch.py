@@ -299,7 +299,8 @@ def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stat
     Returns ``(z, converged, Lambda_z, Lambda_q (with reg), residuals, states)``.
     """
     q_anchor = prob.to_q(z)
-    wreg = np.where(prob.islog, reg, 0.0)
+    wreg = np.where(prob.islog, reg, reg / scale**2)
+    wreg[:6] = 0.0
 
     def total(c, q):
         return c + float(np.sum(wreg * (q - q_anchor) ** 2))
@@ -445,20 +446,35 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
     history: list[float] = []
     stats = {"iterations": 0, "rejected": 0}
     converged = False
+    h_prev = prev = None
+    failed = ""
     while True:
         last = h >= span
-        horizons.append(h)
         if last:
             prob = full
         else:
             keep = t_rel <= h + 1e-9
             prob = _Problem(pose_t[keep], pose[keep], cmd_t, thrust_n, names, fixed_d, w, zbar,
                             prior_info, max_step)
+        if h_prev is not None and not math.isfinite(prob.evaluate(z)[0]):
+            # the start-up estimate blows up on the longer horizon: grow less
+            if h - h_prev > 0.05 * h_prev:
+                h = 0.5 * (h_prev + h)
+                continue
+            failed = (f"the predicted trajectory is not finite beyond t = {h_prev:.3g} s from "
+                      f"the estimate on the first {h_prev:.3g} s; the result covers only them")
+            prob = prev
+            cost, res, states = prob.evaluate(z)
+            converged = False
+            Lam = None
+            break
+        horizons.append(h)
         z, converged, Lam, Lq, res, states = _lm(prob, z, scale, tol if last else 0.0,
                                                  None if last else 0.1, max_iter, history,
                                                  stats, reg=0.0 if last else 1.0)
         if last:
             break
+        h_prev, prev = h, prob
         h = _next_horizon(h, span, z, Lq, full, t_rel)
     # Covariance: when converged, Lambda of the last linearisation (the final correction
     # was below tol, so it is the same to ~tol); otherwise Lambda at the returned point.
@@ -479,7 +495,9 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
     corr = float(cov[im, ii] / (sigma[im] * sigma[ii])) if im is not None and ii is not None else float("nan")
     msg = ("converged" if converged else
            f"not converged after {stats['iterations']} iterations ({stats['rejected']} rejected steps)")
-    return BatchResult(z, cov, sigma, names, params, float(pose_t[0]), pose_t, res,
+    if failed:
+        msg = "not converged: " + failed
+    return BatchResult(z, cov, sigma, names, params, float(pose_t[0]), prob.pose_t, res,
                        stats["iterations"], bool(converged), history, m, izz, sm, si, corr, msg,
                        horizons, time.perf_counter() - t_start, Lam)
 
