@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator import live_worker
 from estimator.ekf import PAPER, STATE_NAMES, EkfConfig, ekf_predict, ekf_update
 from estimator.live_align import LiveAligner
 from estimator.model import wrench
@@ -238,28 +239,6 @@ class LiveRecorder:
         self.meta.update(extra or {})
         with contextlib.suppress(OSError):
             self.write_meta()
-
-
-def _ls_init() -> None:
-    """The background fit yields the CPU to the live loop (lower priority)."""
-    import os
-
-    with contextlib.suppress(OSError, AttributeError):
-        os.nice(10)
-
-
-def _ls_warm() -> None:
-    import estimator.batch  # noqa: F401
-
-
-def _ls_job(pose_t, pose, cmd_t, thrust_n, kw):
-    """Batch LS on the first window (runs in the background worker). Returns (result, s)."""
-    from estimator.batch import batch_ls
-
-    t_a = time.perf_counter()
-    res = batch_ls(pose_t, pose, cmd_t, thrust_n, **kw)
-    res.fisher = None  # not needed back here
-    return res, time.perf_counter() - t_a
 
 
 def _json_default(o: Any) -> Any:
@@ -466,8 +445,8 @@ class LiveEstimator:
             if self.config.ls_in_process:
                 try:
                     self._pool = cf.ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"),
-                                                        initializer=_ls_init)
-                    self._pool.submit(_ls_warm)  # import numpy/scipy now, not at the window's end
+                                                        initializer=live_worker.init)
+                    self._pool.submit(live_worker.warm)  # import numpy/scipy now, not at the window's end
                 except Exception:  # no process pool here: a thread does it
                     self._pool = None
             if self._pool is None:
@@ -488,12 +467,12 @@ class LiveEstimator:
         self._ls_n = n
         self.phase = "ls-running"
         try:
-            self._ls_future = self._executor().submit(_ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
+            self._ls_future = self._executor().submit(live_worker.ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
         except Exception:  # a broken process pool: fall back to a thread
             import concurrent.futures as cf
 
             self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
-            self._ls_future = self._pool.submit(_ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
+            self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
 
     def _ls_done(self) -> None:
         try:
