@@ -456,6 +456,22 @@ class TraceFit(IzzResult):
     psi_small: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
 
+def _w2_guess(w2_seen: float, amp: float, spacing_m: float, length_m: float, g: float,
+              vertical_ke: bool) -> float:
+    """w0^2 whose model swing at amplitude ``amp`` has the frequency seen (start value)."""
+    if amp <= 0 or 0.5 * (spacing_m / length_m) ** 2 * (1 - math.cos(min(amp, math.pi))) >= 0.9:
+        return w2_seen
+    T = 2 * math.pi / math.sqrt(w2_seen)
+    tq = np.linspace(0.0, 0.6 * T, 400)
+    th = model_theta(tq, amp, 0.0, w2_seen, 0.0, 0.0, spacing_m, length_m, g, vertical_ke)
+    k = int(np.argmax(th < 0))
+    if k == 0:
+        return w2_seen
+    t_zero = tq[k - 1] + (tq[k] - tq[k - 1]) * th[k - 1] / (th[k - 1] - th[k])
+    ratio = (T / 4) / t_zero  # model frequency at this amplitude / w0
+    return w2_seen / ratio**2
+
+
 def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: float, *,
                     u_mass_kg: float = 0.0, u_spacing_m: float = 0.0, u_length_m: float = 0.0,
                     tare_izz_kgm2: float = 0.0, u_tare_kgm2: float = 0.0,
@@ -477,7 +493,8 @@ def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: fl
     tt = t - t[0]
     # initial guess for the nonlinear fit from the damped sine
     env2 = (lin.a**2 + lin.b**2) * np.exp(-2 * lin.sigma_per_s * tt)
-    w2_0 = lin.omega_d**2 * (1.0 + float(np.mean(env2)) / 8.0)
+    w2_0 = _w2_guess(lin.omega_d**2, math.sqrt(float(np.mean(env2))), spacing_m, length_m, g,
+                     vertical_ke)
     th0 = lin.a
     om0 = -lin.sigma_per_s * lin.a + lin.omega_d * lin.b
     if 0.5 * (spacing_m / length_m) ** 2 * (1 - math.cos(min(abs(th0) * 1.5, math.pi))) >= 0.95:
@@ -491,7 +508,7 @@ def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: fl
     def res(beta):
         try:
             return model(beta) - psi
-        except (FloatingPointError, OverflowError):
+        except (FloatingPointError, OverflowError, ValueError):
             return np.full_like(psi, 1e3)
 
     beta0 = np.array([math.log(w2_0), 2 * lin.sigma_per_s, 0.0, lin.offset_rad, th0, om0])

@@ -84,7 +84,8 @@ def _scale_readings(args) -> tuple[list[float], int]:
     from tqdm import tqdm
 
     with OhausScout(args.scale, baudrate=args.baudrate, bytesize=args.bytesize,
-                    parity=args.parity, stopbits=args.stopbits, timeout=args.timeout) as scale, \
+                    parity=args.parity, stopbits=args.stopbits, timeout=args.timeout,
+                    stable_timeout=args.timeout) as scale, \
             tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
                  disable=args.json or None) as bar:
         return take_readings(lambda: scale.read(mode="SP"), args.readings, progress=bar.update)

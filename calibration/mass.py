@@ -145,8 +145,13 @@ def take_readings(read: Callable[[], Any], n: int, max_attempts: int | None = No
             break
         try:
             r = read()
-            value, unit, stable = (r if isinstance(r, tuple) else (r.value, r.unit, r.stable))
-            kg = to_kg(float(value), str(unit))
+            if isinstance(r, tuple):
+                value, unit, stable = r
+                kg = to_kg(float(value), str(unit))
+            else:
+                stable = r.stable
+                grams = getattr(r, "grams", None)  # the OHAUS Reading knows its units
+                kg = grams * 1e-3 if grams is not None else to_kg(float(r.value), str(r.unit))
         except (DeviceError, ValueError, TypeError, UserError):
             skipped += 1
             continue
