@@ -25,12 +25,22 @@ def plot_trace_fit(fit, path: str | Path) -> Path:
     ax1.plot(t, np.degrees(fit.psi_small - off), "--", lw=0.8, color="C3",
              label=f"damped sine: Eq. 19 gives {fit.details['izz_small_angle_kgm2']:.5g} "
                    f"({100 * fit.details['amplitude_correction']:+.2f} % correction)")
+    lo, hi = ax1.get_ylim()
+    ax1.set_ylim(lo, hi + 0.45 * (hi - lo))  # room for the legend above the swing
     ax1.set_ylabel("yaw - equilibrium (deg)")
     ax1.legend(loc="upper right", fontsize=8)
     ax1.set_title("Bifilar pendulum: trace fit")
     ax2.plot(t, np.degrees(fit.psi - fit.psi_fit), ".", ms=2, color="C0", label="nonlinear fit")
     ax2.plot(t, np.degrees(fit.psi - fit.psi_small), ".", ms=1, color="C3", alpha=0.4,
              label="damped sine")
+    # running means over ~1/8 period make systematic misfit visible under the noise
+    per = fit.details["period0_s"]
+    k = max(1, int(round(per / 8 / max(float(np.median(np.diff(t))), 1e-9))))
+    ker = np.ones(k) / k
+    for res, col, lab in ((fit.psi - fit.psi_fit, "C0", "nonlinear fit, running mean"),
+                          (fit.psi - fit.psi_small, "C3", "damped sine, running mean")):
+        ax2.plot(t, np.degrees(np.convolve(res, ker, mode="same")), "-", lw=1.2, color=col,
+                 label=lab)
     rms = fit.details["residual_rms_deg"]
     ax2.axhline(0, color="k", lw=0.5)
     ax2.set_ylabel("residual (deg)")
