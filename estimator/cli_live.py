@@ -62,7 +62,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     table = load_thrust_table(args.thrust_table)
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
-                     publish_rate_hz=args.rate)
+                     publish_rate_hz=args.rate, ls_in_process=True)
     k = keys(args.body, args.mocap_prefix, args.prefix)
     rec = None
     if args.out:

@@ -78,7 +78,7 @@ class LiveConfig:
     max_wait_s: float = DEFAULT_MAX_WAIT_S
     publish_rate_hz: float = 10.0
     catchup_budget_s: float = 0.0005
-    ls_in_process: bool = True
+    ls_in_process: bool = False
     n_channels: int = 4
 
     def __post_init__(self) -> None:
@@ -436,8 +436,10 @@ class LiveEstimator:
             self._catch_up(block)
 
     def _executor(self):
-        """One background worker for the batch fit: a separate process (the live loop keeps
-        its interpreter to itself), or a thread when processes are not wanted/available."""
+        """One background worker for the batch fit: a separate spawned process when
+        ``config.ls_in_process`` (the live loop keeps its interpreter to itself; the
+        command line does this; a script doing it needs the usual
+        ``if __name__ == "__main__":`` guard), else a thread."""
         if self._pool is None:
             import concurrent.futures as cf
             import multiprocessing as mp

@@ -2,20 +2,16 @@
 
 from __future__ import annotations
 
-import threading
 import time
 from contextlib import contextmanager
 
 from bench.thrust_table import ThrustTable
-from bench.valves import ValveController
-from estimator.inputs import phase_sine
-from estimator.live import LiveConfig, LiveEstimator, LiveRecorder, run_live
 from estimator.model import PlantParams
 from mocap_bridge.zenoh_net import open_session
 from tests.mocap.conftest import free_port, matching, wait_for
 from tpods.clock import LabClock
 from tpods.plant_loop import SimulatedModule
-from tpods.player import cmd_key, play
+from tpods.player import cmd_key
 
 TRUTH = PlantParams(2.268, 3.78e-3)
 
@@ -34,36 +30,41 @@ def loopback_peers(n: int = 2):
             s.close()
 
 
-def run_lab(out, *, duration_s: float = 25.0, scale: float = 8.0, method: str = "ls-ekf",
-            ls_window_s: float = 10.0, ls_start: str = "handoff", params: PlantParams = TRUTH, seed: int = 0,
-            est_table=None, noise=None):
-    """Player -> emulated valves (pty) -> plant -> bridge -> Zenoh -> live estimator.
+def run_lab_procs(out, exe: str, *, duration_s: float = 24.0, scale: float = 2.0,
+                  method: str = "ls-ekf", extra_live: tuple[str, ...] = (), seed: int = 0):
+    """Like :func:`run_lab` with the estimator and the player as the real commands
+    (subprocesses, as in the lab and the demo); the module stays in this process.
 
-    Returns ``(summary, play_result, module)``; the estimator's run folder is ``out/live``,
-    the player's ``out/play``.
+    Returns ``(summary, play_meta, module)``.
     """
+    import json
+    import subprocess
+
     table = ThrustTable.default()
-    with loopback_peers(2) as (_ep, (a, b)):
+    with loopback_peers(1) as (ep, (a,)):
         clock = LabClock(scale, time.time())
-        cfg = LiveConfig(method=method, ls_window_s=ls_window_s, ls_start=ls_start)
-        rec = LiveRecorder(out / "live", {"kind": "live-estimate", "test": True})
-        est = LiveEstimator(est_table or table, cfg, "tpods1", recorder=rec)
-        box: dict = {}
-        stop = threading.Event()
-        t = threading.Thread(target=lambda: box.update(r=run_live(b, est, stop=stop,
-                                                                  exit_on_end=True)),
-                             daemon=True)
-        t.start()
-        with SimulatedModule(a, params, table, clock=clock, seed=seed, noise=noise) as module:
-            pub = a.declare_publisher(cmd_key("tpods1"))
-            probe = a.declare_publisher("tpods/mocap/tpods1/pose")
-            assert wait_for(lambda: matching(probe), 10.0)
-            probe.undeclare()
-            cmd_t, duty = phase_sine(duration_s, 50.0)
-            with ValveController(module.valves_path) as vc:
-                res = play(vc, cmd_t, duty, clock=clock, publish=pub.put, out_dir=out / "play")
-            t.join(timeout=30.0)
-            stop.set()
-            t.join(timeout=10.0)
-        rec.close(box["r"].status if "r" in box else "failed", {"final": est.summary()})
-    return est.summary(), res, module
+        zargs = ["--connect", ep, "--no-multicast"]
+        with SimulatedModule(a, TRUTH, table, clock=clock, seed=seed) as module:
+            live = subprocess.Popen([exe, "estimate", "live", "--method", method, "--out",
+                                     str(out / "live"), "--exit-on-end", "--json", "--quiet",
+                                     *extra_live, *zargs],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            try:
+                probe = a.declare_publisher(cmd_key("tpods1"))
+                assert wait_for(lambda: matching(probe) or live.poll() is not None, 60.0)
+                probe.undeclare()
+                assert live.poll() is None, live.stderr.read()
+                time.sleep(0.3)
+                play_p = subprocess.run(
+                    [exe, "run", "play", "--valves", module.valves_path, "--input", "phase-sine",
+                     "--duration", f"{duration_s:g}", "--out", str(out / "play"),
+                     "--time-scale", f"{scale:g}", "--clock-origin", repr(clock.origin),
+                     "--no-progress", *zargs], capture_output=True, text=True, timeout=300)
+                assert play_p.returncode == 0, play_p.stderr
+                stdout, stderr = live.communicate(timeout=120)
+            finally:
+                if live.poll() is None:
+                    live.kill()
+            assert live.returncode == 0, stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    return summary, json.loads((out / "play" / "run.json").read_text()), module

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from tests.live.helpers import TRUTH, run_lab
+from tests.live.helpers import TRUTH, run_lab_procs
 from tpods.cli import main
 from tpods.runfolder import read_run
 
@@ -17,10 +17,14 @@ def _batch(capsys, run_dir, *extra):
     return json.loads(capsys.readouterr().out)
 
 
-def test_live_estimate_matches_truth_and_the_batch_estimate(tmp_path, capsys):
-    summary, play_res, module = run_lab(tmp_path, duration_s=24.0, scale=2.0, method="ls-ekf",
-                                        ls_window_s=10.0, ls_start="handoff")
-    assert play_res.status == "success" and not any(module.valves.duties)
+def test_live_estimate_matches_truth_and_the_batch_estimate(tmp_path, capsys, tpods_exe):
+    """`tpods run play` and `tpods estimate live --method ls-ekf` as subprocesses, the
+    simulated module and the bridge here; 24 s of lab time at time scale 2."""
+    summary, play_meta, module = run_lab_procs(
+        tmp_path, tpods_exe, duration_s=24.0, scale=2.0, method="ls-ekf",
+        extra_live=("--ls-window", "10", "--ls-start", "handoff"))
+    assert play_meta["status"] == "success" and play_meta["valves_closed_confirmed"]
+    assert not any(module.valves.duties)
     assert summary["phase"] == "ls-ekf", summary
     c = summary["counters"]
     assert c["updates"] > 0.9 * 24 * 120 and c["malformed"] == 0
