@@ -125,8 +125,9 @@ def decode_estimate(payload: bytes | bytearray | memoryview | str) -> dict[str, 
 class LiveRecorder:
     """What the live estimator saw, as a run folder written as it goes.
 
-    - ``commands.csv``: every accepted command (``set``, ``hold``, ``end``) in arrival
-      order, times from ``t0`` (the first command's lab time); flushed per row.
+    - ``commands.csv``: every command received (``set``, ``hold``, ``end``; also those too
+      late for the live filter) in arrival order, times from ``t0`` (the first command's
+      lab time); flushed per row.
     - ``poses.csv``: the aligned poses the filter used, written as soon as a command
       row at or after them exists (so the folder is always a valid run: a kill loses
       at most the poses after the last command or hold message, 0.1 s by default).
@@ -325,7 +326,15 @@ class LiveEstimator:
             self.counters.other_body += 1
             return False
         t, duty = d["t"], d["duty"]
+        late_before = self.aligner.stats.cmds_late
         if not self.aligner.push_command(t, duty):
+            if self.aligner.stats.cmds_late > late_before:
+                # too late for the live filter (it cannot rewrite the past), but the run
+                # folder keeps it for post-processing
+                if self.recorder is not None:
+                    self.recorder.command(t, duty)
+                if d.get("kind") == "end":
+                    self.end_seen_t = t
             return False
         try:
             thrust = self.table.thrust_n(np.asarray([duty], float), clamp=True)[0]

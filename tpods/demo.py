@@ -55,8 +55,8 @@ def register(sub) -> None:
                    help="true Izz, kg m^2 (default 3.78e-3, the paper's module)")
     p.add_argument("--duration", type=positive_float, default=120.0,
                    help="simulated run, lab seconds (default 120, as in the paper)")
-    p.add_argument("--time-scale", type=positive_float, default=4.0,
-                   help="the simulated run goes this many times faster than real time (default 4)")
+    p.add_argument("--time-scale", type=positive_float, default=2.0,
+                   help="the simulated run goes this many times faster than real time (default 2)")
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ls-ekf",
                    help="live estimator method (default ls-ekf, the paper's LS-initialised EKF)")
     p.add_argument("--quick", action="store_true",
@@ -223,6 +223,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
             procs["live"] = subprocess.Popen(
                 exe + ["estimate", "live", "--body", BODY, "--thrust-table", str(table_path),
                        "--method", args.method, "--out", str(d / "live"), "--exit-on-end",
+                       "--max-wait-ms", "10",
                        "--json", "--quiet", *zargs],
                 stdout=subprocess.PIPE, stderr=logs["live"], text=True)
             probe = session.declare_publisher(cmd_key(BODY))
@@ -476,9 +477,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     if args.quick:
         args.duration = min(args.duration, 40.0)
-    if args.time_scale > 8:
-        print("tpods: warning: time scales above ~4 let thread scheduling on a busy machine "
-              "shift the emulated valve switches by lab milliseconds", file=sys.stderr)
+    if args.time_scale > 4:
+        print("tpods: warning: at time scales above ~2-4 thread scheduling on a busy machine "
+              "shifts the emulated valve switches by several lab milliseconds (a bias on Izz)",
+              file=sys.stderr)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"demo-{stamp}"
     if out.exists() and any(out.iterdir()):

@@ -213,7 +213,8 @@ class SimulatedModule:
 
     def __init__(self, session, params: PlantParams, table, *, clock: LabClock | None = None,
                  body: str = "tpods1", pose_rate_hz: float = 120.0, noise: MocapNoise | None = None,
-                 seed: int | None = 0, prefix: str = "tpods/mocap", n_channels: int = 4) -> None:
+                 seed: int | None = 0, prefix: str = "tpods/mocap", n_channels: int = 4,
+                 switch_interval_s: float | None = 2e-4) -> None:
         from bench.emulators import EmulatedValveController
         from mocap_bridge.bridge import Bridge
         from mocap_bridge.sources.sim import PushSource
@@ -228,10 +229,20 @@ class SimulatedModule:
                                                name="module-bridge", daemon=True)
         self.server = None
         self.valves_path: str | None = None
+        self.switch_interval_s = switch_interval_s
+        self._old_switch = 0.005
 
     def start(self) -> SimulatedModule:
+        import sys
+
         from bench.emulators import serve_pty
 
+        # a short GIL switch interval: the emulated controller answers (and stamps) a command
+        # within a fraction of a millisecond even while the plant and bridge threads compute
+        # (with the default 5 ms, valve switches jitter by milliseconds: a bias on Izz)
+        self._old_switch = sys.getswitchinterval()
+        if self.switch_interval_s is not None:
+            sys.setswitchinterval(self.switch_interval_s)
         self.server = serve_pty(self.valves)
         self.valves_path = self.server.path
         self._bridge_thread.start()
@@ -246,6 +257,10 @@ class SimulatedModule:
         self._bridge_thread.join(timeout=5.0)
         if self.server is not None:
             self.server.stop()
+        if self.switch_interval_s is not None:
+            import sys
+
+            sys.setswitchinterval(self._old_switch)
 
     def __enter__(self) -> SimulatedModule:
         return self.start()

@@ -121,8 +121,10 @@ def cmd_play(args: argparse.Namespace) -> int:
     try:
         import zenoh
 
+        # commands are small and rare: never dropped inside zenoh (block), sent at once
         pub = session.declare_publisher(key, encoding=zenoh.Encoding("application/json"),
-                                        express=True)
+                                        express=True,
+                                        congestion_control=zenoh.CongestionControl.BLOCK)
         with sigterm_raises():
             try:
                 with ValveController(args.valves, baudrate=args.valves_baud,
@@ -200,6 +202,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
     plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
                       noise=noise, seed=args.seed)
     old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    sys.setswitchinterval(2e-4)  # the emulated controller reacts within a fraction of a ms
     server = serve_pty(valves)
     try:
         if bridge_thread is not None:

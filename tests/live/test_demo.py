@@ -17,7 +17,7 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path, request):
     r = subprocess.run([tpods_exe, "demo", "--quick", "--out", str(out)], capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert "summary" in r.stdout and "time scale 4" in r.stdout
+    assert "summary" in r.stdout and "time scale 2" in r.stdout
     s = json.loads((out / "summary.json").read_text())
     rows = {row["source"]: row for row in s["rows"]}
     assert set(rows) >= {"truth (simulation)", "balance + bifilar", "batch LS (recorded run)",
