@@ -441,7 +441,7 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         f"Phase-shifted sine (the paper's informed input), {args.duration:g} s of lab time played "
         f"at time scale {args.time_scale:g} by `tpods run play` on the emulated valve controller; "
         f"the simulated module follows the valves and streams 120 Hz poses through the bridge; "
-        f"`tpods estimate live --method {live.get('method')}` estimated from Zenoh: "
+        f"`tpods estimate live --method {live.get('method')} --max-wait-ms 10` estimated from Zenoh: "
         f"{c.get('updates')} poses used of {c.get('poses_rx')} received "
         f"({c.get('align_before_first_cmd')} before the first command), {c.get('cmds_rx')} command "
         f"messages ({c.get('align_cmds_late')} late), largest backlog {c.get('max_queue')} messages."
@@ -457,7 +457,8 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         f"m = {batch['mass_kg']:.5f} +- {batch['mass_sigma_kg']:.2g} kg, Izz = "
         f"{batch['izz_kgm2']:.6g} +- {batch['izz_sigma_kgm2']:.2g} kg m^2. The same fit with the "
         f"plant's true thrust table (the last row of the summary) shows what remains once the "
-        f"calibration error is taken away: with 1 cm / 1 deg poses the statistical sigma is far "
+        f"calibration error is taken away (the emulation's valve-timing jitter, docs/live.md): "
+        f"with 1 cm / 1 deg poses the statistical sigma is far "
         f"below the effect of a thrust table that is off by a fraction of a percent of full scale "
         f"(the paper's point: calibration, not noise, limits these estimates).",
         "",
