@@ -40,8 +40,11 @@ def test_live_estimate_matches_truth_and_the_batch_estimate(tmp_path, capsys, tp
     # the same method on the recorded run gives the same estimate (same data, same filter)
     b = _batch(capsys, tmp_path / "live", "--method", "ls-ekf", "--ls-window", "10",
                "--ls-start", "handoff")
-    # (the folder holds 12-digit values: equal to a few thousandths of a sigma)
-    assert abs(b["mass_kg"] - m) < 0.02 * sm and abs(b["izz_kgm2"] - i) < 0.02 * si, (b, summary)
+    # The folder holds 12-digit values: equal to a few thousandths of a sigma. A command that
+    # arrived after the poses it governs had been released is skipped by the live filter
+    # (it cannot rewrite the past) but kept in the folder, so then the two differ slightly.
+    tol = 0.02 if c["align_cmds_late"] == 0 else 0.5
+    assert abs(b["mass_kg"] - m) < tol * sm and abs(b["izz_kgm2"] - i) < tol * si, (b, summary)
     # and batch least squares over the whole run agrees within the filter's uncertainty
     ls = _batch(capsys, tmp_path / "live")
     assert abs(ls["mass_kg"] - m) < 3 * np.hypot(sm, ls["mass_sigma_kg"])
