@@ -304,6 +304,21 @@ class OhausScout:
             self.n_readings += 1
             return r
 
+    def received(self) -> list[Reading]:
+        """Valid readings already received but not yet read (never waits).
+
+        A busy host may read lines some time after the balance printed them; a caller
+        that switches phase (settle -> dwell) drains these first so they stay with the
+        phase in which they were printed.
+        """
+        self.link.pull()
+        out = []
+        while True:
+            r = self.next_reading(-math.inf)
+            if r is None:
+                return out
+            out.append(r)
+
     def readings(self, duration_s: float | None = None) -> Iterator[Reading]:
         """Iterate continuous-print readings for ``duration_s`` seconds (None: forever)."""
         if not self.continuous:

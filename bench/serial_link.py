@@ -56,6 +56,15 @@ class SerialLink:
         except OSError as exc:  # serial.SerialException is an OSError
             raise DeviceError(f"{self.name} at {self.url}: write failed ({exc})") from None
 
+    def pull(self) -> None:
+        """Move every byte already received by the OS into the line buffer (never waits)."""
+        try:
+            n = int(self.port.in_waiting or 0)
+            if n:
+                self._buf += self.port.read(n)
+        except OSError as exc:
+            raise DeviceError(f"{self.name} at {self.url}: read failed ({exc})") from None
+
     def reset_input(self) -> None:
         """Drop unread bytes (stale replies, continuous prints)."""
         self._buf = b""

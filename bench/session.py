@@ -312,7 +312,13 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
             t_loop = time.monotonic()
             planned_done = 0.0
 
-            def record(duration: float, phase: str, step: int, n_open: int, duty: float) -> None:
+            def record(duration: float, phase: str, step: int, n_open: int, duty: float,
+                       after: str | None = None) -> None:
+                if after is not None:
+                    # lines printed during the previous phase but still waiting in the
+                    # host's buffers belong to that phase, not to this window
+                    for r in scale.received():
+                        rec.add(r, window, after, step, n_open, duty)
                 end = time.monotonic() + duration
                 while True:
                     r = scale.next_reading(end)
@@ -327,7 +333,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
             def zero_window() -> None:
                 nonlocal window, planned_done
                 record(config.zero_settle_s, "zero_settle", -1, 0, 0.0)
-                record(config.zero_dwell_s, "zero", -1, 0, 0.0)
+                record(config.zero_dwell_s, "zero", -1, 0, 0.0, after="zero_settle")
                 planned_done += config.zero_settle_s + config.zero_dwell_s
                 window += 1
 
@@ -336,7 +342,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                 bar.set_postfix_str(f"{st.n_open} nozzle(s) at {st.duty_pct:g} %", refresh=False)
                 valves.set_all(st.duties)
                 record(config.settle_s, "settle", st.index, st.n_open, st.duty_pct)
-                record(config.dwell_s, "dwell", st.index, st.n_open, st.duty_pct)
+                record(config.dwell_s, "dwell", st.index, st.n_open, st.duty_pct, after="settle")
                 valves.off()
                 planned_done += config.settle_s + config.dwell_s
                 window += 1
