@@ -172,12 +172,12 @@ def _register_bifilar(cal) -> None:
 def _read_poses(path_text: str) -> tuple:
     import numpy as np
 
-    from tpods.runfolder import POSE_COLUMNS, _read_table
+    from tpods.runfolder import POSE_COLUMNS, read_table
 
     path = Path(path_text)
     if path.is_dir():
         path = path / "poses.csv"
-    v = _read_table(path, POSE_COLUMNS)
+    v = read_table(path, POSE_COLUMNS)
     return np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 3]), path
 
 

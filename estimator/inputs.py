@@ -64,9 +64,9 @@ def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct
 
 def from_commands_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a commands.csv (run-folder format) as an input sequence."""
-    from tpods.runfolder import COMMAND_COLUMNS, _read_table
+    from tpods.runfolder import COMMAND_COLUMNS, read_table
 
-    v = _read_table(Path(path), COMMAND_COLUMNS)
+    v = read_table(Path(path), COMMAND_COLUMNS)
     return v[:, 0], v[:, 1:]
 
 

@@ -87,7 +87,7 @@ class Run:
                    self.thrust_t, self.thrust_n, self.meta)
 
 
-def _read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
+def read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
     """Read a numeric CSV with exactly-named columns; refuse bad content by row."""
     if not path.is_file():
         raise UserError(f"{path}: file not found")
@@ -129,13 +129,13 @@ def read_run(path: str | Path) -> Run:
     thrust_t = thrust_n = None
     duty = None
     if thrust_file.exists():
-        tv = _read_table(thrust_file, THRUST_COLUMNS)
+        tv = read_table(thrust_file, THRUST_COLUMNS)
         thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
         if np.any(thrust_n < 0):
             row = int(np.argwhere(thrust_n < 0)[0][0])
             raise UserError(f"{thrust_file}: line {row + 2}: negative thrust")
     if cmd_file.exists() or thrust_t is None:
-        cv = _read_table(cmd_file, COMMAND_COLUMNS)
+        cv = read_table(cmd_file, COMMAND_COLUMNS)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         bad = (duty < 0) | (duty > 100)
         if bad.any():
@@ -143,7 +143,7 @@ def read_run(path: str | Path) -> Run:
             raise UserError(f"{cmd_file}: line {row + 2}: duty outside 0..100 %")
     else:
         cmd_t = thrust_t
-    pv = _read_table(path / "poses.csv", POSE_COLUMNS)
+    pv = read_table(path / "poses.csv", POSE_COLUMNS)
     pose_t, pose = pv[:, 0], pv[:, 1:]
     span_t = thrust_t if thrust_t is not None else cmd_t
     span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"

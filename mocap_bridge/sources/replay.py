@@ -21,7 +21,7 @@ import pandas as pd
 from mocap_bridge.pose import sanitize_chunk
 from mocap_bridge.sources.sim import Frame, Playback, frames_from_planar
 from tpods.errors import UserError
-from tpods.runfolder import POSE_COLUMNS, _read_table
+from tpods.runfolder import POSE_COLUMNS, read_table
 
 SAMPLE_COLUMNS = ("body", "frame", "t", "t_recv", "t_src", "x", "y", "z", "qx", "qy", "qz",
                   "qw", "yaw", "occluded", "t_rx")
@@ -84,7 +84,7 @@ class ReplaySource(Playback):
         elif subs := sorted(path.glob("*/samples.csv")):
             frames = _frames_from_samples([read_samples(p) for p in subs], path)
         elif (path / "poses.csv").is_file():
-            pv = _read_table(path / "poses.csv", POSE_COLUMNS)
+            pv = read_table(path / "poses.csv", POSE_COLUMNS)
             name = body or sanitize_chunk(path.resolve().name)
             frames = frames_from_planar(name, pv[:, 0], pv[:, 1:])
         else:
