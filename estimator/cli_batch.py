@@ -1,6 +1,6 @@
 """CLI of the batch least-squares estimator, the CRLB, input design and the Table 3 report.
 
-Owner: issue 3. ``register`` adds ``tpods estimate batch`` (all methods: ``ls`` here,
+``register`` adds ``tpods estimate batch`` (all methods: ``ls`` here,
 ``ekf``/``ls-ekf`` delegated to :mod:`estimator.cli_ekf`), ``tpods estimate crlb``,
 ``tpods design`` and ``tpods report table3``. Handlers are thin: parse, load, call the
 pure functions, print or write.

@@ -1,6 +1,6 @@
 """CLI of the EKF, LS-initialised EKF and Monte Carlo.
 
-Owner: issue 4. ``register`` adds ``tpods estimate montecarlo`` and ``tpods report ekf``;
+``register`` adds ``tpods estimate montecarlo`` and ``tpods report ekf``;
 ``add_batch_options(parser)`` adds the filter options to ``tpods estimate batch`` and
 ``run_filter_method(args)`` runs ``--method ekf|ls-ekf`` for it.
 """

@@ -1,7 +1,7 @@
 """CLI hooks of the model options (issue 9): ``--model`` for ``estimate batch`` and
 ``estimate crlb``, the extended-state filters, and ``tpods report realism``.
 
-Owner: issue 9. The batch/CRLB commands (:mod:`estimator.cli_batch`) call
+The batch/CRLB commands (:mod:`estimator.cli_batch`) call
 :func:`add_model_option`, :func:`before_batch`, :func:`annotate`, :func:`crlb_names` and
 :func:`crlb_extra`; everything else happens here.
 """
