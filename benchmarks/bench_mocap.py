@@ -6,10 +6,13 @@ subscriber. Latency is subscriber receive time minus the emulator's send time of
 datagram (same host clock), so it includes the UDP hop, parsing, encoding and Zenoh.
 Reference, measured in the same run: raw Zenoh ``put`` of the same payloads from a
 Python publisher process to the same subscriber (maximum rate, and latency when paced
-at the bridge's rate).
+at the bridge's rate). Both publishers use the tpods Zenoh settings (transmit batching
+limit 0 ms, see :mod:`mocap_bridge.zenoh_net`).
 
 Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load, default 5),
-``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000).
+``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000),
+``TPODS_BENCH_MOCAP_BATCH_MS`` (Zenoh batching limit of both publishers; zenoh's own
+default is 1).
 """
 
 from __future__ import annotations
@@ -32,6 +35,12 @@ def _free_port(kind=socket.SOCK_STREAM) -> int:
         return s.getsockname()[1]
 
 
+def _batch_ms() -> int | None:
+    """Zenoh transmit batching limit for the bridge and the raw publisher (same for both)."""
+    v = os.environ.get("TPODS_BENCH_MOCAP_BATCH_MS")
+    return int(v) if v else None
+
+
 def _pace(due: float) -> None:
     """Sleep until ``due`` (perf_counter); no spinning (the machine has 2 cores)."""
     left = due - time.perf_counter()
@@ -47,7 +56,7 @@ def _bridge_proc(port: int, ep: str, ready, stop, out) -> None:
     from mocap_bridge.sources.vicon_udp import ViconUDPSource
     from mocap_bridge.zenoh_net import open_session
 
-    session = open_session(connect=[ep], no_multicast=True)
+    session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     src = ViconUDPSource(port=port, bind="127.0.0.1")
     bridge = Bridge(session, prefix="bench/mocap",
                     express=os.environ.get("TPODS_BENCH_MOCAP_EXPRESS", "0") == "1")
@@ -88,7 +97,7 @@ def _raw_proc(ep: str, n: int, rate_hz: float, go, out) -> None:
     from mocap_bridge.pose import encode_pose, yaw_quat
     from mocap_bridge.zenoh_net import open_session
 
-    session = open_session(connect=[ep], no_multicast=True)
+    session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     pub = session.declare_publisher("bench/raw/body/pose", encoding=zenoh.Encoding("application/json"),
                                     congestion_control=zenoh.CongestionControl.BLOCK)
     deadline = time.monotonic() + 20

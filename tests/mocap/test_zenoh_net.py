@@ -45,6 +45,22 @@ def test_config_file_is_passed_through_and_options_override_it(tmp_path):
     assert json.loads(c2.get_json("connect/endpoints")) == ["tcp/127.0.0.1:2"]
 
 
+def test_batching_limit_defaults_to_zero_and_a_config_file_keeps_its_own(tmp_path):
+    key = "transport/link/tx/queue/batching/time_limit"
+    assert json.loads(build_config().get_json(key)) == 0
+    assert json.loads(build_config(batch_ms=3).get_json(key)) == 3
+    assert _parse(["--zenoh-batch-ms", "2"]).zenoh_batch_ms == 2
+    f = tmp_path / "z.json5"
+    f.write_text('{ transport: { link: { tx: { queue: { batching: { time_limit: 5 } } } } } }')
+    assert json.loads(build_config(config_file=f).get_json(key)) == 5
+    assert json.loads(build_config(config_file=f, batch_ms=0).get_json(key)) == 0
+    for bad in (["--zenoh-batch-ms", "-1"], ["--zenoh-batch-ms", "0.5"]):
+        with pytest.raises(SystemExit):
+            _parse(bad)
+    with pytest.raises(UserError, match="whole number"):
+        build_config(batch_ms=-2)
+
+
 def test_bad_options_are_one_line_user_errors(tmp_path):
     with pytest.raises(UserError, match="not found"):
         build_config(config_file=tmp_path / "missing.json5")
