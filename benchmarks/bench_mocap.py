@@ -12,11 +12,14 @@ limit 0 ms, see :mod:`mocap_bridge.zenoh_net`).
 Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load, default 5),
 ``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000),
 ``TPODS_BENCH_MOCAP_BATCH_MS`` (Zenoh batching limit of both publishers; zenoh's own
-default is 1).
+default is 1), ``TPODS_BENCH_MOCAP_REPEATS`` (bridge runs, default 3: this 2-core machine
+is noisy, so the latency row is the run with the median p99 and lists all of them; the
+throughput row needs zero loss in every run).
 """
 
 from __future__ import annotations
 
+import gc
 import multiprocessing as mp
 import os
 import socket
@@ -166,30 +169,20 @@ def _raw(ctx, session, ep: str, n: int, rate_hz: float) -> dict:
             "send_rate": n / send_s, "lat_ms": lat * 1e3}
 
 
-def run() -> list[dict]:
+def _bridge_once(ctx, session, ep: str, n_bodies: int, rate_hz: float, seconds: float) -> dict:
+    """One bridge run: sender -> bridge -> this process. Latencies in ms per delivered pose."""
     from mocap_bridge.pose import decode_pose
-    from mocap_bridge.zenoh_net import open_session
 
-    seconds = float(os.environ.get("TPODS_BENCH_MOCAP_S", "5"))
-    n_bodies = int(os.environ.get("TPODS_BENCH_MOCAP_BODIES", "10"))
-    rate_hz = float(os.environ.get("TPODS_BENCH_MOCAP_HZ", "2000"))
-    offered = n_bodies * rate_hz
-    ctx = mp.get_context("spawn")
-    ep = f"tcp/127.0.0.1:{_free_port()}"
-    session = open_session(listen=[ep], no_multicast=True)
+    sink = _Sink()
+    sub = session.declare_subscriber("bench/mocap/**", _handler(sink))
+    port = _free_port(socket.SOCK_DGRAM)
+    ready, stop, go = ctx.Event(), ctx.Event(), ctx.Event()
+    bout, sout = ctx.Queue(), ctx.Queue()
+    bp = ctx.Process(target=_bridge_proc, args=(port, ep, ready, stop, bout))
+    sp = ctx.Process(target=_sender_proc, args=(port, n_bodies, rate_hz, seconds, go, sout))
+    bp.start()
+    sp.start()
     try:
-        raw_max = _raw(ctx, session, ep, int(min(offered * 3, 60000)), 0.0)
-        raw_paced = _raw(ctx, session, ep, int(offered * min(seconds, 3.0)), offered)
-
-        sink = _Sink()
-        sub = session.declare_subscriber("bench/mocap/**", _handler(sink))
-        port = _free_port(socket.SOCK_DGRAM)
-        ready, stop, go = ctx.Event(), ctx.Event(), ctx.Event()
-        bout, sout = ctx.Queue(), ctx.Queue()
-        bp = ctx.Process(target=_bridge_proc, args=(port, ep, ready, stop, bout))
-        sp = ctx.Process(target=_sender_proc, args=(port, n_bodies, rate_hz, seconds, go, sout))
-        bp.start()
-        sp.start()
         if not ready.wait(60):
             raise RuntimeError("bridge process did not start")
         time.sleep(0.3)
@@ -201,9 +194,11 @@ def run() -> list[dict]:
         stop.set()
         bstats = bout.get(timeout=60)
         bp.join(30)
-        sub.undeclare()
     finally:
-        session.close()
+        sub.undeclare()
+        for p in (sp, bp):
+            if p.is_alive():
+                p.terminate()
 
     frames = np.empty(len(sink.items), dtype=np.int64)
     t_recv_bridge = np.empty(len(sink.items))
@@ -221,36 +216,80 @@ def run() -> list[dict]:
         k += 1
     frames, t_recv_bridge, t_sub = frames[:k], t_recv_bridge[:k], t_sub[:k]
     sent = send_t[frames - 1]
-    lat_ms = (t_sub - sent) * 1e3
-    udp_ms = (t_recv_bridge - sent) * 1e3
-    lost = n_sent - len(seen)
     span = send_t[-1] - send_t[0]
-    sent_rate = (n_sent - n_bodies) / span if span > 0 else float("nan")
-    delivered_rate = len(seen) / (t_sub.max() - sent.min()) if k else 0.0
-    p50, p99 = (np.percentile(lat_ms, [50, 99]) if k else (np.nan, np.nan))
+    return {
+        "lat_ms": (t_sub - sent) * 1e3, "udp_ms": (t_recv_bridge - sent) * 1e3,
+        "n_sent": n_sent, "lost": n_sent - len(seen),
+        "sent_rate": (n_sent - n_bodies) / span if span > 0 else float("nan"),
+        "delivered_rate": len(seen) / (t_sub.max() - sent.min()) if k else 0.0,
+        "bstats": bstats,
+    }
+
+
+def run() -> list[dict]:
+    from mocap_bridge.zenoh_net import open_session
+
+    seconds = float(os.environ.get("TPODS_BENCH_MOCAP_S", "5"))
+    n_bodies = int(os.environ.get("TPODS_BENCH_MOCAP_BODIES", "10"))
+    rate_hz = float(os.environ.get("TPODS_BENCH_MOCAP_HZ", "2000"))
+    repeats = int(os.environ.get("TPODS_BENCH_MOCAP_REPEATS", "3"))
+    offered = n_bodies * rate_hz
+    ctx = mp.get_context("spawn")
+    ep = f"tcp/127.0.0.1:{_free_port()}"
+    session = open_session(listen=[ep], no_multicast=True)
+    # This process keeps every received sample (hundreds of thousands of objects): a
+    # cyclic garbage collection pass over them stalls the receive thread for tens of ms
+    # and shows up as latency that is the harness's, not the bridge's. Pause it.
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        raw_max = _raw(ctx, session, ep, int(min(offered * 3, 60000)), 0.0)
+        raw_paced = _raw(ctx, session, ep, int(offered * min(seconds, 3.0)), offered)
+        runs = [_bridge_once(ctx, session, ep, n_bodies, rate_hz, seconds) for _ in range(repeats)]
+    finally:
+        session.close()
+        gc.enable()
+        gc.unfreeze()
+
+    p99s = [float(np.percentile(r["lat_ms"], 99)) if len(r["lat_ms"]) else float("nan") for r in runs]
+    mid = int(np.argsort(p99s)[len(p99s) // 2])  # the run with the median p99
+    r = runs[mid]
+    p99 = p99s[mid]
+    p50 = float(np.percentile(r["lat_ms"], 50)) if len(r["lat_ms"]) else float("nan")
+    udp99 = float(np.percentile(r["udp_ms"], 99)) if len(r["udp_ms"]) else float("nan")
     raw_p99 = float(np.percentile(raw_paced["lat_ms"], 99))
-    cpu_us = bstats["cpu_s"] / max(bstats["published"], 1) * 1e6
+    published = sum(x["bstats"]["published"] for x in runs)
+    cpu_us = sum(x["bstats"]["cpu_s"] for x in runs) / max(published, 1) * 1e6
+    lost = sum(x["lost"] for x in runs)
+    n_sent = sum(x["n_sent"] for x in runs)
+    malformed = sum(x["bstats"]["malformed"] for x in runs)
+    sent_rate = min(x["sent_rate"] for x in runs)
+    delivered = min(x["delivered_rate"] for x in runs)
     load = os.getloadavg()[0]
     ok_rate = lost == 0 and sent_rate >= 0.98 * TARGET_POSES_S
+    each = ", ".join(f"{v:.2f}" for v in p99s)
     rows = [
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "poses/s delivered (UDP->zenoh)",
-         "value": delivered_rate, "reference": raw_max["rate"],
-         "ratio": delivered_rate / raw_max["rate"], "ok": ok_rate,
-         "target": f">= {TARGET_POSES_S} poses/s, zero loss: offered {sent_rate:.0f}/s, "
-                   f"lost {lost} of {n_sent}, malformed {bstats['malformed']}; reference = raw "
-                   f"zenoh put max {raw_max['rate']:.0f}/s ({raw_max['received']}/{raw_max['sent']}); "
-                   f"bridge CPU {cpu_us:.1f} us/pose; load avg {load:.2f} on {os.cpu_count()} cpus"},
+         "value": delivered, "reference": raw_max["rate"],
+         "ratio": delivered / raw_max["rate"], "ok": ok_rate,
+         "target": f">= {TARGET_POSES_S} poses/s, zero loss ({repeats} runs of {seconds:g} s; slowest "
+                   f"shown): offered {sent_rate:.0f}/s, lost {lost} of {n_sent}, malformed {malformed}; "
+                   f"reference = raw zenoh put max {raw_max['rate']:.0f}/s "
+                   f"({raw_max['received']}/{raw_max['sent']}); bridge CPU {cpu_us:.1f} us/pose; "
+                   f"load avg {load:.2f} on {os.cpu_count()} cpus"},
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "added latency p99, ms",
-         "value": float(p99), "reference": raw_p99, "ratio": raw_p99 / float(p99) if k else 0.0,
-         "ok": bool(k and p99 < TARGET_P99_MS),
-         "target": f"< {TARGET_P99_MS} ms at p99 (p50 {p50:.2f} ms; UDP->bridge p99 "
-                   f"{np.percentile(udp_ms, 99) if k else np.nan:.2f} ms); reference = raw zenoh put "
-                   f"p99 paced at {offered:.0f}/s ({raw_paced['received']}/{raw_paced['sent']})"},
+         "value": p99, "reference": raw_p99, "ratio": raw_p99 / p99 if p99 > 0 else 0.0,
+         "ok": bool(p99 < TARGET_P99_MS),
+         "target": f"< {TARGET_P99_MS} ms at p99, UDP send to subscriber (median of {repeats} runs; "
+                   f"each: {each} ms; that run: p50 {p50:.2f} ms, UDP->bridge p99 {udp99:.2f} ms); "
+                   f"reference = raw zenoh put p99 paced at {offered:.0f}/s "
+                   f"({raw_paced['received']}/{raw_paced['sent']})"},
     ]
-    for r in rows:  # plain Python types for the JSON report
-        for k in ("value", "reference", "ratio"):
-            r[k] = float(r[k])
-        r["ok"] = bool(r["ok"])
+    for row in rows:  # plain Python types for the JSON report
+        for key in ("value", "reference", "ratio"):
+            row[key] = float(row[key])
+        row["ok"] = bool(row["ok"])
     return rows
 
 
