@@ -462,8 +462,11 @@ class EkfResult:
 
     @property
     def diverged(self) -> bool:
-        """Non-physical parameters, or a mean NIS over the last 10 % of updates above 10 (3 expected)."""
+        """Non-physical parameters, a mass or Izz variance that is not positive (the covariance
+        broke down), or a mean NIS over the last 10 % of updates above 10 (3 expected)."""
         if self.x[-1, 6] <= 0 or self.x[-1, 7] <= 0 or not np.all(np.isfinite(self.x[-1])):
+            return True
+        if not (self.P[6, 6] > 0 and self.P[7, 7] > 0 and np.all(np.isfinite(self.P))):
             return True
         nis = self.nis[self.updated]
         if len(nis) == 0:
@@ -663,7 +666,10 @@ class FilterEstimate:
     def to_dict(self) -> dict:
         r = self.result
         P = r.P
-        sm, si = math.sqrt(P[6, 6]), math.sqrt(P[7, 7])
+        # a diverged filter can end with a negative variance: no sigma then (NaN), and
+        # ``diverged`` is True
+        sm, si = (math.sqrt(v) if v > 0 and math.isfinite(v) else math.nan
+                  for v in (float(P[6, 6]), float(P[7, 7])))
         d = {
             "method": self.method,
             "mass_kg": r.mass_kg, "mass_sigma_kg": sm,

@@ -140,6 +140,9 @@ class ExtEkfResult:
         m, i = self.mass_kg, self.izz_kgm2
         if not (m > 0 and i > 0 and np.all(np.isfinite(self.x[-1]))):
             return True
+        im, ii = self.labels.index("mass"), self.labels.index("izz")
+        if not (self.P[im, im] > 0 and self.P[ii, ii] > 0 and np.all(np.isfinite(self.P))):
+            return True  # the covariance broke down (a negative variance)
         nis = self.nis[self.updated]
         tail = nis[-max(1, len(nis) // 10):] if len(nis) else nis
         return bool(len(tail) and np.nanmean(tail) > 10.0)
