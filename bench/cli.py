@@ -42,6 +42,12 @@ def register(sub) -> None:
     p.add_argument("--scale-handshake", choices=("none", "xonxoff", "rtscts"), default="none")
     p.add_argument("--silence-timeout", type=positive_float, default=2.0,
                    help="no reading from the balance for this long aborts the session, s (default 2)")
+    p.add_argument("--scale-mode", choices=("auto", "continuous", "poll"), default="auto",
+                   help="balance acquisition: continuous print (CP), polling (IP per reading), or auto: "
+                        "CP, polling if the balance refuses it (default auto)")
+    p.add_argument("--scale-poll-interval", type=nonneg_float, default=0.0, metavar="S",
+                   help="when polling, minimum time between two IP, s (default 0: as fast as the "
+                        "balance answers; set its display update period for independent readings)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_characterize)
@@ -75,6 +81,11 @@ def register(sub) -> None:
     e.add_argument("--unstable-prob", type=nonneg_float, default=0.03, help="random unstable flags (default 0.03)")
     e.add_argument("--garbage-prob", type=nonneg_float, default=0.01, help="garbage line probability (default 0.01)")
     e.add_argument("--rate-hz", type=positive_float, default=10.0, help="continuous print rate, Hz (default 10)")
+    e.add_argument("--no-continuous-print", action="store_true",
+                   help="the balance refuses CP with ES (continuous print disabled in its menu)")
+    e.add_argument("--scale-baud", type=positive_float, default=None,
+                   help="pace the balance's pty like an 8N1 serial line at this baud rate "
+                        "(default: no pacing; a Scout runs at 9600)")
     e.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     e.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds")
     e.add_argument("--log-dir", default=None, help="on exit write valves_log.csv and scale_sent.csv here")
@@ -121,7 +132,9 @@ def cmd_characterize(args: argparse.Namespace) -> int:
             with ValveController(args.valves, baudrate=args.valves_baud,
                                  duty_limits=cfg.duty_limits_pct) as valves, \
                  OhausScout(args.scale, baudrate=args.scale_baud, xonxoff=hs == "xonxoff",
-                            rtscts=hs == "rtscts", silence_timeout=args.silence_timeout, **fmt) as scale:
+                            rtscts=hs == "rtscts", silence_timeout=args.silence_timeout,
+                            acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
+                            **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
         except Terminated:
             print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
@@ -190,11 +203,12 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     scout = EmulatedScout(valves, table, args.nozzle_under_test, load_g=args.load_g, lag_s=args.lag_s,
                           noise_g=args.noise_g, drift_g_per_s=args.drift_g_per_s,
                           unstable_prob=args.unstable_prob, garbage_prob=args.garbage_prob,
-                          print_rate_hz=args.rate_hz, seed=args.seed)
+                          print_rate_hz=args.rate_hz, seed=args.seed,
+                          continuous_print=not args.no_continuous_print)
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
     sv = serve_pty(valves)
-    ss = serve_pty(scout)
+    ss = serve_pty(scout, baud=args.scale_baud)
     try:
         print(f"valves: {sv.path}")
         print(f"scale: {ss.path}", flush=True)

@@ -8,6 +8,17 @@ signed number, a space, the unit, then ``?`` when unstable (``      12.34 g ?``)
 
 A balance reading in grams is a force in gram-force: the session converts at the
 boundary and keeps units in column names.
+
+Acquisition (``start_continuous`` / ``next_reading`` / ``stop_continuous``) has three
+modes. ``"continuous"``: ``CP``, then every line the balance prints; ``ES`` to ``CP``
+or silence is a DeviceError. ``"poll"``: one ``IP`` per reading, the next sent when the
+reply (or garbage in its place) arrived; nothing is buffered. ``"auto"`` (default):
+``CP``, and if the balance answers ``ES`` (continuous print disabled in its menu, or a
+model without it) or prints no valid reading within ``probe_s``, poll instead;
+``mode_in_use`` and ``fallback_reason`` say what happened. Polling at 9600 baud is
+wire-bound at about 50 readings/s (18 bytes per exchange); a balance that updates
+its display more slowly answers repeated ``IP`` with repeated samples, so set
+``poll_interval_s`` to its update period when the readings must be independent.
 """
 
 from __future__ import annotations
@@ -15,6 +26,7 @@ from __future__ import annotations
 import math
 import re
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -85,6 +97,10 @@ def parse_weight_line(line: bytes | str, t: float = math.nan) -> Reading | None:
     return Reading(value, unit, stable, t)
 
 
+ACQUISITION_MODES = ("auto", "continuous", "poll")
+"""How :meth:`OhausScout.start_continuous` acquires readings (see the module docstring)."""
+
+
 class OhausScout:
     """An OHAUS Scout balance on a serial line.
 
@@ -95,19 +111,33 @@ class OhausScout:
         timeout: seconds to wait for a reply to ``IP``/``P``/``PU``/``PV``.
         stable_timeout: seconds to wait for a stable reading after ``SP``.
         ack_timeout: seconds to wait for an optional ``OK!``/``ES`` after a setting.
-        silence_timeout: in continuous print, no valid reading for this long is a
+        silence_timeout: while acquiring, no valid reading for this long is a
             lost balance (DeviceError).
         xonxoff, rtscts: handshake (off by default).
+        acquisition: ``"auto"`` (continuous print, polling with ``IP`` if the balance
+            refuses it), ``"continuous"`` or ``"poll"``.
+        probe_s: in ``"auto"``, seconds to wait for the first printed reading after ``CP``.
+        poll_interval_s: when polling, minimum seconds between two ``IP`` (0: as fast as
+            the balance answers).
 
     Garbage lines are counted in ``n_garbage`` (the first few kept in
     ``garbage_examples``) and skipped; ``ES`` answers raise DeviceError from commands.
+    When polling, an ``IP`` unanswered after :attr:`poll_reply_timeout` is sent again
+    (``n_poll_timeouts``); a valid reading that arrives while no ``IP`` is outstanding
+    (a reply later than that) is dropped and counted in ``n_late_replies``.
     """
 
     def __init__(self, url: str | Any, baudrate: int = 9600, bytesize: int = 8,
                  parity: str = "N", stopbits: float = 1, timeout: float = 2.0,
                  stable_timeout: float = 10.0, ack_timeout: float = 0.3,
                  silence_timeout: float = 2.0, xonxoff: bool = False,
-                 rtscts: bool = False) -> None:
+                 rtscts: bool = False, acquisition: str = "auto", probe_s: float = 1.0,
+                 poll_interval_s: float = 0.0) -> None:
+        if acquisition not in ACQUISITION_MODES:
+            raise UserError(f"balance acquisition must be one of {', '.join(ACQUISITION_MODES)}, "
+                            f"not {acquisition!r}")
+        if not (probe_s > 0 and poll_interval_s >= 0):
+            raise UserError("probe_s must be positive and poll_interval_s non-negative")
         self.url = url
         self.settings = dict(baudrate=baudrate, bytesize=bytesize, parity=parity,
                              stopbits=stopbits, xonxoff=xonxoff, rtscts=rtscts)
@@ -119,6 +149,25 @@ class OhausScout:
         self.n_readings = 0
         self.garbage_examples: list[bytes] = []
         self.continuous = False
+        """True while ``CP`` printing is on."""
+        self.acquisition = acquisition
+        self.probe_s = probe_s
+        self.poll_interval_s = poll_interval_s
+        self.mode_in_use: str | None = None
+        """``"continuous"`` or ``"poll"``: the mode of the last ``start_continuous``."""
+        self.fallback_reason: str | None = None
+        """Why ``"auto"`` fell back to polling (``"ES to CP"``, ...), None if it did not."""
+        self.poll_rate_hz = math.nan
+        """Readings per second when polling started (median of five ``IP`` exchanges)."""
+        self.n_poll_timeouts = 0
+        self.n_late_replies = 0
+        self.n_dropped = 0
+        self._polling = False
+        self._outstanding = False
+        self._t_sent = math.nan
+        self._next_send = -math.inf
+        self._rtt = math.nan
+        self._pending: deque[Reading] = deque()
         self._last_valid = math.nan
         self._link: SerialLink | None = None
 
@@ -130,7 +179,7 @@ class OhausScout:
 
     def close(self) -> None:
         if self._link is not None:
-            if self.continuous:
+            if self.acquiring:
                 try:
                     self.stop_continuous()
                 except DeviceError:
@@ -166,6 +215,10 @@ class OhausScout:
     def _no_continuous(self, cmd: str) -> None:
         if self.continuous:
             raise UserError(f"stop continuous printing before sending {cmd!r}")
+        if self._polling and self._outstanding:  # keep the reply in flight for next_reading
+            r = self._next_polled(-math.inf)
+            if r is not None:
+                self._pending.append(r)
 
     def read(self, mode: str = "IP", timeout: float | None = None) -> Reading:
         """One reading: ``IP`` now (stable or not), ``P`` the display, ``SP`` when stable."""
@@ -262,26 +315,211 @@ class OhausScout:
                 lines.append(text)
         return " | ".join(lines)
 
-    # ---------------------------------------------------- continuous print
+    # ----------------------------------------------------------- acquisition
+    @property
+    def acquiring(self) -> bool:
+        """True between ``start_continuous`` and ``stop_continuous`` (printing or polling)."""
+        return self.continuous or self._polling
+
+    @property
+    def poll_reply_timeout(self) -> float:
+        """Seconds to wait for the reply to one ``IP`` before sending it again:
+        five measured round trips, at least 0.25 s, at most ``timeout``."""
+        rtt = self._rtt if math.isfinite(self._rtt) else 0.0
+        return min(self.timeout, max(0.25, 5.0 * rtt))
+
+    @property
+    def fallback_message(self) -> str | None:
+        """One line for the operator when ``"auto"`` fell back to polling, else None."""
+        if self.fallback_reason is None:
+            return None
+        what = ("balance refused continuous print (ES to CP)" if self.fallback_reason == "ES to CP"
+                else f"balance printed nothing after CP ({self.fallback_reason})")
+        return f"{what}: polling with IP at ~{self.poll_rate_hz:.0f} readings/s"
+
+    def acquisition_info(self) -> dict[str, Any]:
+        """Requested and used acquisition mode, fallback reason, poll rate and counts
+        (for run.json)."""
+        return {"requested": self.acquisition, "mode": self.mode_in_use,
+                "fallback": self.fallback_reason,
+                "poll_rate_hz": round(self.poll_rate_hz, 2) if math.isfinite(self.poll_rate_hz) else None,
+                "poll_interval_s": self.poll_interval_s if self.mode_in_use == "poll" else None,
+                "poll_timeouts": self.n_poll_timeouts, "late_replies_dropped": self.n_late_replies,
+                "dropped_at_stop": self.n_dropped}
+
     def start_continuous(self) -> None:
-        """``CP``: the balance prints every reading until ``stop_continuous``."""
+        """Start acquiring readings in the configured mode (see the module docstring).
+
+        ``"continuous"``: send ``CP`` and return. ``"auto"``: send ``CP`` and wait up to
+        ``probe_s`` for the first printed reading (kept for :meth:`next_reading`); on
+        ``ES`` or silence (then ``0P`` is sent) poll instead. ``"poll"`` (or the
+        fallback): take five readings with ``IP`` (kept for :meth:`next_reading`) to
+        measure ``poll_rate_hz``; raises DeviceError when the balance cannot be polled.
+        """
+        self._pending.clear()
+        self.fallback_reason = None
+        if self.acquisition == "poll":
+            self._start_polling(None)
+            return
         self.link.reset_input()
         self._send("CP")
         self.continuous = True
+        self.mode_in_use = "continuous"
         self._last_valid = time.monotonic()
+        if self.acquisition == "continuous":
+            return
+        end = self._last_valid + self.probe_s
+        while True:
+            raw = self.link.readline(end)
+            if raw is None:
+                self._send("0P")  # in case it starts printing later
+                self.continuous = False
+                time.sleep(0.05)
+                self.link.reset_input()
+                self._start_polling(f"no reading within {self.probe_s:g} s")
+                return
+            text = raw.strip()
+            if text == b"ES":
+                self.continuous = False
+                self._start_polling("ES to CP")
+                return
+            if text == b"OK!":
+                continue
+            r = parse_weight_line(raw, time.monotonic())
+            if r is None:
+                self._garbage(raw)
+                continue
+            self._last_valid = r.t
+            self.n_readings += 1
+            self._pending.append(r)
+            return
+
+    def _start_polling(self, reason: str | None) -> None:
+        self.continuous = False
+        self._polling = True
+        self.mode_in_use = "poll"
+        self.fallback_reason = reason
+        self._outstanding = False
+        self._next_send = -math.inf
+        self._rtt = math.nan
+        self._last_valid = t = time.monotonic()
+        periods = []
+        try:
+            for _ in range(5):
+                r = self._next_polled(math.inf)
+                assert r is not None  # no deadline
+                self._pending.append(r)
+                periods.append(r.t - t)
+                t = r.t
+        except DeviceError as exc:
+            self._polling = False
+            if reason is None:
+                raise
+            raise DeviceError(f"OHAUS balance refused continuous print ({reason}) and polling "
+                              f"with IP failed: {exc}") from None
+        self.poll_rate_hz = 1.0 / max(sorted(periods)[len(periods) // 2], 1e-6)
 
     def stop_continuous(self) -> None:
-        """``0P``: stop printing; drop what is still in flight."""
+        """Stop acquiring. Continuous print: ``0P``, drop what is still in flight.
+        Polling: wait for the reply to an outstanding ``IP``; readings not read by then
+        are dropped and counted in ``n_dropped``."""
+        if self._polling:
+            try:
+                if self._outstanding:
+                    r = self._next_polled(-math.inf)
+                    if r is not None:
+                        self._pending.append(r)
+            finally:
+                self.n_dropped += len(self._pending)
+                self._pending.clear()
+                self._polling = self._outstanding = False
+            return
+        self._pending.clear()
         self._send("0P")
         self.continuous = False
         time.sleep(0.05)
         self.link.reset_input()
 
-    def next_reading(self, deadline: float) -> Reading | None:
-        """Next valid reading (host time in ``.t``), or None when ``deadline`` (monotonic) passes.
+    def _silent_error(self) -> DeviceError:
+        extra = f" ({self.n_poll_timeouts} IP unanswered)" if self._polling and self.n_poll_timeouts else ""
+        return DeviceError(f"OHAUS balance at {self.link.url} went silent: no valid reading "
+                           f"for {self.silence_timeout:g} s{extra}")
 
-        Raises DeviceError when no valid reading arrived for ``silence_timeout``.
+    def _stray(self, raw: bytes) -> None:
+        """A line that arrived while no ``IP`` was outstanding."""
+        text = raw.strip()
+        if text in (b"OK!", b"ES"):
+            return
+        if parse_weight_line(raw) is None:
+            self._garbage(raw)
+        else:
+            self.n_late_replies += 1
+
+    def _next_polled(self, deadline: float) -> Reading | None:
+        """Polling: send ``IP`` unless its reply could not arrive before ``deadline``;
+        wait for the reply to an outstanding ``IP`` even past ``deadline``."""
+        while True:
+            now = time.monotonic()
+            silent_at = self._last_valid + self.silence_timeout
+            if not self._outstanding:
+                if now >= silent_at:
+                    raise self._silent_error()
+                send_at = max(now, self._next_send)
+                rtt = self._rtt if math.isfinite(self._rtt) else 0.0
+                if send_at + rtt > deadline or send_at > now:
+                    if now >= deadline:
+                        return None
+                    raw = self.link.readline(min(deadline, send_at if send_at > now else deadline, silent_at))
+                    if raw is not None:
+                        self._stray(raw)
+                    continue
+                self.link.pull()  # lines already here are no reply to the IP about to go out
+                while (raw := self.link.readline(-math.inf)) is not None:
+                    self._stray(raw)
+                self._send("IP")
+                self._outstanding = True
+                self._t_sent = time.monotonic()
+                self._next_send = self._t_sent + self.poll_interval_s
+            raw = self.link.readline(min(self._t_sent + self.poll_reply_timeout, silent_at))
+            now = time.monotonic()
+            if raw is None:
+                self._outstanding = False
+                if now >= silent_at:
+                    raise self._silent_error()
+                self.n_poll_timeouts += 1
+                continue
+            text = raw.strip()
+            if text == b"OK!":
+                continue
+            if text == b"ES":
+                self._outstanding = False
+                raise DeviceError("OHAUS balance refused 'IP' (ES): it can be neither polled nor, "
+                                  "in this mode, read continuously")
+            self._outstanding = False
+            r = parse_weight_line(raw, now)
+            if r is None:
+                self._garbage(raw)  # the reply, garbled: ask again
+                continue
+            rtt = now - self._t_sent
+            self._rtt = rtt if not math.isfinite(self._rtt) else 0.8 * self._rtt + 0.2 * rtt
+            self._last_valid = now
+            self.n_readings += 1
+            return r
+
+    def next_reading(self, deadline: float) -> Reading | None:
+        """Next valid reading (host time of arrival in ``.t``), or None when ``deadline``
+        (monotonic) passes.
+
+        Continuous print: the next printed line. Polling: one ``IP``, not sent when its
+        reply (at the measured round trip) could not arrive before ``deadline``; the
+        reply to an ``IP`` already sent is waited for even past ``deadline``, so it stays
+        with the window in which it was requested. Raises DeviceError when no valid
+        reading arrived for ``silence_timeout``.
         """
+        if self._pending:
+            return self._pending.popleft()
+        if self._polling:
+            return self._next_polled(deadline)
         while True:
             limit = min(deadline, self._last_valid + self.silence_timeout) \
                 if math.isfinite(self._last_valid) else deadline
@@ -290,13 +528,13 @@ class OhausScout:
             if raw is None:
                 if now >= deadline:
                     return None
-                raise DeviceError(f"OHAUS balance at {self.link.url} went silent: no valid reading "
-                                  f"for {self.silence_timeout:g} s")
+                raise self._silent_error()
             r = parse_weight_line(raw, now)
             if r is None:
                 if raw.strip() == b"ES" and self.continuous:
                     raise DeviceError("OHAUS balance refused continuous printing (ES to 'CP'); "
-                                      "enable continuous/auto print in its menu or use another model")
+                                      "enable continuous/auto print in its menu, or use the auto or "
+                                      "poll acquisition mode")
                 if raw.strip() != b"OK!":
                     self._garbage(raw)
                 continue
@@ -305,11 +543,14 @@ class OhausScout:
             return r
 
     def received(self) -> list[Reading]:
-        """Valid readings already received but not yet read (never waits).
+        """Valid readings already received but not yet read (never waits for new ones).
 
         A busy host may read lines some time after the balance printed them; a caller
         that switches phase (settle -> dwell) drains these first so they stay with the
-        phase in which they were printed.
+        phase in which they were printed. When polling nothing is buffered by design
+        (``next_reading`` returns only once the reply to its ``IP`` is in), so this is
+        ``[]``, unless an ``IP`` is still outstanding (``next_reading`` interrupted):
+        then its reply is waited for and returned here.
         """
         self.link.pull()
         out = []
@@ -320,8 +561,9 @@ class OhausScout:
             out.append(r)
 
     def readings(self, duration_s: float | None = None) -> Iterator[Reading]:
-        """Iterate continuous-print readings for ``duration_s`` seconds (None: forever)."""
-        if not self.continuous:
+        """Iterate readings for ``duration_s`` seconds (None: forever), starting
+        acquisition first if needed."""
+        if not self.acquiring:
             self.start_continuous()
         end = math.inf if duration_s is None else time.monotonic() + duration_s
         while True:

@@ -13,7 +13,9 @@ Output folder:
   ``check``, ``zero_settle``, ``zero``, ``settle`` or ``dwell``.
 - ``steps.csv``: per step ``step,n_open,duty_pct,t_start_s,t_end_s,n,n_unstable,
   mean_raw_gf,zero_before_gf,zero_after_gf,drift_gf,thrust_gf,std_gf,sem_gf``.
-- ``run.json``: configuration, device identities, ``t0_unix`` (wall-clock time of
+- ``run.json``: configuration, device identities (``devices.scale.acquisition``: the
+  balance's requested and used acquisition mode, continuous print or ``IP`` polling,
+  the fallback reason and the poll rate), ``t0_unix`` (wall-clock time of
   ``t_s = 0``), timing, counts, exit status
   (``running`` while it runs, then ``success`` / ``aborted`` / ``failed``) and
   whether OFF was confirmed.
@@ -309,6 +311,10 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
         with valves.safe(config.watchdog_ms) as guard:
             valves.set_freq(config.pwm_hz)
             scale.start_continuous()
+            meta["devices"]["scale"]["acquisition"] = scale.acquisition_info()
+            _write_json(out / "run.json", meta)
+            if scale.fallback_message:
+                tqdm.write(scale.fallback_message, file=sys.stderr)
             t_loop = time.monotonic()
             planned_done = 0.0
 
@@ -363,12 +369,16 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
         t_end = time.monotonic()
         rec.close()
         with contextlib.suppress(Exception):
-            if scale.continuous:
+            if scale.acquiring:
                 scale.stop_continuous()
         table = summarize_steps(rec.frame())
         table.to_csv(out / "steps.csv", index=False)
         closed = guard is not None and guard.final_state is not None and not any(guard.final_state)
         loop_s = t_end - t_loop if math.isfinite(t_loop) else math.nan
+        if "scale" in meta["devices"] and scale.mode_in_use is not None:
+            n_loop = sum(1 for row in rec.rows if row[1] >= 0)
+            meta["devices"]["scale"]["acquisition"] = scale.acquisition_info() | {
+                "achieved_rate_hz": round(n_loop / loop_s, 2) if loop_s > 0 else None}
         meta.update({
             "status": status, "error": error,
             "valves_closed_confirmed": closed if guard is not None else None,

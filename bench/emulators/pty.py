@@ -13,6 +13,11 @@ translation) and runs a thread that moves bytes between the master side and the
 emulator. The slave device path (``/dev/pts/N``) is what pyserial opens. The server
 keeps its own slave descriptor open, so the client may close, crash or be killed and
 reconnect; output nobody reads is dropped once the pty buffer is full.
+
+A pty moves bytes instantly whatever baud rate the client sets. ``baud`` paces both
+directions like a serial line (``bits_per_byte`` per byte, 10 for 8N1): the emulator
+gets the host's bytes once they would have crossed the line, and its replies appear
+once their last byte would have arrived.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import select
 import threading
 import time
 import tty
+from collections import deque
 from typing import Protocol
 
 
@@ -35,9 +41,15 @@ class Emulator(Protocol):
 class PtyServer:
     """A running pty server: ``path`` is the device to open; ``stop()`` ends it."""
 
-    def __init__(self, emulator: Emulator, max_idle_s: float = 0.02) -> None:
+    def __init__(self, emulator: Emulator, max_idle_s: float = 0.02, baud: float | None = None,
+                 bits_per_byte: int = 10) -> None:
         self.emulator = emulator
         self._max_idle_s = max_idle_s
+        self.baud = baud
+        self._byte_s = bits_per_byte / baud if baud else 0.0
+        self._rx: deque[tuple[float, bytes]] = deque()  # (time the last byte is in, bytes)
+        self._tx: deque[tuple[float, bytes]] = deque()
+        self._rx_free = self._tx_free = 0.0
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
@@ -60,16 +72,31 @@ class PtyServer:
                 return
             data = data[n:]
 
+    def _out(self, data: bytes) -> None:
+        if not data:
+            return
+        if not self._byte_s:
+            self._write(data)
+            return
+        self._tx_free = max(time.monotonic(), self._tx_free) + len(data) * self._byte_s
+        self._tx.append((self._tx_free, data))
+
     def _loop(self) -> None:
         next_tick: float | None = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
+            while self._rx and self._rx[0][0] <= now:
+                self._out(self.emulator.receive(self._rx.popleft()[1], now))
+                next_tick = now  # a command may change the schedule
             if next_tick is not None and now >= next_tick:
                 out, next_tick = self.emulator.tick(now)
-                if out:
-                    self._write(out)
+                self._out(out)
                 now = time.monotonic()
-            wait = self._max_idle_s if next_tick is None else min(self._max_idle_s, max(0.0, next_tick - now))
+            while self._tx and self._tx[0][0] <= now:
+                self._write(self._tx.popleft()[1])
+            due = [t for t in (next_tick, self._rx[0][0] if self._rx else None,
+                               self._tx[0][0] if self._tx else None) if t is not None]
+            wait = self._max_idle_s if not due else min(self._max_idle_s, max(0.0, min(due) - now))
             try:
                 ready, _, _ = select.select([self._master, self._wake_r], [], [], wait)
             except (OSError, ValueError):
@@ -84,10 +111,11 @@ class PtyServer:
                         time.sleep(0.01)
                         continue
                     return
-                if data:
-                    out = self.emulator.receive(data, time.monotonic())
-                    if out:
-                        self._write(out)
+                if data and self._byte_s:
+                    self._rx_free = max(time.monotonic(), self._rx_free) + len(data) * self._byte_s
+                    self._rx.append((self._rx_free, data))
+                elif data:
+                    self._out(self.emulator.receive(data, time.monotonic()))
                 # a command may change the schedule (continuous print started)
                 next_tick = time.monotonic()
 
@@ -112,6 +140,8 @@ class PtyServer:
         self.stop()
 
 
-def serve_pty(emulator: Emulator) -> PtyServer:
-    """Serve ``emulator`` on a new pty; returns the server (``.path``, ``.stop()``)."""
-    return PtyServer(emulator)
+def serve_pty(emulator: Emulator, baud: float | None = None) -> PtyServer:
+    """Serve ``emulator`` on a new pty; returns the server (``.path``, ``.stop()``).
+
+    ``baud``: pace the bytes like a serial line at this rate (None: as fast as the pty)."""
+    return PtyServer(emulator, baud=baud)

@@ -12,6 +12,8 @@ Commands (case-sensitive, ended by CR LF; a lone CR or LF is accepted too):
 ``CP`` continuous print, ``xP`` print every x seconds, ``0P`` stop printing, ``Z`` zero,
 ``T`` tare (both answer ``OK!``), ``PU`` print the unit, ``xU`` set the unit
 (1 g, 2 kg, 3 ct, 4 oz, 5 lb; ``OK!``), ``PV`` version; anything else answers ``ES``.
+With ``continuous_print=False`` (continuous print disabled in the balance's menu, or a
+model without it) ``CP`` and ``xP`` answer ``ES`` and print nothing.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ class EmulatedScout:
             (readings are also unstable while settling by more than ``stable_band_g``).
         garbage_prob: probability that a printed line is replaced by garbage.
         print_rate_hz: continuous print rate.
+        continuous_print: False: ``CP`` and ``xP`` are refused with ``ES``.
         stable_band_g: a reading is unstable while |lagged - target| exceeds this.
         seed: random seed.
         clock: monotonic clock, seconds.
@@ -71,7 +74,7 @@ class EmulatedScout:
                  drift_g_per_s: float = 0.003, unstable_prob: float = 0.03,
                  garbage_prob: float = 0.01, print_rate_hz: float = 10.0,
                  stable_band_g: float = 1.0, seed: int | None = 0,
-                 version: str = "SCOUT STX EMU 1.00",
+                 version: str = "SCOUT STX EMU 1.00", continuous_print: bool = True,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.valves = valves
         self.table = table if table is not None else ThrustTable.default()
@@ -83,6 +86,7 @@ class EmulatedScout:
         self.unstable_prob = unstable_prob
         self.garbage_prob = garbage_prob
         self.print_rate_hz = print_rate_hz
+        self.continuous_print = continuous_print
         self.stable_band_g = stable_band_g
         self.version = version
         self.clock = clock
@@ -181,6 +185,9 @@ class EmulatedScout:
                     return self._emit(now, self.format_reading(value, True), "weight")
                 self._pending_sp += 1
                 return b""
+            if not self.continuous_print and (cmd == "CP" or (
+                    len(cmd) >= 2 and cmd.endswith("P") and cmd[:-1].isdigit() and cmd != "0P")):
+                return self._emit(now, b"ES\r\n", "reply")
             if cmd == "CP":
                 self._period = 1.0 / self.print_rate_hz
                 self._next_print = now

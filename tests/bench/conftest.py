@@ -16,13 +16,13 @@ from bench.ohaus import parse_weight_line
 
 
 class Bench:
-    def __init__(self, seed: int = 7, **scout_kw) -> None:
+    def __init__(self, seed: int = 7, scale_baud: float | None = None, **scout_kw) -> None:
         self.valves = EmulatedValveController(4)
         kw = dict(lag_s=0.02, print_rate_hz=100, seed=seed)
         kw.update(scout_kw)
         self.scout = EmulatedScout(self.valves, **kw)
         self.vsrv = serve_pty(self.valves)
-        self.ssrv = serve_pty(self.scout)
+        self.ssrv = serve_pty(self.scout, baud=scale_baud)
 
     @property
     def paths(self) -> tuple[str, str]:

@@ -210,7 +210,7 @@ def test_continuous_refused_is_a_clear_error():
     from tests.bench.fakeport import ScriptedPort
 
     port = ScriptedPort([(b"CP\r\n", b"ES\r\n")])
-    s = OhausScout(port)
+    s = OhausScout(port, acquisition="continuous")
     s.start_continuous()
     with pytest.raises(DeviceError, match="refused continuous printing"):
         s.next_reading(time.monotonic() + 1)

@@ -187,7 +187,7 @@ def test_scout_settings_and_info():
 
 def test_scout_continuous_stream_and_lost_balance():
     port = ScriptedPort([(b"CP\r\n", b""), (b"0P\r\n", b"")])
-    s = OhausScout(port, silence_timeout=0.3)
+    s = OhausScout(port, silence_timeout=0.3, acquisition="continuous")
     s.start_continuous()
     port.feed(b"      1.00 g\r\n  garb\r\n      2.00 g ?\r\nOK!\r\n      3.")
     import time
