@@ -38,6 +38,10 @@ def register(est) -> None:
     p.add_argument("--max-wait-ms", type=nonneg_float, default=2.0, metavar="MS",
                    help="longest a pose waits for a late command, ms, counted from the earlier of "
                         "its capture and arrival times (default 2)")
+    p.add_argument("--rewind-s", type=nonneg_float, default=2.0, metavar="S",
+                   help="a command that arrives after the poses it governs, but at most S lab "
+                        "seconds after its time, makes the filter re-run from before it "
+                        "(default 2; 0: such commands are counted as late and not used live)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",
@@ -62,7 +66,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     table = load_thrust_table(args.thrust_table)
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
-                     publish_rate_hz=args.rate, ls_in_process=True)
+                     publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
     k = keys(args.body, args.mocap_prefix, args.prefix)
     rec = None
     if args.out:
@@ -71,7 +75,8 @@ def cmd_live(args: argparse.Namespace) -> int:
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "body": args.body, "keys": k, "method": args.method,
             "thrust_table": args.thrust_table or "built-in Table 2",
-            "settings": {"max_wait_s": cfg.max_wait_s, "publish_rate_hz": cfg.publish_rate_hz,
+            "settings": {"max_wait_s": cfg.max_wait_s, "rewind_s": cfg.rewind_s,
+                         "publish_rate_hz": cfg.publish_rate_hz,
                          "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
                          "sigma_meas": list(cfg.ekf.sigma_meas),
@@ -104,10 +109,15 @@ def cmd_live(args: argparse.Namespace) -> int:
             rec.close(status, {"final": summary})
             (Path(args.out) / "estimate.json").write_text(
                 json.dumps(summary, indent=2, default=str) + "\n")
+    c = summary["counters"]
+    if summary.get("diverged"):
+        print("tpods: warning: the live filter diverged (non-physical mass or Izz, or innovations "
+              "far larger than their covariance); do not use this estimate. Late commands: "
+              f"{c['align_cmds_late']} not used, {c['align_cmds_rewound']} re-filtered; "
+              "post-process the run with `tpods estimate batch`", file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return 0
-    c = summary["counters"]
     if summary.get("mass_kg") is None:
         print(f"live: no estimate ({c['poses_rx']} poses and {c['cmds_rx']} commands received)")
         return 0
@@ -122,7 +132,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         print(f"  LS start failed: {summary['ls_error']}")
     print(f"  poses {c['poses_rx']} received, {c['updates']} used; occluded {c['align_occluded']}, "
           f"duplicates {c['align_duplicates']}, too old {c['align_too_old']}, malformed "
-          f"{c['malformed']}; commands {c['cmds_rx']}, late {c['align_cmds_late']}; released by "
+          f"{c['malformed']}; commands {c['cmds_rx']}, late {c['align_cmds_late']} (re-filtered "
+          f"{c['align_cmds_rewound']}); released by "
           f"timeout {c['align_released_by_timeout']}; largest backlog {c['max_backlog']}")
     if args.out:
         print(f"  wrote {args.out} (commands.csv, poses.csv, estimates.csv, run.json, estimate.json)")

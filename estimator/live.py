@@ -38,6 +38,7 @@ Estimate payload (JSON), schema ``tpods.estimate/1``::
 from __future__ import annotations
 
 import bisect
+import collections
 import contextlib
 import json
 import math
@@ -65,6 +66,14 @@ DEFAULT_MAX_WAIT_S = 0.002
 the earlier of its capture and arrival times). Commands cross Zenoh in 0.1-1 ms on one
 host or a LAN; a real mocap's own latency (3+ ms for VICON) means its poses are usually
 released on arrival. Keeps pose-to-estimate latency within a few milliseconds."""
+DEFAULT_REWIND_S = 2.0
+"""How far back (lab seconds) a command arriving after the poses it governs still
+corrects the live filter: it restores the state saved before the command and re-filters
+the poses since (``LiveConfig.rewind_s``; 0 turns this off)."""
+DIVERGED_NIS = 10.0
+"""A mean normalised innovation squared above this over the last ``NIS_WINDOW``
+updates (3 expected) flags the filter as diverged, as the batch EKF does."""
+NIS_WINDOW = 200
 
 
 @dataclass(frozen=True)
@@ -80,6 +89,7 @@ class LiveConfig:
     catchup_budget_s: float = 0.0005
     ls_in_process: bool = False
     n_channels: int = 4
+    rewind_s: float = DEFAULT_REWIND_S
 
     def __post_init__(self) -> None:
         from tpods.errors import UserError
@@ -94,13 +104,15 @@ class LiveConfig:
             raise UserError("the publish rate must be >= 0 Hz (0: every update)")
         if self.ls_window_s <= 0:
             raise UserError("the LS window must be positive")
+        if not (self.rewind_s >= 0 and math.isfinite(self.rewind_s)):
+            raise UserError("the rewind horizon must be a non-negative number of seconds")
 
 
 _EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d,"t_pub":%r,'
             '"method":"%s","phase":"%s","mass_kg":%r,"mass_sigma_kg":%r,"izz_kgm2":%r,'
             '"izz_sigma_kgm2":%r,"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
             '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
-            '"nis":%s}')
+            '"nis":%s,"diverged":%s}')
 
 
 def encode_estimate(d: dict[str, Any]) -> bytes:
@@ -266,6 +278,8 @@ class LiveCounters:
     catchup_updates: int = 0
     max_backlog: int = 0
     max_queue: int = 0
+    rewinds: int = 0
+    rewind_updates: int = 0
 
 
 class LiveEstimator:
@@ -317,6 +331,10 @@ class LiveEstimator:
         self._seq = 0
         self.history: list[tuple[float, float, float, float, float]] = []
         """(t, mass, mass sigma, izz, izz sigma) after every update (for plots)."""
+        self._ck: list[tuple[float, int, np.ndarray, np.ndarray]] = []
+        """Checkpoints of the live filter within ``rewind_s``: (pose t, index in hist, z, P)."""
+        self._rewind_t: float | None = None
+        self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
 
     # ------------------------------------------------------------------ input
     def command(self, d: dict[str, Any]) -> bool:
@@ -327,6 +345,7 @@ class LiveEstimator:
             return False
         t, duty = d["t"], d["duty"]
         late_before = self.aligner.stats.cmds_late
+        self.aligner.rewind_floor = self._ck[0][0] if self._ck else math.inf
         if not self.aligner.push_command(t, duty):
             if self.aligner.stats.cmds_late > late_before:
                 # too late for the live filter (it cannot rewrite the past), but the run
@@ -346,6 +365,12 @@ class LiveEstimator:
             self.end_seen_t = t
         if self.recorder is not None:
             self.recorder.command(t, duty)
+        if self.t_last is not None and t <= self.t_last:
+            # the filter already went past it: re-filter from before it (in process())
+            self._rewind_t = t if self._rewind_t is None else min(self._rewind_t, t)
+        cu = self._cu
+        if cu is not None and cu["t"] is not None and t <= cu["t"]:  # the catch-up too
+            cu["rewind"] = t if cu["rewind"] is None else min(cu["rewind"], t)
         return True
 
     def pose(self, d: dict[str, Any], arrival: float) -> bool:
@@ -402,6 +427,8 @@ class LiveEstimator:
 
     def process(self, now: float) -> int:
         """Release the aligned poses, filter them, advance a catch-up, publish. Returns updates."""
+        if self._rewind_t is not None:
+            self._rewind()
         ready = self.aligner.pop_ready(now)
         self.counters.max_backlog = max(self.counters.max_backlog, self.aligner.pending)
         n = 0
@@ -418,13 +445,11 @@ class LiveEstimator:
             self.hist_pose.append(meas)
             self.counters.updates += 1
             n += 1
-            P = self.P
-            self.history.append((p.t, float(self.z[6]), math.sqrt(max(P[6, 6], 0.0)),
-                                 float(self.z[7]), math.sqrt(max(P[7, 7], 0.0))))
+            self._after_update(p.t, len(self.hist_t) - 1)
             if self.recorder is not None:
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
                 self.recorder.estimate(p.t, p.frame, self.phase, self.z,
-                                       np.sqrt(np.maximum(P.diagonal(), 0.0)))
+                                       np.sqrt(np.maximum(self.P.diagonal(), 0.0)))
             if self.config.publish_rate_hz == 0:
                 self._publish(now)
         if self.config.method == "ls-ekf":
@@ -432,6 +457,59 @@ class LiveEstimator:
         if n and self.config.publish_rate_hz > 0 and now - self._last_pub >= 1.0 / self.config.publish_rate_hz:
             self._publish(now)
         return n
+
+    def _after_update(self, t: float, idx: int) -> None:
+        """Bookkeeping after the live filter's update with pose ``hist_t[idx]``: history,
+        NIS, checkpoint."""
+        z, P = self.z, self.P
+        self.history.append((t, float(z[6]), math.sqrt(max(P[6, 6], 0.0)),
+                             float(z[7]), math.sqrt(max(P[7, 7], 0.0))))
+        if not math.isnan(self.last_nis):
+            self._nis_recent.append(self.last_nis)
+        horizon = self.config.rewind_s
+        if horizon > 0:
+            ck = self._ck
+            ck.append((t, idx, z.copy(), P.copy()))
+            if len(ck) > 256 and ck[255][0] < t - horizon:  # drop the old ones in blocks
+                cut = bisect.bisect_left([c[0] for c in ck], t - horizon)
+                del ck[:cut]
+
+    def _rewind(self) -> None:
+        """A command arrived after poses it governs: restore the checkpoint at or before
+        it and re-filter the poses since with the commands now known."""
+        t_c, self._rewind_t = self._rewind_t, None
+        ck = self._ck
+        j = bisect.bisect_right([c[0] for c in ck], t_c) - 1
+        if j < 0:  # older than every checkpoint (the aligner refuses those): nothing to do
+            return
+        t_prev, idx, z, P = ck[j]
+        del ck[j + 1:]
+        del self.history[len(self.history) - (len(self.hist_t) - 1 - idx):]
+        self.z, self.P, self.t_last = z.copy(), P.copy(), t_prev
+        n = 0
+        for i in range(idx + 1, len(self.hist_t)):
+            t = self.hist_t[i]
+            self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, t,
+                                                       self.hist_pose[i])
+            self.t_last = t
+            self._after_update(t, i)
+            n += 1
+        self.counters.rewinds += 1
+        self.counters.rewind_updates += n
+
+    @property
+    def diverged(self) -> bool:
+        """Non-physical or non-finite mass or Izz, a covariance that broke down, or a mean
+        NIS over the last updates above :data:`DIVERGED_NIS` (the batch EKF's test)."""
+        if self.z is None:
+            return False
+        z, P = self.z, self.P
+        if not (z[6] > 0 and z[7] > 0 and np.all(np.isfinite(z))):
+            return True
+        if not (P[6, 6] > 0 and P[7, 7] > 0 and np.all(np.isfinite(P))):
+            return True
+        nis = self._nis_recent
+        return len(nis) >= min(NIS_WINDOW, 20) and sum(nis) / len(nis) > DIVERGED_NIS
 
     # ------------------------------------------------------------------ ls-ekf
     def _ls_tick(self, block: bool = False) -> None:
@@ -503,8 +581,9 @@ class LiveEstimator:
                   "continuing with the EKF alone", file=sys.stderr)
             return
         res = self.ls_result
-        self._cu = {"z": np.array(res.z0, float), "P": 0.5 * (res.cov + res.cov.T), "i": 0,
-                    "t": None, "n_win": self._ls_n}
+        z0, P0 = np.array(res.z0, float), 0.5 * (res.cov + res.cov.T)
+        self._cu = {"z": z0, "P": P0, "z0": z0, "P0": P0, "i": 0, "t": None, "n_win": self._ls_n,
+                    "ck": [], "rewind": None}
         self.phase = "catching-up"
 
     def close_pool(self) -> None:
@@ -514,26 +593,48 @@ class LiveEstimator:
             self._pool = None
 
     def _catch_up(self, block: bool) -> None:
-        """Re-filter buffered poses from the LS start for at most ``catchup_budget_s``."""
+        """Re-filter buffered poses from the LS start for at most ``catchup_budget_s``.
+
+        Keeps checkpoints over the last ``rewind_s`` like the live filter, so a late
+        command rewinds the catch-up too, and the live filter can rewind after takeover.
+        """
         cu = self._cu
         reuse = self.config.ls_start == "reuse"
+        ck = cu["ck"]
+        if cu["rewind"] is not None:  # a command arrived for a time it already passed
+            t_c, cu["rewind"] = cu["rewind"], None
+            j = bisect.bisect_right([c[0] for c in ck], t_c) - 1
+            if j >= 0:
+                t_k, idx, zk, Pk = ck[j]
+                del ck[j + 1:]
+                cu.update(z=zk.copy(), P=Pk.copy(), t=t_k, i=idx + 1)
+            else:  # no checkpoint that old: from the LS start again
+                ck.clear()
+                cu.update(z=cu["z0"], P=cu["P0"], t=None, i=0)
         z, P, t_prev = cu["z"], cu["P"], cu["t"]
         i = cu["i"]
         n_win = cu["n_win"]
         hist_t, hist_pose = self.hist_t, self.hist_pose
+        horizon = self.config.rewind_s
         deadline = time.perf_counter() + self.config.catchup_budget_s
         while i < len(hist_t):
             t = hist_t[i]
             z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win)
+            if horizon > 0 and t >= hist_t[-1] - horizon:
+                ck.append((t, i, z.copy(), P.copy()))
             t_prev = t
             i += 1
             self.counters.catchup_updates += 1
             if not block and time.perf_counter() > deadline:
                 break
+        if len(ck) > 256 and ck[255][0] < hist_t[-1] - horizon:
+            del ck[:bisect.bisect_left([c[0] for c in ck], hist_t[-1] - horizon)]
         cu.update(z=z, P=P, t=t_prev, i=i)
         if i >= len(hist_t):  # caught up with the live filter: take over
             self.z, self.P, self.t_last = z, P, t_prev
             self._cu = None
+            self._ck = ck  # the new filter's checkpoints replace the old filter's
+            self._rewind_t = None
             self.phase = "ls-ekf"
             self.restart_t = t_prev
 
@@ -555,6 +656,7 @@ class LiveEstimator:
             "state_sigma": dict(zip(STATE_NAMES[:6], sig[:6].tolist(), strict=True)),
             "n_updates": self.counters.updates,
             "nis": None if math.isnan(self.last_nis) else float(self.last_nis),
+            "diverged": self.diverged,
         }
 
     def _publish(self, now: float) -> None:
@@ -581,7 +683,8 @@ class LiveEstimator:
         nis = "null" if math.isnan(self.last_nis) else repr(float(self.last_nis))
         return (_EST_FMT % (self._body_json, self._seq, self.t_last, self.frame_last, time.time(),
                             self.config.method, self.phase, z[6], sg[6], z[7], sg[7],
-                            *z[:6], *sg[:6], self.counters.updates, nis)).encode()
+                            *z[:6], *sg[:6], self.counters.updates, nis,
+                            "true" if self.diverged else "false")).encode()
 
     def finish(self) -> dict[str, Any] | None:
         """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
@@ -605,7 +708,8 @@ class LiveEstimator:
         """Final estimate, phase, LS details and counters (JSON-ready)."""
         est = self.estimate() or {}
         out = {k: est.get(k) for k in ("method", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2",
-                                       "izz_sigma_kgm2", "state", "state_sigma", "n_updates")}
+                                       "izz_sigma_kgm2", "state", "state_sigma", "n_updates",
+                                       "diverged")}
         out["t_last_lab"] = self.t_last
         out["restart_t_lab"] = self.restart_t
         if self.ls_result is not None:
@@ -776,8 +880,9 @@ def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) 
     else:
         t_rel = (est.t_last - est.aligner.first_command_t) if est.aligner.first_command_t else 0.0
         head = (f"t {t_rel:7.2f} s | m {e['mass_kg']:.4f} +/- {e['mass_sigma_kg']:.2g} kg | "
-                f"Izz {e['izz_kgm2']:.4e} +/- {e['izz_sigma_kgm2']:.1e} | {est.phase}")
+                f"Izz {e['izz_kgm2']:.4e} +/- {e['izz_sigma_kgm2']:.1e} | {est.phase}"
+                + (" | DIVERGED" if e["diverged"] else ""))
     return (f"live: {head} | in {rates.get('poses_hz', 0):.0f} poses/s "
             f"{rates.get('cmds_hz', 0):.0f} cmds/s | used {c.updates} occl {a.occluded} "
-            f"dup {a.duplicates} old {a.too_old} late-cmd {a.cmds_late} "
+            f"dup {a.duplicates} old {a.too_old} late-cmd {a.cmds_late} rewound {a.cmds_rewound} "
             f"timeout {a.released_by_timeout} bad {c.malformed} | backlog {backlog + est.aligner.pending}")

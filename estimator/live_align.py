@@ -8,7 +8,8 @@ command stamped at or after its time has arrived, or until it has waited
 
 Bad or useless samples are counted and skipped, never used: occluded or
 non-finite poses, repeated frames, poses older than the last released one,
-commands older than the last released pose (they would rewrite the past).
+commands older than the last released pose (they would rewrite the past) unless the
+consumer can still re-filter from before them (``rewind_floor``).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ class AlignStats:
     too_old: int = 0
     cmds_in: int = 0
     cmds_late: int = 0
+    cmds_rewound: int = 0
     cmds_bad: int = 0
     released_by_timeout: int = 0
     before_first_cmd: int = 0
@@ -57,11 +59,17 @@ class LiveAligner:
         max_wait_s: longest a pose waits (host clock) for a command stamped at or
             after its time before the latest command is assumed to still hold.
         n_channels: number of valves in a command.
+
+    ``rewind_floor`` (host time, default +inf: never) is set by a consumer that can
+    re-filter released poses: a command older than the last released pose but newer
+    than this floor is accepted (counted in ``cmds_rewound``) and the consumer re-runs
+    its filter from before it; older ones are refused (``cmds_late``).
     """
 
     max_wait_s: float = 0.05
     n_channels: int = 4
     stats: AlignStats = field(default_factory=AlignStats)
+    rewind_floor: float = math.inf
 
     def __post_init__(self) -> None:
         self._cmd_t: list[float] = []
@@ -84,8 +92,10 @@ class LiveAligner:
             self.stats.cmds_bad += 1
             return False
         if t <= self._released_t:
-            self.stats.cmds_late += 1
-            return False
+            if t <= self.rewind_floor:
+                self.stats.cmds_late += 1
+                return False
+            self.stats.cmds_rewound += 1
         self.stats.cmds_in += 1
         i = bisect.bisect_right(self._cmd_t, t)
         if i > 0 and self._cmd_t[i - 1] == t:

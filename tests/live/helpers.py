@@ -30,6 +30,32 @@ def loopback_peers(n: int = 2):
             s.close()
 
 
+def switch_lag_ms(module, play_dir) -> tuple[float, float]:
+    """(mean, largest) gap in lab ms between a valve change the simulated module applied
+    and the player's stamp of the command that asked for it (same duties, nearest in time).
+
+    A fraction of a millisecond on a machine that keeps up with the time scale; on one
+    too loaded, the emulated controller reads its commands late (tens to hundreds of ms),
+    the module's physics no longer match the commands recorded, and no estimator can be
+    judged on the run. The mean is what biases an estimate (the impulse misplaced)."""
+    import json
+
+    import numpy as np
+    import pandas as pd
+
+    meta = json.loads((play_dir / "run.json").read_text())
+    df = pd.read_csv(play_dir / "commands.csv")
+    t_cmd = df["t"].to_numpy() + meta["t0_lab"]
+    duties = df.drop(columns="t").to_numpy()
+    lags = []
+    for t_s, d in module.plant.switches:
+        same = np.all(np.isclose(duties, d), axis=1)
+        if same.any():
+            lags.append(float(np.min(np.abs(t_cmd[same] - t_s))))
+    lags = 1e3 * np.asarray(lags)
+    return float(lags.mean()), float(lags.max())
+
+
 def run_lab_procs(out, exe: str, *, duration_s: float = 24.0, scale: float = 2.0,
                   method: str = "ls-ekf", extra_live: tuple[str, ...] = (), seed: int = 0):
     """Like :func:`run_lab` with the estimator and the player as the real commands

@@ -4,12 +4,17 @@ bridge -> live estimator, then the batch estimators on the run it recorded."""
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
+import pytest
 
-from tests.live.helpers import TRUTH, run_lab_procs
+from tests.live.helpers import TRUTH, run_lab_procs, switch_lag_ms
 from tpods.cli import main
 from tpods.runfolder import read_run
+
+MAX_LAG_MS = 1.0
+"""Mean valve-switch lag (lab ms) above which the emulated lab is not a valid test."""
 
 
 def _batch(capsys, run_dir, *extra):
@@ -25,6 +30,14 @@ def test_live_estimate_matches_truth_and_the_batch_estimate(tmp_path, capsys, tp
         extra_live=("--ls-window", "10", "--ls-start", "handoff"))
     assert play_meta["status"] == "success" and play_meta["valves_closed_confirmed"]
     assert not any(module.valves.duties)
+    lag_ms, worst_ms = switch_lag_ms(module, tmp_path / "play")
+    print(f"valve switches vs command stamps: mean {lag_ms:.2f}, largest {worst_ms:.1f} lab ms",
+          file=sys.stderr)
+    if lag_ms > MAX_LAG_MS:
+        pytest.skip(f"the emulated lab fell behind: valve switches lagged their commands' stamps "
+                    f"by {lag_ms:.1f} lab ms on average (largest {worst_ms:.0f} ms; limit "
+                    f"{MAX_LAG_MS} ms), so the module's physics do not match the recorded "
+                    "commands; the machine is too loaded for time scale 2")
     assert summary["phase"] == "ls-ekf", summary
     c = summary["counters"]
     assert c["updates"] > 0.9 * 24 * 120 and c["malformed"] == 0

@@ -35,14 +35,16 @@ def _pose(k, t, p, occluded=False):
             "occluded": occluded}
 
 
-def _feed(est, res, *, late_every=0, dup_every=0, occl_every=0, swap_every=0, wait=0.01):
-    """Commands before the poses they govern; optional late commands, duplicates, occlusions
-    and swapped neighbours. Returns the number of process() calls."""
+def _feed(est, res, *, late_every=0, dup_every=0, occl_every=0, swap_every=0, wait=0.01,
+          cmd_delay_s=0.0):
+    """Commands before the poses they govern (or, after the first, ``cmd_delay_s`` after
+    their time, past the alignment wait: late); optional stale commands, duplicates,
+    occlusions and swapped neighbours."""
     ct, d = res.cmd_t, res.duty_pct
     ci = 0
     msgs = []
     for k, (t, p) in enumerate(zip(res.pose_t, res.pose, strict=True)):
-        while ci < len(ct) and ct[ci] <= t:
+        while ci < len(ct) and ct[ci] + (cmd_delay_s if ci else 0.0) <= t:
             msgs.append(("cmd", {"body": "tpods1", "t": T0 + ct[ci], "duty": list(d[ci]),
                                  "kind": "set"}))
             ci += 1
@@ -58,8 +60,8 @@ def _feed(est, res, *, late_every=0, dup_every=0, occl_every=0, swap_every=0, wa
         for i in range(10, len(msgs) - 1, swap_every):
             if msgs[i][0] == "pose" and msgs[i + 1][0] == "pose":
                 msgs[i], msgs[i + 1] = msgs[i + 1], msgs[i]
-    if late_every:  # a stale command, stamped long before what was already released
-        for i in range(200, len(msgs), late_every):
+    if late_every:  # a stale command, stamped seconds before what was already released
+        for i in range(1000, len(msgs), late_every):
             msgs.insert(i, ("cmd", {"body": "tpods1", "t": T0 + 0.001 * i / late_every,
                                     "duty": [90, 90, 90, 90], "kind": "set"}))
     for kind, m in msgs:
@@ -97,6 +99,49 @@ def test_live_equals_the_batch_filter_on_the_same_data(sim, method, ls_start):
     assert abs(s["izz_kgm2"] - 4.2e-3) < 3 * s["izz_sigma_kgm2"]
 
 
+@pytest.mark.parametrize("method", ["ekf", "ls-ekf"])
+def test_commands_arriving_after_their_poses_rewind_the_filter(sim, method):
+    """Every command arrives 30 ms after its time, after the 10 ms wait released the poses
+    it governs: the filter restores its state from before each and re-filters, so it ends
+    where the on-time stream does. Without the rewind the same stream spoils the estimate."""
+    cfg = dict(method=method, ls_window_s=10.0, publish_rate_hz=0, ls_start="handoff")
+    ref = LiveEstimator(TABLE, LiveConfig(**cfg))
+    _feed(ref, sim)
+    est = LiveEstimator(TABLE, LiveConfig(**cfg))
+    _feed(est, sim, cmd_delay_s=0.03)
+    a, b = est.summary(), ref.summary()
+    c = a["counters"]
+    assert c["align_cmds_rewound"] > 500 and c["align_cmds_late"] == 0 and c["rewinds"] > 500
+    assert b["counters"]["rewinds"] == 0
+    assert a["n_updates"] == b["n_updates"] == len(sim.pose_t)
+    for k in ("mass_kg", "izz_kgm2", "mass_sigma_kg", "izz_sigma_kgm2"):
+        assert a[k] == pytest.approx(b[k], rel=1e-9), k
+    assert len(est.history) == len(est.hist_t)
+    assert est.history[-1][1] == pytest.approx(b["mass_kg"], rel=1e-9)
+    assert not a["diverged"] and not b["diverged"]
+    off = LiveEstimator(TABLE, LiveConfig(**cfg, rewind_s=0.0))
+    _feed(off, sim, cmd_delay_s=0.03)
+    o = off.summary()
+    assert o["counters"]["align_cmds_late"] > 500 and o["counters"]["rewinds"] == 0
+    assert abs(o["mass_kg"] - b["mass_kg"]) > 3 * b["mass_sigma_kg"]
+
+
+def test_a_diverged_filter_says_so(sim):
+    est = LiveEstimator(TABLE, LiveConfig(publish_rate_hz=0))
+    payloads: list[bytes] = []
+    est.publish_bytes = payloads.append
+    _feed(est, sim)
+    assert not est.diverged and decode_estimate(payloads[-1])["diverged"] is False
+    est.z = est.z.copy()
+    est.z[6] = -0.8  # a non-physical mass, as a filter fed inconsistent data can end with
+    assert est.diverged and est.summary()["diverged"] is True
+    est._publish(T0 + 100.0)
+    assert decode_estimate(payloads[-1])["diverged"] is True
+    est.z[6] = 2.5
+    est._nis_recent.extend([40.0] * 200)  # innovations far larger than their covariance
+    assert est.diverged
+
+
 def test_the_fast_payload_holds_what_estimate_says(sim):
     est = LiveEstimator(TABLE, LiveConfig(publish_rate_hz=0))
     payloads: list[bytes] = []
@@ -105,7 +150,7 @@ def test_the_fast_payload_holds_what_estimate_says(sim):
     d = decode_estimate(payloads[-1])
     ref = est.estimate()
     for k in ("t", "frame", "mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "state",
-              "state_sigma", "n_updates", "method", "phase", "body"):
+              "state_sigma", "n_updates", "method", "phase", "body", "diverged"):
         assert d[k] == ref[k], k
     assert [json.loads(p)["seq"] for p in payloads[:5]] == [1, 2, 3, 4, 5]
 
@@ -162,6 +207,6 @@ def test_run_folder_is_valid_while_running_and_after(sim, tmp_path):
 
 def test_config_refusals():
     for kw in ({"method": "ukf"}, {"max_wait_s": -1}, {"publish_rate_hz": math.nan},
-               {"ls_start": "x"}, {"ls_window_s": 0}):
+               {"ls_start": "x"}, {"ls_window_s": 0}, {"rewind_s": -1}):
         with pytest.raises(UserError):
             LiveConfig(**kw)
