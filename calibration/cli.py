@@ -8,7 +8,7 @@ import math
 import sys
 from pathlib import Path
 
-from tpods.argtypes import float_list, nonneg_float, positive_float
+from tpods.argtypes import float_list, int_at_least, nonneg_float, positive_float
 from tpods.errors import UserError
 
 
@@ -20,16 +20,6 @@ def register(sub) -> None:
     _register_mass(cal)
     _register_bifilar(cal)
     _register_combine(cal)
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
-    return v
 
 
 def _print_json(obj) -> None:
@@ -55,7 +45,7 @@ def _register_mass(cal) -> None:
                           "'?' marks unstable and is skipped)")
     src.add_argument("--values", type=float_list(), metavar="V1,V2,...",
                      help="readings on the command line, in --unit")
-    p.add_argument("--readings", type=_positive_int, default=10,
+    p.add_argument("--readings", type=int_at_least(1), default=10,
                    help="stable readings to take from the balance (default 10)")
     p.add_argument("--accuracy-g", type=nonneg_float, default=2.5,
                    help="stated balance accuracy +-a in grams (default 2.5, the paper's)")
@@ -63,7 +53,7 @@ def _register_mass(cal) -> None:
                    help="display resolution d in grams, adds d/(2 sqrt 3) (default 0: inside "
                         "the accuracy)")
     p.add_argument("--unit", default="g", help="unit of numbers without one (default g)")
-    p.add_argument("--baudrate", type=_positive_int, default=9600, help="default 9600")
+    p.add_argument("--baudrate", type=int_at_least(1), default=9600, help="default 9600")
     p.add_argument("--bytesize", type=int, choices=(7, 8), default=8, help="default 8")
     p.add_argument("--parity", choices=("N", "E", "O"), default="N", help="default N")
     p.add_argument("--stopbits", type=int, choices=(1, 2), default=1, help="default 1")
@@ -144,7 +134,7 @@ def _register_bifilar(cal) -> None:
                      help="stopwatch time of --cycles full oscillations per trial, s")
     src.add_argument("--poses", metavar="PATH",
                      help="poses.csv (t,x,y,psi) recorded while the body swings, or its run folder")
-    p.add_argument("--cycles", type=_positive_int, default=10,
+    p.add_argument("--cycles", type=int_at_least(1), default=10,
                    help="full oscillations per timing (default 10)")
     p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
                    help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tpods.argtypes import fraction, nonneg_float, positive_float
+from tpods.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from tpods.errors import UserError
 
 
@@ -33,16 +33,6 @@ def _state_values(what: str):
         return vals
 
     return parse
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 2:
-        raise argparse.ArgumentTypeError(f"must be at least 2, got {text!r}")
-    return v
 
 
 def _filter_options(p, preset_default: str) -> None:
@@ -197,6 +187,10 @@ def run_filter_method(args) -> int:
     if r.diverged:
         print("tpods: warning: the filter diverged (non-physical parameters or innovations far "
               "larger than their covariance); try --method ls-ekf", file=sys.stderr)
+    elif r.inconsistent:
+        print(f"tpods: warning: the filter is inconsistent (mean NIS {r.nis_tail_mean:.3g} over the "
+              "last 10 % of updates, 3 expected): its sigma understates the error; try --method "
+              "ls-ekf", file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(out, default=str) + "\n")
         return 0
@@ -234,7 +228,7 @@ def register(sub, est, rep) -> None:
                     "3 sigma. The default filter is the paper's without process noise (the "
                     "simulated parameters are constant); the filter starts at the nominal "
                     "values with the uniform draw's standard deviation.")
-    p.add_argument("--runs", type=_positive_int, default=500, help="number of runs (default 500)")
+    p.add_argument("--runs", type=int_at_least(2), default=500, help="number of runs (default 500)")
     p.add_argument("--spread", type=fraction, default=0.5,
                    help="relative half-width of the uniform m, Izz draw (default 0.5)")
     p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")

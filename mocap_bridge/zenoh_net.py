@@ -34,6 +34,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from tpods.argtypes import int_at_least
 from tpods.errors import UserError
 
 DEFAULT_HUB = "tcp/127.0.0.1:7447"
@@ -59,20 +60,11 @@ def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
                         "override it")
     g.add_argument("--zenoh-mode", choices=MODES, default=None,
                    help="zenoh mode (default peer; 'client' to go through a router only)")
-    g.add_argument("--zenoh-batch-ms", type=_batch_ms, default=None, metavar="MS",
+    g.add_argument("--zenoh-batch-ms", type=int_at_least(0), default=None, metavar="MS",
                    help=f"longest time zenoh may hold a message to fill a batch when its "
                         f"transmit queue is congested, integer ms (default {DEFAULT_BATCH_MS} "
                         f"for the lowest latency; zenoh's own default is 1)")
 
-
-def _batch_ms(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of ms, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
 
 
 def _get(src: Any, name: str, default: Any = None) -> Any:

@@ -26,6 +26,20 @@ def nonneg_float(text: str) -> float:
     return v
 
 
+def int_at_least(lo: int):
+    """An argparse type for a whole number >= ``lo``."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be a whole number >= {lo}, got {text!r}")
+        return v
+    parse.__name__ = f"whole number >= {lo}"  # argparse names the type in its error line
+    return parse
+
+
 def fraction(text: str) -> float:
     v = nonneg_float(text)
     if v >= 1:
