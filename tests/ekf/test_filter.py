@@ -134,7 +134,7 @@ def test_ekf_final_within_3_sigma_from_a_fair_start(mass, izz, seed):
     r = run_ekf(res.pose_t, res.pose, res.cmd_t, res.thrust_n, cfg, x0)
     assert np.ptp(res.states[:, 2]) > 2 * math.pi  # the yaw wrapped in the measurements
     assert np.all(np.abs(r.x[-1, 6:8] - truth) <= 3 * r.sigma[-1, 6:8])
-    assert not r.diverged
+    assert not r.diverged and not r.inconsistent
 
 
 def test_non_uniform_times_and_fast_or_slow_commands():
