@@ -107,7 +107,9 @@ class BatchResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no per-pose arrays)."""
-        corr = self.cov / np.outer(np.where(self.sigma > 0, self.sigma, 1), np.where(self.sigma > 0, self.sigma, 1))
+        with np.errstate(invalid="ignore"):  # inf / inf for a direction without information
+            corr = self.cov / np.outer(np.where(self.sigma > 0, self.sigma, 1),
+                                       np.where(self.sigma > 0, self.sigma, 1))
         return {
             "mass_kg": self.mass_kg, "mass_sigma_kg": self.mass_sigma_kg,
             "izz_kgm2": self.izz_kgm2, "izz_sigma_kgm2": self.izz_sigma_kgm2,

@@ -753,8 +753,14 @@ def estimate_filter(pose_t, pose, cmd_t, thrust_n, method: str = "ekf", cfg: Ekf
     if not ls.converged:
         raise UserError(f"batch least squares on the first {ls_window_s:g} s did not converge "
                         f"({ls.message}); cannot start ls-ekf from it")
-    if ls.z0[6] <= 0 or ls.z0[7] <= 0 or not np.all(np.isfinite(ls.cov)):
+    if ls.z0[6] <= 0 or ls.z0[7] <= 0:
         raise UserError("batch least squares gave a non-physical start (mass or Izz <= 0)")
+    if not np.all(np.isfinite(ls.cov)):
+        # e.g. a window without any torque: Izz has no information, an infinite variance
+        unknown = [lab for lab, sd in zip(ls.labels, ls.sigma, strict=True) if not math.isfinite(sd)]
+        raise UserError(f"the first {ls_window_s:g} s do not determine {', '.join(unknown)} "
+                        "(no information: infinite variance); lengthen --ls-window or use "
+                        "--method ls")
     cov = 0.5 * (ls.cov + ls.cov.T)
     use = None if ls_start == "reuse" else ~win
     res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, cov, use=use)

@@ -182,3 +182,19 @@ def test_estimate_run_on_a_run_folder(tmp_path):
     assert abs(res.mass_kg - 1.4) < 3 * res.mass_sigma_kg
     with pytest.raises(UserError, match="fewer than 2"):
         estimate_run(run, window="100:200")
+
+
+def test_no_torque_gives_an_infinite_izz_sigma_without_numpy_warnings():
+    """The first 6 s of the translate-then-rotate input hold no torque: Izz has no
+    information. The fit says so (sigma inf); to_dict used to leak a numpy 'invalid value'
+    RuntimeWarning onto the user's terminal (inf / inf in the correlation matrix)."""
+    import warnings
+
+    cmd_t, duty = translate_rotate(6.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(1.5, 6e-3), config=SimConfig(seed=3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n)
+        d = res.to_dict()
+    assert math.isinf(d["izz_sigma_kgm2"]) and math.isfinite(d["mass_sigma_kg"])
+    assert abs(d["mass_kg"] - 1.5) < 3 * d["mass_sigma_kg"]

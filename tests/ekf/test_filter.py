@@ -251,3 +251,19 @@ def test_extended_filter_with_a_negative_variance_is_diverged():
     r.P = r.P.copy()
     r.P[7, 7] = -1e-40
     assert r.diverged and r.to_dict()["diverged"] is True
+
+
+def test_ls_ekf_names_the_parameter_its_window_cannot_determine():
+    """LS window without torque (translate-then-rotate, first 6 s): Izz has an infinite
+    variance. ls-ekf refused with 'non-physical start (mass or Izz <= 0)', which was not the
+    reason (found by a parameter sweep)."""
+    from estimator.inputs import translate_rotate
+    from estimator.model import PlantParams
+    from estimator.sim import SimConfig, simulate
+    from tpods.errors import UserError
+
+    cmd_t, duty = translate_rotate(6.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(1.5, 6e-3), config=SimConfig(seed=3))
+    with pytest.raises(UserError, match=r"do not determine izz.*--ls-window") as exc:
+        estimate_filter(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n, "ls-ekf", PAPER)
+    assert "non-physical" not in str(exc.value)
