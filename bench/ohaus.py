@@ -333,9 +333,12 @@ class OhausScout:
         """One line for the operator when ``"auto"`` fell back to polling, else None."""
         if self.fallback_reason is None:
             return None
-        what = ("balance refused continuous print (ES to CP)" if self.fallback_reason == "ES to CP"
-                else f"balance printed nothing after CP ({self.fallback_reason})")
-        return f"{what}: polling with IP at ~{self.poll_rate_hz:.0f} readings/s"
+        return f"balance {self._no_cp(self.fallback_reason)}: polling with IP at ~{self.poll_rate_hz:.0f} readings/s"
+
+    @staticmethod
+    def _no_cp(reason: str) -> str:
+        return ("refused continuous print (ES to CP)" if reason == "ES to CP"
+                else f"printed nothing after CP ({reason})")
 
     def acquisition_info(self) -> dict[str, Any]:
         """Requested and used acquisition mode, fallback reason, poll rate and counts
@@ -415,8 +418,8 @@ class OhausScout:
             self._polling = False
             if reason is None:
                 raise
-            raise DeviceError(f"OHAUS balance refused continuous print ({reason}) and polling "
-                              f"with IP failed: {exc}") from None
+            raise DeviceError(f"OHAUS balance {self._no_cp(reason)} and polling with IP failed: "
+                              f"{exc}") from None
         self.poll_rate_hz = 1.0 / max(sorted(periods)[len(periods) // 2], 1e-6)
 
     def stop_continuous(self) -> None:

@@ -103,16 +103,16 @@ def test_poll_mode_sends_ip_only():
 
 def test_poll_reply_in_flight_at_the_deadline_stays_in_its_window():
     s, port = polling([(IP, b"")])
-    threading.Timer(0.15, port.feed, [line(8)]).start()   # the balance is slow this time
     t0 = time.monotonic()
-    r = s.next_reading(t0 + 0.05)
-    assert r is not None and r.value == 8 and r.t >= t0 + 0.14   # waited past the deadline
+    threading.Timer(0.1, port.feed, [line(8)]).start()    # slow this time (re-ask only after 0.25 s)
+    r = s.next_reading(t0 + 0.03)
+    assert r is not None and r.value == 8 and r.t >= t0 + 0.1    # waited past the deadline
     assert s.next_reading(-math.inf) is None
     # a window shorter than the measured round trip sends nothing and returns at its end
     n = len(port.written)
     t1 = time.monotonic()
     assert s.next_reading(t1 + 0.01) is None
-    assert len(port.written) == n and time.monotonic() - t1 < 0.1
+    assert len(port.written) == n and time.monotonic() - t1 < 0.2
     assert s.n_poll_timeouts == 0 and s.n_late_replies == 0
 
 
@@ -129,14 +129,14 @@ def test_poll_late_reply_is_dropped_and_counted_and_lost_ip_is_resent():
 
 
 def test_poll_lost_balance_refused_ip_and_garbage_only():
-    s, port = polling([(IP, b""), (IP, b"")], silence_timeout=0.4)
-    with pytest.raises(DeviceError, match=r"went silent: no valid reading for 0.4 s \(1 IP unanswered\)"):
+    s, port = polling([(IP, b"")] * 5, silence_timeout=0.6)   # IP at 0, 0.25, 0.5 s
+    with pytest.raises(DeviceError, match=r"went silent: no valid reading for 0.6 s \(\d IP unanswered\)"):
         s.next_reading(time.monotonic() + 5)
-    assert port.done()
+    assert 2 <= len(port.written) - 6 <= 3
     s, port = polling([(IP, b"#?!\r\n")] * 3 + [(IP, b"")] * 2, silence_timeout=0.4)
     with pytest.raises(DeviceError, match="went silent"):   # garbage is no sign of life
         s.next_reading(time.monotonic() + 5)
-    assert s.n_garbage == 3 and port.done()
+    assert s.n_garbage == 3
     s, port = polling([(IP, b"ES\r\n")])
     with pytest.raises(DeviceError, match="refused 'IP'"):
         s.next_reading(time.monotonic() + 5)
@@ -226,7 +226,7 @@ def test_session_against_a_balance_without_continuous_print(tpods_exe, tmp_path)
         elif row["phase"] == "zero":
             assert not any(state)
     _, steps = read_session(out)
-    assert len(steps) == 6 and (steps["n"] >= 8).all()
+    assert len(steps) == 6 and (steps["n"] >= 5).all()
     table = ThrustTable.default()
     truth = [float(table.per_nozzle(d, k)) for k, d in zip(steps["n_open"], steps["duty_pct"], strict=True)]
     assert (abs(steps["thrust_gf"] - truth) < 0.5).all()
