@@ -45,9 +45,11 @@ def register(sub) -> None:
     p.add_argument("--scale-mode", choices=("auto", "continuous", "poll"), default="auto",
                    help="balance acquisition: continuous print (CP), polling (IP per reading), or auto: "
                         "CP, polling if the balance refuses it (default auto)")
-    p.add_argument("--scale-poll-interval", type=nonneg_float, default=0.0, metavar="S",
-                   help="when polling, minimum time between two IP, s (default 0: as fast as the "
-                        "balance answers; set its display update period for independent readings)")
+    p.add_argument("--scale-poll-interval", type=nonneg_float, default=0.1, metavar="S",
+                   help="when polling, minimum time between two IP, s (default 0.1: a Scout "
+                        "updates its reading about 10 times a second, and polling faster returns "
+                        "the same reading again, which would shrink the step's standard error; "
+                        "0: as fast as the balance answers)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_characterize)

@@ -203,7 +203,7 @@ def test_session_against_a_balance_without_continuous_print(tpods_exe, tmp_path)
         r = subprocess.run([tpods_exe, "bench", "characterize", "--valves", v, "--scale", s,
                             "--nozzles", "1,2", "--duty", "30,60,90", "--dwell", "0.25", "--settle", "0.1",
                             "--zero-settle", "0.1", "--zero-dwell", "0.15", "--zero-every", "3",
-                            "--out", str(out),
+                            "--scale-poll-interval", "0", "--out", str(out),
                             "--no-progress"], capture_output=True, text=True, timeout=60)
     finally:
         b.stop()
