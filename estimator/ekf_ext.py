@@ -211,14 +211,22 @@ def run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, x0=None, P0=No
     for k in range(N):
         if k:
             a, b = int(grid.node_pos[k - 1]), int(grid.node_pos[k])
-            for i in range(a, b):
-                params = dict(base)
-                params.update(zip(names, z[6:].tolist(), strict=True))
-                s1, phi = rk4_stm(z[:6], grid.seg_thrust[i], float(dts[i]), params, names)
-                z = np.concatenate([s1, z[6:]])
-                P = phi @ P @ phi.T
-                if q.any():
-                    P[np.diag_indices(n)] += q * dts[i]
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverging filter: below
+                for i in range(a, b):
+                    params = dict(base)
+                    params.update(zip(names, z[6:].tolist(), strict=True))
+                    s1, phi = rk4_stm(z[:6], grid.seg_thrust[i], float(dts[i]), params, names)
+                    z = np.concatenate([s1, z[6:]])
+                    P = phi @ P @ phi.T
+                    if q.any():
+                        P[np.diag_indices(n)] += q * dts[i]
+            if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
+                # blown up (the prediction overflowed): nothing after this is an estimate;
+                # NaN from here on, and ``diverged`` says so
+                xs[k:] = np.nan
+                var[k:] = np.nan
+                P = np.full((n, n), np.nan)
+                break
         if use[k]:
             z, P, nis[k] = joseph_update(z, P, pose[k], R)
         xs[k] = z

@@ -267,3 +267,29 @@ def test_ls_ekf_names_the_parameter_its_window_cannot_determine():
     with pytest.raises(UserError, match=r"do not determine izz.*--ls-window") as exc:
         estimate_filter(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n, "ls-ekf", PAPER)
     assert "non-physical" not in str(exc.value)
+
+
+def test_extended_filter_that_blows_up_stops_with_nan_not_a_traceback():
+    """The 7-parameter filter from its default prior on a light module (0.35 kg, Izz 8e-4,
+    friction, 1 mm / 0.3 deg poses) overflows; the yaw wrap of the next update raised
+    'math domain error' (a traceback from ``estimate batch --method ekf --model
+    friction+tilt``; found by a parameter sweep). Now: NaN from the blow-up on, diverged,
+    and no numpy warnings on the terminal."""
+    import warnings
+
+    from estimator.ekf_ext import ExtEkfConfig, run_ext_ekf
+    from estimator.inputs import translate_rotate
+    from estimator.model import PlantParams
+    from estimator.sim import SimConfig, simulate
+
+    cmd_t, duty = translate_rotate(10.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(0.35, 8e-4, ct=0.1, cr=3e-4, kb=1e-3),
+                   config=SimConfig(noise_pos_m=0.001, noise_yaw_rad=math.radians(0.3), seed=3))
+    cfg = ExtEkfConfig(names=("mass", "izz", "ct", "cr", "kb", "ax", "ay"),
+                       sigma_meas=(0.001, 0.001, math.radians(0.3)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = run_ext_ekf(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n, cfg)
+    assert r.diverged and r.to_dict()["diverged"] is True
+    assert np.isnan(r.x[-1]).all()
+    assert np.isfinite(r.x[0]).all()  # the start is kept
