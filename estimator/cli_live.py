@@ -115,6 +115,10 @@ def cmd_live(args: argparse.Namespace) -> int:
               "far larger than their covariance); do not use this estimate. Late commands: "
               f"{c['align_cmds_late']} not used, {c['align_cmds_rewound']} re-filtered; "
               "post-process the run with `tpods estimate batch`", file=sys.stderr)
+    elif summary.get("inconsistent"):
+        print("tpods: warning: the live filter's recent innovations are larger than its covariance "
+              "allows (mean NIS above the chi-square bound): its sigma understates the error",
+              file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return 0

@@ -74,6 +74,7 @@ DIVERGED_NIS = 10.0
 """A mean normalised innovation squared above this over the last ``NIS_WINDOW``
 updates (3 expected) flags the filter as diverged, as the batch EKF does."""
 NIS_WINDOW = 200
+_NIS_LIMIT: dict[int, float] = {}
 
 
 @dataclass(frozen=True)
@@ -112,7 +113,7 @@ _EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d
             '"method":"%s","phase":"%s","mass_kg":%r,"mass_sigma_kg":%r,"izz_kgm2":%r,'
             '"izz_sigma_kgm2":%r,"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
             '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
-            '"nis":%s,"diverged":%s}')
+            '"nis":%s,"diverged":%s,"inconsistent":%s}')
 
 
 def encode_estimate(d: dict[str, Any]) -> bytes:
@@ -508,8 +509,26 @@ class LiveEstimator:
             return True
         if not (P[6, 6] > 0 and P[7, 7] > 0 and np.all(np.isfinite(P))):
             return True
+        return self._nis_recent_mean() > DIVERGED_NIS
+
+    def _nis_recent_mean(self) -> float:
         nis = self._nis_recent
-        return len(nis) >= min(NIS_WINDOW, 20) and sum(nis) / len(nis) > DIVERGED_NIS
+        return sum(nis) / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
+
+    @property
+    def inconsistent(self) -> bool:
+        """The recent innovations are larger than the covariance allows (mean NIS over the
+        last updates above ``max(4, chi2_0.999(3n) / n)``, the batch EKF's test): the
+        reported sigma is not to be trusted, though the filter has not diverged."""
+        mean = self._nis_recent_mean()
+        if not math.isfinite(mean):
+            return False
+        n = len(self._nis_recent)
+        if n not in _NIS_LIMIT:
+            from scipy.stats import chi2
+
+            _NIS_LIMIT[n] = max(4.0, float(chi2.ppf(0.999, 3 * n)) / n)
+        return mean > _NIS_LIMIT[n]
 
     # ------------------------------------------------------------------ ls-ekf
     def _ls_tick(self, block: bool = False) -> None:
@@ -657,6 +676,7 @@ class LiveEstimator:
             "n_updates": self.counters.updates,
             "nis": None if math.isnan(self.last_nis) else float(self.last_nis),
             "diverged": self.diverged,
+            "inconsistent": self.inconsistent,
         }
 
     def _publish(self, now: float) -> None:
@@ -684,7 +704,8 @@ class LiveEstimator:
         return (_EST_FMT % (self._body_json, self._seq, self.t_last, self.frame_last, time.time(),
                             self.config.method, self.phase, z[6], sg[6], z[7], sg[7],
                             *z[:6], *sg[:6], self.counters.updates, nis,
-                            "true" if self.diverged else "false")).encode()
+                            "true" if self.diverged else "false",
+                            "true" if self.inconsistent else "false")).encode()
 
     def finish(self) -> dict[str, Any] | None:
         """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
@@ -709,7 +730,7 @@ class LiveEstimator:
         est = self.estimate() or {}
         out = {k: est.get(k) for k in ("method", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2",
                                        "izz_sigma_kgm2", "state", "state_sigma", "n_updates",
-                                       "diverged")}
+                                       "diverged", "inconsistent")}
         out["t_last_lab"] = self.t_last
         out["restart_t_lab"] = self.restart_t
         if self.ls_result is not None:
@@ -881,7 +902,7 @@ def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) 
         t_rel = (est.t_last - est.aligner.first_command_t) if est.aligner.first_command_t else 0.0
         head = (f"t {t_rel:7.2f} s | m {e['mass_kg']:.4f} +/- {e['mass_sigma_kg']:.2g} kg | "
                 f"Izz {e['izz_kgm2']:.4e} +/- {e['izz_sigma_kgm2']:.1e} | {est.phase}"
-                + (" | DIVERGED" if e["diverged"] else ""))
+                + (" | DIVERGED" if e["diverged"] else " | INCONSISTENT" if e["inconsistent"] else ""))
     return (f"live: {head} | in {rates.get('poses_hz', 0):.0f} poses/s "
             f"{rates.get('cmds_hz', 0):.0f} cmds/s | used {c.updates} occl {a.occluded} "
             f"dup {a.duplicates} old {a.too_old} late-cmd {a.cmds_late} rewound {a.cmds_rewound} "

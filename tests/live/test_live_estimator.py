@@ -138,7 +138,10 @@ def test_a_diverged_filter_says_so(sim):
     est._publish(T0 + 100.0)
     assert decode_estimate(payloads[-1])["diverged"] is True
     est.z[6] = 2.5
-    est._nis_recent.extend([40.0] * 200)  # innovations far larger than their covariance
+    assert not est.inconsistent
+    est._nis_recent.extend([5.0] * 200)  # innovations larger than their covariance allows
+    assert est.inconsistent and not est.diverged and est.summary()["inconsistent"] is True
+    est._nis_recent.extend([40.0] * 200)  # far larger
     assert est.diverged
 
 
@@ -150,7 +153,7 @@ def test_the_fast_payload_holds_what_estimate_says(sim):
     d = decode_estimate(payloads[-1])
     ref = est.estimate()
     for k in ("t", "frame", "mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "state",
-              "state_sigma", "n_updates", "method", "phase", "body", "diverged"):
+              "state_sigma", "n_updates", "method", "phase", "body", "diverged", "inconsistent"):
         assert d[k] == ref[k], k
     assert [json.loads(p)["seq"] for p in payloads[:5]] == [1, 2, 3, 4, 5]
 
