@@ -8,6 +8,7 @@ own ``cli`` module. Handlers return an exit status. User errors
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 import tpods
@@ -46,9 +47,46 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Long options that take a value in every sub-command that has them."""
+    takes: dict[str, bool] = {}
+
+    def walk(p: argparse.ArgumentParser) -> None:
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for sp in a.choices.values():
+                    walk(sp)
+                continue
+            for opt in a.option_strings:
+                if opt.startswith("--"):
+                    takes[opt] = takes.get(opt, True) and a.nargs != 0
+    walk(parser)
+    return {o for o, v in takes.items() if v}
+
+
+_NEGATIVE = re.compile(r"^-(\d|\.\d)")
+
+
+def glue_negative_values(argv: list[str], value_options: set[str]) -> list[str]:
+    """``--opt -0.8e-3,0.6e-3`` as ``--opt=-0.8e-3,0.6e-3``: argparse takes a value that
+    starts with '-' for an option unless it is a plain negative number."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a in value_options and i + 1 < len(argv) and _NEGATIVE.match(argv[i + 1]):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(glue_negative_values(argv, _value_options(parser)))
     func = getattr(args, "func", None)
     if func is None:  # a group given without its sub-command
         args.parser.print_help(sys.stderr)

@@ -55,7 +55,14 @@ def test_user_errors_are_one_line(tpods_exe, tmp_path):
         assert len(lines) == 1 and "error" in lines[0], (args, r.stderr)
 
 
-def test_demo_runs(tpods_exe, tmp_path):
-    r = run(tpods_exe, "demo", "--out", str(tmp_path / "demo"))
-    assert r.returncode == 0, r.stderr
-    assert (tmp_path / "demo").exists()
+def test_a_negative_value_list_is_read_as_the_option_value(tmp_path):
+    """argparse would take `-0.8e-3,0.6e-3` for an option; tpods glues it to its option."""
+    from tpods.cli import _value_options, build_parser, glue_negative_values, main
+
+    opts = _value_options(build_parser())
+    assert "--tilt" in opts and "--json" not in opts
+    assert glue_negative_values(["sim", "--tilt", "-0.8e-3,0.6e-3", "--json", "-x"], opts) == \
+        ["sim", "--tilt=-0.8e-3,0.6e-3", "--json", "-x"]
+    out = tmp_path / "run"
+    assert main(["sim", "--duration", "2", "--tilt", "-0.8e-3,0.6e-3", "--out", str(out)]) == 0
+    assert read_run(out).truth["ax"] == -0.8e-3 and read_run(out).truth["ay"] == 0.6e-3

@@ -1,18 +1,12 @@
-"""``tpods demo --quick``: the whole lab day end to end (slow: about a minute)."""
+"""``tpods demo --quick``: the whole lab day end to end (about 45 s)."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 
-import pytest
 
-
-@pytest.mark.slow
-def test_demo_quick_writes_the_report(tpods_exe, tmp_path, request):
-    # the marker is declared but not deselected by default: run only with -m slow
-    if "slow" not in (request.config.getoption("markexpr") or ""):
-        pytest.skip("the demo takes about a minute: run with -m slow (or `make demo`)")
+def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([tpods_exe, "demo", "--quick", "--out", str(out)], capture_output=True,
                        text=True, timeout=300)
