@@ -1,20 +1,22 @@
 """Mocap bridge throughput and latency: Vicon UDP -> bridge -> Zenoh subscriber on loopback.
 
-Three processes (spawned): a Tracker UDP emulator sending 10 bodies at 2 kHz (20,000
-poses/s), the bridge (UDP source -> Zenoh peer), and this process as the Zenoh
-subscriber. Latency is subscriber receive time minus the emulator's send time of the
-datagram (same host clock), so it includes the UDP hop, parsing, encoding and Zenoh.
-Reference, measured in the same run: raw Zenoh ``put`` of the same payloads from a
-Python publisher process to the same subscriber (maximum rate, and latency when paced
-at the bridge's rate). Both publishers use the tpods Zenoh settings (transmit batching
-limit 0 ms, see :mod:`mocap_bridge.zenoh_net`).
+Three spawned processes, none of them the bench runner: a Tracker UDP emulator sending
+10 bodies at 2 kHz (20,000 poses/s), the bridge (UDP source -> Zenoh peer) and the Zenoh
+subscriber (fresh, garbage collector off, see :func:`_sub_proc`). Latency is subscriber
+receive time minus the emulator's send time of the datagram (same host clock), so it
+includes the UDP hop, parsing, encoding and Zenoh. Reference, measured in the same run:
+raw Zenoh ``put`` of the same payloads from a Python publisher process to the same kind
+of subscriber (maximum rate, and latency when paced at the bridge's rate). Both
+publishers use the tpods Zenoh settings (transmit batching limit 0 ms, see
+:mod:`mocap_bridge.zenoh_net`).
 
 Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load, default 5),
 ``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000),
 ``TPODS_BENCH_MOCAP_BATCH_MS`` (Zenoh batching limit of both publishers; zenoh's own
-default is 1), ``TPODS_BENCH_MOCAP_REPEATS`` (bridge runs, default 3: this 2-core machine
-is noisy, so the latency row is the run with the median p99 and lists all of them; the
-throughput row needs zero loss in every run).
+default is 1), ``TPODS_BENCH_MOCAP_REPEATS`` (bridge runs, default 5: on this 2-core machine a
+single 5 s run's p99 ranged 0.7-24 ms, the large ones from stalls that hit the raw Zenoh
+reference alike, so the latency row is the run with the median p99 and lists all of
+them; the throughput row needs zero loss in every run).
 """
 
 from __future__ import annotations
@@ -125,11 +127,15 @@ def _raw_proc(ep: str, n: int, rate_hz: float, go, out) -> None:
 
 
 class _Sink:
-    def __init__(self) -> None:
+    """Keeps (payload, receive time) and counts in shared memory for the orchestrator."""
+
+    def __init__(self, count) -> None:
         self.items: list[tuple[bytes, float]] = []
+        self.count = count
 
     def __call__(self, sample) -> None:
         self.items.append((sample.payload.to_bytes(), time.time()))
+        self.count.value += 1
 
 
 def _handler(sink: _Sink):
@@ -141,40 +147,89 @@ def _handler(sink: _Sink):
     return zenoh.handlers.Callback(sink, indirect=indirect)
 
 
-def _collect(sink: _Sink, expected: int, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while len(sink.items) < expected and time.monotonic() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.2)
+def _sub_proc(ep: str, key: str, count, ready, stop, out) -> None:
+    """The measuring subscriber, in a fresh process of its own (nothing else runs in it).
 
-
-def _raw(ctx, session, ep: str, n: int, rate_hz: float) -> dict:
+    It keeps every sample (hundreds of thousands of objects): Python's cyclic garbage
+    collector, scanning them, stalled the receive thread for tens of ms, latency that
+    is the harness's and not the bridge's, so it is off here. Decodes at the end and
+    returns arrays: frame, capture time, bridge receive time, subscriber receive time."""
     from mocap_bridge.pose import decode_pose
+    from mocap_bridge.zenoh_net import open_session
 
-    sink = _Sink()
-    sub = session.declare_subscriber("bench/raw/**", _handler(sink))
+    gc.disable()
+    session = open_session(listen=[ep], no_multicast=True)
+    sink = _Sink(count)
+    sub = session.declare_subscriber(key, _handler(sink))
+    ready.set()
+    stop.wait()
+    sub.undeclare()
+    n = len(sink.items)
+    frame = np.empty(n, dtype=np.int64)
+    cols = np.empty((n, 3))
+    bodies: list[str] = []
+    k = 0
+    for b, ts in sink.items:
+        d = decode_pose(b)
+        if d is None:
+            continue
+        frame[k] = d["frame"]
+        cols[k] = (d["t"], d["t_recv"], ts)
+        bodies.append(d["body"])
+        k += 1
+    out.put({"frame": frame[:k], "t": cols[:k, 0], "t_recv": cols[:k, 1], "t_sub": cols[:k, 2],
+             "body": bodies, "bad": n - k})
+    session.close()
+
+
+class _Subscriber:
+    """Start :func:`_sub_proc`; ``wait(n)`` until n samples arrived; ``result()``."""
+
+    def __init__(self, ctx, ep: str, key: str) -> None:
+        self.count = ctx.Value("q", 0, lock=False)
+        self.stop, ready, self.out = ctx.Event(), ctx.Event(), ctx.Queue()
+        self.p = ctx.Process(target=_sub_proc, args=(ep, key, self.count, ready, self.stop, self.out))
+        self.p.start()
+        if not ready.wait(60):
+            self.p.terminate()
+            raise RuntimeError("subscriber process did not start")
+
+    def wait(self, expected: int, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while self.count.value < expected and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.2)
+
+    def result(self) -> dict:
+        self.stop.set()
+        try:
+            return self.out.get(timeout=120)
+        finally:
+            self.p.join(30)
+            if self.p.is_alive():
+                self.p.terminate()
+
+
+def _raw(ctx, ep: str, n: int, rate_hz: float) -> dict:
+    sub = _Subscriber(ctx, ep, "bench/raw/**")
     go, out = ctx.Event(), ctx.Queue()
     p = ctx.Process(target=_raw_proc, args=(ep, n, rate_hz, go, out))
     p.start()
     time.sleep(0.5)
     go.set()
-    _collect(sink, n, 60 + n / 5000)
+    sub.wait(n, 60 + n / 5000)
     send_s = out.get(timeout=120)
     p.join(30)
-    sub.undeclare()
-    recv = np.array([t for _, t in sink.items])
-    lat = np.array([t - decode_pose(b)["t"] for b, t in sink.items])
-    span = recv[-1] - recv[0] if len(recv) > 1 else float("nan")
-    return {"received": len(sink.items), "sent": n, "rate": (len(recv) - 1) / span,
-            "send_rate": n / send_s, "lat_ms": lat * 1e3}
+    r = sub.result()
+    recv = r["t_sub"]
+    span = recv.max() - recv.min() if len(recv) > 1 else float("nan")
+    return {"received": len(recv), "sent": n, "rate": (len(recv) - 1) / span,
+            "send_rate": n / send_s, "lat_ms": (recv - r["t"]) * 1e3}
 
 
-def _bridge_once(ctx, session, ep: str, n_bodies: int, rate_hz: float, seconds: float) -> dict:
-    """One bridge run: sender -> bridge -> this process. Latencies in ms per delivered pose."""
-    from mocap_bridge.pose import decode_pose
-
-    sink = _Sink()
-    sub = session.declare_subscriber("bench/mocap/**", _handler(sink))
+def _bridge_once(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) -> dict:
+    """One bridge run: sender -> bridge -> subscriber. Latencies in ms per delivered pose."""
+    sub = _Subscriber(ctx, ep, "bench/mocap/**")
     port = _free_port(socket.SOCK_DGRAM)
     ready, stop, go = ctx.Event(), ctx.Event(), ctx.Event()
     bout, sout = ctx.Queue(), ctx.Queue()
@@ -190,67 +245,39 @@ def _bridge_once(ctx, session, ep: str, n_bodies: int, rate_hz: float, seconds: 
         send_t = sout.get(timeout=seconds * 10 + 60)
         sp.join(30)
         n_sent = len(send_t) * n_bodies
-        _collect(sink, n_sent, 30)
+        sub.wait(n_sent, 30)
         stop.set()
         bstats = bout.get(timeout=60)
         bp.join(30)
+        r = sub.result()
     finally:
-        sub.undeclare()
-        for p in (sp, bp):
+        for p in (sp, bp, sub.p):
             if p.is_alive():
                 p.terminate()
-
-    frames = np.empty(len(sink.items), dtype=np.int64)
-    t_recv_bridge = np.empty(len(sink.items))
-    t_sub = np.empty(len(sink.items))
-    seen = set()
-    k = 0
-    for b, ts in sink.items:
-        d = decode_pose(b)
-        if d is None:
-            continue
-        seen.add((d["body"], d["frame"]))
-        frames[k] = d["frame"]
-        t_recv_bridge[k] = d["t_recv"]
-        t_sub[k] = ts
-        k += 1
-    frames, t_recv_bridge, t_sub = frames[:k], t_recv_bridge[:k], t_sub[:k]
+    frames, t_sub = r["frame"], r["t_sub"]
+    seen = set(zip(r["body"], frames.tolist(), strict=True))
     sent = send_t[frames - 1]
     span = send_t[-1] - send_t[0]
     return {
-        "lat_ms": (t_sub - sent) * 1e3, "udp_ms": (t_recv_bridge - sent) * 1e3,
+        "lat_ms": (t_sub - sent) * 1e3, "udp_ms": (r["t_recv"] - sent) * 1e3,
         "n_sent": n_sent, "lost": n_sent - len(seen),
         "sent_rate": (n_sent - n_bodies) / span if span > 0 else float("nan"),
-        "delivered_rate": len(seen) / (t_sub.max() - sent.min()) if k else 0.0,
+        "delivered_rate": len(seen) / (t_sub.max() - sent.min()) if len(t_sub) else 0.0,
         "bstats": bstats,
     }
 
 
 def run() -> list[dict]:
-    from mocap_bridge.zenoh_net import open_session
-
     seconds = float(os.environ.get("TPODS_BENCH_MOCAP_S", "5"))
     n_bodies = int(os.environ.get("TPODS_BENCH_MOCAP_BODIES", "10"))
     rate_hz = float(os.environ.get("TPODS_BENCH_MOCAP_HZ", "2000"))
-    repeats = int(os.environ.get("TPODS_BENCH_MOCAP_REPEATS", "3"))
+    repeats = int(os.environ.get("TPODS_BENCH_MOCAP_REPEATS", "5"))
     offered = n_bodies * rate_hz
     ctx = mp.get_context("spawn")
-    ep = f"tcp/127.0.0.1:{_free_port()}"
-    session = open_session(listen=[ep], no_multicast=True)
-    # This process keeps every received sample (hundreds of thousands of objects): a
-    # cyclic garbage collection pass over them stalls the receive thread for tens of ms
-    # and shows up as latency that is the harness's, not the bridge's. Pause it.
-    gc.collect()
-    gc.freeze()
-    gc.disable()
-    try:
-        raw_max = _raw(ctx, session, ep, int(min(offered * 3, 60000)), 0.0)
-        raw_paced = _raw(ctx, session, ep, int(offered * min(seconds, 3.0)), offered)
-        runs = [_bridge_once(ctx, session, ep, n_bodies, rate_hz, seconds) for _ in range(repeats)]
-    finally:
-        session.close()
-        gc.enable()
-        gc.unfreeze()
+    ep = f"tcp/127.0.0.1:{_free_port()}"  # the subscriber process listens, publishers connect
+    raw_max = _raw(ctx, ep, int(min(offered * 3, 60000)), 0.0)
+    raw_paced = _raw(ctx, ep, int(offered * min(seconds, 3.0)), offered)
+    runs = [_bridge_once(ctx, ep, n_bodies, rate_hz, seconds) for _ in range(repeats)]
 
     p99s = [float(np.percentile(r["lat_ms"], 99)) if len(r["lat_ms"]) else float("nan") for r in runs]
     mid = int(np.argsort(p99s)[len(p99s) // 2])  # the run with the median p99
