@@ -40,6 +40,7 @@ from __future__ import annotations
 import bisect
 import collections
 import contextlib
+import functools
 import json
 import math
 import queue
@@ -74,7 +75,15 @@ DIVERGED_NIS = 10.0
 """A mean normalised innovation squared above this over the last ``NIS_WINDOW``
 updates (3 expected) flags the filter as diverged, as the batch EKF does."""
 NIS_WINDOW = 200
-_NIS_LIMIT: dict[int, float] = {}
+
+
+@functools.cache
+def _nis_limits() -> np.ndarray:
+    """``max(4, chi2_0.999(3n) / n)`` for n = 0 .. NIS_WINDOW (index n)."""
+    from scipy.stats import chi2
+
+    n = np.arange(1, NIS_WINDOW + 1)
+    return np.concatenate([[np.inf], np.maximum(4.0, chi2.ppf(0.999, 3 * n) / n)])
 
 
 @dataclass(frozen=True)
@@ -336,6 +345,7 @@ class LiveEstimator:
         """Checkpoints of the live filter within ``rewind_s``: (pose t, index in hist, z, P)."""
         self._rewind_t: float | None = None
         self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
+        _nis_limits()  # scipy.stats now, not in the middle of a stream
 
     # ------------------------------------------------------------------ input
     def command(self, d: dict[str, Any]) -> bool:
@@ -523,12 +533,7 @@ class LiveEstimator:
         mean = self._nis_recent_mean()
         if not math.isfinite(mean):
             return False
-        n = len(self._nis_recent)
-        if n not in _NIS_LIMIT:
-            from scipy.stats import chi2
-
-            _NIS_LIMIT[n] = max(4.0, float(chi2.ppf(0.999, 3 * n)) / n)
-        return mean > _NIS_LIMIT[n]
+        return bool(mean > _nis_limits()[len(self._nis_recent)])
 
     # ------------------------------------------------------------------ ls-ekf
     def _ls_tick(self, block: bool = False) -> None:
