@@ -10,13 +10,23 @@ of subscriber (maximum rate, and latency when paced at the bridge's rate). Both
 publishers use the tpods Zenoh settings (transmit batching limit 0 ms, see
 :mod:`mocap_bridge.zenoh_net`).
 
-Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load, default 5),
+Host interference. This is a virtual machine: the hypervisor sometimes takes a virtual
+CPU away for milliseconds ("steal" time in ``/proc/stat``). Every thread on that CPU
+stalls, whatever code it runs, and the poses sent meanwhile queue up. Measured here
+(5 s runs, same code): runs with 0.1 % steal had p99 1.1-2.1 ms (one 3.9 ms); runs
+with 2.3-3.7 % steal had p99 4.8-7.2 ms, the raw Zenoh reference alike. A p99 is the
+1 % tail, so a run in which the host stole 0.5 % or more of the CPU time cannot show
+what the bridge does at p99 (``QUIET_STEAL_PCT``). The bench therefore records the
+steal of every run, keeps running (up to ``TPODS_BENCH_MOCAP_MAX_RUNS``, default three
+times the repeats) until ``TPODS_BENCH_MOCAP_REPEATS`` (default 5) quiet runs are in,
+and judges the latency on the pooled poses of the quiet runs. Noisy runs are listed,
+not hidden; with fewer than ``MIN_QUIET`` quiet runs the latency row is not judged
+(``ok`` None, the reason in the row). Zero loss is required in every run, noisy or not.
+
+Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load per run, default 5),
 ``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000),
 ``TPODS_BENCH_MOCAP_BATCH_MS`` (Zenoh batching limit of both publishers; zenoh's own
-default is 1), ``TPODS_BENCH_MOCAP_REPEATS`` (bridge runs, default 5: on this 2-core machine a
-single 5 s run's p99 ranged 0.7-24 ms, the large ones from stalls that hit the raw Zenoh
-reference alike, so the latency row is the run with the median p99 and lists all of
-them; the throughput row needs zero loss in every run).
+default is 1), ``TPODS_BENCH_MOCAP_REPEATS``, ``TPODS_BENCH_MOCAP_MAX_RUNS``.
 """
 
 from __future__ import annotations
@@ -32,6 +42,29 @@ import numpy as np
 
 TARGET_POSES_S = 20_000
 TARGET_P99_MS = 2.0
+QUIET_STEAL_PCT = 0.5
+"""A run whose host steal time reached this share of the CPU time is not used to judge p99."""
+MIN_QUIET = 3
+
+
+def cpu_ticks() -> tuple[int, int] | None:
+    """(steal, total) CPU ticks of all CPUs from ``/proc/stat``; None where unavailable."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    if len(v) < 8:
+        return None
+    return v[7], sum(v)  # user nice system idle iowait irq softirq steal
+
+
+def steal_pct(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float:
+    """Share of CPU time the hypervisor took between two :func:`cpu_ticks` readings, %
+    (0 where not measurable: bare metal or no /proc)."""
+    if before is None or after is None or after[1] <= before[1]:
+        return 0.0
+    return 100.0 * (after[0] - before[0]) / (after[1] - before[1])
 
 
 def _free_port(kind=socket.SOCK_STREAM) -> int:
@@ -127,15 +160,43 @@ def _raw_proc(ep: str, n: int, rate_hz: float, go, out) -> None:
 
 
 class _Sink:
-    """Keeps (payload, receive time) and counts in shared memory for the orchestrator."""
+    """Keeps every (payload, receive time), counting in shared memory for the orchestrator.
 
-    def __init__(self, count) -> None:
-        self.items: list[tuple[bytes, float]] = []
+    Payloads are copied into one buffer allocated and touched before the run, so the
+    receive thread allocates nothing that outlives a sample (no heap growth, no page
+    faults during the measurement). ``capacity`` samples of up to 512 bytes on average."""
+
+    def __init__(self, count, capacity: int) -> None:
+        self.buf = np.ones(capacity * 512, dtype=np.uint8)  # ones: every page touched now
+        self.mv = memoryview(self.buf)
+        self.ends = np.full(capacity, -1, dtype=np.int64)
+        self.ts = np.full(capacity, np.nan)
+        self.k = 0
+        self.off = 0
+        self.overflow = 0
         self.count = count
 
     def __call__(self, sample) -> None:
-        self.items.append((sample.payload.to_bytes(), time.time()))
+        b = sample.payload.to_bytes()
+        t = time.time()
+        k, o = self.k, self.off
+        e = o + len(b)
+        if k >= len(self.ts) or e > len(self.buf):
+            self.overflow += 1
+            return
+        self.mv[o:e] = b
+        self.ends[k] = e
+        self.ts[k] = t
+        self.k = k + 1
+        self.off = e
         self.count.value += 1
+
+    def payloads(self):
+        start = 0
+        for k in range(self.k):
+            e = int(self.ends[k])
+            yield bytes(self.mv[start:e]), float(self.ts[k])
+            start = e
 
 
 def _handler(sink: _Sink):
@@ -147,29 +208,30 @@ def _handler(sink: _Sink):
     return zenoh.handlers.Callback(sink, indirect=indirect)
 
 
-def _sub_proc(ep: str, key: str, count, ready, stop, out) -> None:
+def _sub_proc(ep: str, key: str, count, ready, stop, out, capacity: int = 0) -> None:
     """The measuring subscriber, in a fresh process of its own (nothing else runs in it).
 
-    It keeps every sample (hundreds of thousands of objects): Python's cyclic garbage
-    collector, scanning them, stalled the receive thread for tens of ms, latency that
-    is the harness's and not the bridge's, so it is off here. Decodes at the end and
+    Python's cyclic garbage collector is off here: when the sink kept each sample as
+    objects, a collection pass over them stalled the receive thread for tens of ms,
+    latency that is the harness's and not the bridge's. Decodes at the end and
     returns arrays: frame, capture time, bridge receive time, subscriber receive time."""
     from mocap_bridge.pose import decode_pose
     from mocap_bridge.zenoh_net import open_session
 
     gc.disable()
     session = open_session(listen=[ep], no_multicast=True)
-    sink = _Sink(count)
+    sink = _Sink(count, capacity)
     sub = session.declare_subscriber(key, _handler(sink))
     ready.set()
     stop.wait()
     sub.undeclare()
-    n = len(sink.items)
+    items = list(sink.payloads())
+    n = len(items)
     frame = np.empty(n, dtype=np.int64)
     cols = np.empty((n, 3))
     bodies: list[str] = []
     k = 0
-    for b, ts in sink.items:
+    for b, ts in items:
         d = decode_pose(b)
         if d is None:
             continue
@@ -178,17 +240,18 @@ def _sub_proc(ep: str, key: str, count, ready, stop, out) -> None:
         bodies.append(d["body"])
         k += 1
     out.put({"frame": frame[:k], "t": cols[:k, 0], "t_recv": cols[:k, 1], "t_sub": cols[:k, 2],
-             "body": bodies, "bad": n - k})
+             "body": bodies, "bad": n - k, "overflow": sink.overflow})
     session.close()
 
 
 class _Subscriber:
     """Start :func:`_sub_proc`; ``wait(n)`` until n samples arrived; ``result()``."""
 
-    def __init__(self, ctx, ep: str, key: str) -> None:
+    def __init__(self, ctx, ep: str, key: str, capacity: int) -> None:
         self.count = ctx.Value("q", 0, lock=False)
         self.stop, ready, self.out = ctx.Event(), ctx.Event(), ctx.Queue()
-        self.p = ctx.Process(target=_sub_proc, args=(ep, key, self.count, ready, self.stop, self.out))
+        self.p = ctx.Process(target=_sub_proc,
+                             args=(ep, key, self.count, ready, self.stop, self.out, capacity))
         self.p.start()
         if not ready.wait(60):
             self.p.terminate()
@@ -203,7 +266,10 @@ class _Subscriber:
     def result(self) -> dict:
         self.stop.set()
         try:
-            return self.out.get(timeout=120)
+            r = self.out.get(timeout=120)
+            if r["overflow"]:
+                raise RuntimeError(f"bench harness: subscriber buffer overflowed ({r['overflow']} samples)")
+            return r
         finally:
             self.p.join(30)
             if self.p.is_alive():
@@ -211,7 +277,7 @@ class _Subscriber:
 
 
 def _raw(ctx, ep: str, n: int, rate_hz: float) -> dict:
-    sub = _Subscriber(ctx, ep, "bench/raw/**")
+    sub = _Subscriber(ctx, ep, "bench/raw/**", n + 1000)
     go, out = ctx.Event(), ctx.Queue()
     p = ctx.Process(target=_raw_proc, args=(ep, n, rate_hz, go, out))
     p.start()
@@ -229,7 +295,7 @@ def _raw(ctx, ep: str, n: int, rate_hz: float) -> dict:
 
 def _bridge_once(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) -> dict:
     """One bridge run: sender -> bridge -> subscriber. Latencies in ms per delivered pose."""
-    sub = _Subscriber(ctx, ep, "bench/mocap/**")
+    sub = _Subscriber(ctx, ep, "bench/mocap/**", int(seconds * rate_hz * n_bodies) + 1000)
     port = _free_port(socket.SOCK_DGRAM)
     ready, stop, go = ctx.Event(), ctx.Event(), ctx.Event()
     bout, sout = ctx.Queue(), ctx.Queue()
@@ -241,8 +307,10 @@ def _bridge_once(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) ->
         if not ready.wait(60):
             raise RuntimeError("bridge process did not start")
         time.sleep(0.3)
+        ticks0 = cpu_ticks()
         go.set()
         send_t = sout.get(timeout=seconds * 10 + 60)
+        ticks1 = cpu_ticks()
         sp.join(30)
         n_sent = len(send_t) * n_bodies
         sub.wait(n_sent, 30)
@@ -263,8 +331,12 @@ def _bridge_once(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) ->
         "n_sent": n_sent, "lost": n_sent - len(seen),
         "sent_rate": (n_sent - n_bodies) / span if span > 0 else float("nan"),
         "delivered_rate": len(seen) / (t_sub.max() - sent.min()) if len(t_sub) else 0.0,
-        "bstats": bstats,
+        "bstats": bstats, "steal_pct": steal_pct(ticks0, ticks1),
     }
+
+
+def _p(x: np.ndarray, q: float) -> float:
+    return float(np.percentile(x, q)) if len(x) else float("nan")
 
 
 def run() -> list[dict]:
@@ -272,20 +344,25 @@ def run() -> list[dict]:
     n_bodies = int(os.environ.get("TPODS_BENCH_MOCAP_BODIES", "10"))
     rate_hz = float(os.environ.get("TPODS_BENCH_MOCAP_HZ", "2000"))
     repeats = int(os.environ.get("TPODS_BENCH_MOCAP_REPEATS", "5"))
+    max_runs = max(repeats, int(os.environ.get("TPODS_BENCH_MOCAP_MAX_RUNS", str(3 * repeats))))
     offered = n_bodies * rate_hz
     ctx = mp.get_context("spawn")
     ep = f"tcp/127.0.0.1:{_free_port()}"  # the subscriber process listens, publishers connect
     raw_max = _raw(ctx, ep, int(min(offered * 3, 60000)), 0.0)
     raw_paced = _raw(ctx, ep, int(offered * min(seconds, 3.0)), offered)
-    runs = [_bridge_once(ctx, ep, n_bodies, rate_hz, seconds) for _ in range(repeats)]
+    runs: list[dict] = []
+    while len(runs) < max_runs and sum(r["steal_pct"] < QUIET_STEAL_PCT for r in runs) < repeats:
+        r = _bridge_once(ctx, ep, n_bodies, rate_hz, seconds)
+        runs.append(r)
+        print(f"  bridge run {len(runs)}: p99 {_p(r['lat_ms'], 99):.2f} ms, host steal "
+              f"{r['steal_pct']:.2f} %, lost {r['lost']}", flush=True)
 
-    p99s = [float(np.percentile(r["lat_ms"], 99)) if len(r["lat_ms"]) else float("nan") for r in runs]
-    mid = int(np.argsort(p99s)[len(p99s) // 2])  # the run with the median p99
-    r = runs[mid]
-    p99 = p99s[mid]
-    p50 = float(np.percentile(r["lat_ms"], 50)) if len(r["lat_ms"]) else float("nan")
-    udp99 = float(np.percentile(r["udp_ms"], 99)) if len(r["udp_ms"]) else float("nan")
-    raw_p99 = float(np.percentile(raw_paced["lat_ms"], 99))
+    quiet = [r for r in runs if r["steal_pct"] < QUIET_STEAL_PCT]
+    judged = quiet if len(quiet) >= MIN_QUIET else runs
+    lat = np.concatenate([r["lat_ms"] for r in judged])
+    udp = np.concatenate([r["udp_ms"] for r in judged])
+    p99, p50, udp99 = _p(lat, 99), _p(lat, 50), _p(udp, 99)
+    raw_p99 = _p(raw_paced["lat_ms"], 99)
     published = sum(x["bstats"]["published"] for x in runs)
     cpu_us = sum(x["bstats"]["cpu_s"] for x in runs) / max(published, 1) * 1e6
     lost = sum(x["lost"] for x in runs)
@@ -293,30 +370,39 @@ def run() -> list[dict]:
     malformed = sum(x["bstats"]["malformed"] for x in runs)
     sent_rate = min(x["sent_rate"] for x in runs)
     delivered = min(x["delivered_rate"] for x in runs)
-    load = os.getloadavg()[0]
     ok_rate = lost == 0 and sent_rate >= 0.98 * TARGET_POSES_S
-    each = ", ".join(f"{v:.2f}" for v in p99s)
+    each = ", ".join(f"{_p(r['lat_ms'], 99):.2f}{'' if r['steal_pct'] < QUIET_STEAL_PCT else '*'}"
+                     for r in runs)
+    steals = ", ".join(f"{r['steal_pct']:.1f}" for r in runs)
+    if len(quiet) >= MIN_QUIET:
+        ok_lat: bool | None = bool(p99 < TARGET_P99_MS)
+        judged_txt = f"pooled over the {len(quiet)} quiet runs of {len(runs)}"
+    else:
+        ok_lat = None
+        judged_txt = (f"NOT JUDGED: only {len(quiet)} of {len(runs)} runs had host steal "
+                      f"< {QUIET_STEAL_PCT} %; value pooled over all runs")
     rows = [
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "poses/s delivered (UDP->zenoh)",
          "value": delivered, "reference": raw_max["rate"],
          "ratio": delivered / raw_max["rate"], "ok": ok_rate,
-         "target": f">= {TARGET_POSES_S} poses/s, zero loss ({repeats} runs of {seconds:g} s; slowest "
-                   f"shown): offered {sent_rate:.0f}/s, lost {lost} of {n_sent}, malformed {malformed}; "
-                   f"reference = raw zenoh put max {raw_max['rate']:.0f}/s "
-                   f"({raw_max['received']}/{raw_max['sent']}); bridge CPU {cpu_us:.1f} us/pose; "
-                   f"load avg {load:.2f} on {os.cpu_count()} cpus"},
+         "target": f">= {TARGET_POSES_S} poses/s, zero loss ({len(runs)} runs of {seconds:g} s; "
+                   f"slowest shown): offered {sent_rate:.0f}/s, lost {lost} of {n_sent}, malformed "
+                   f"{malformed}; reference = raw zenoh put max {raw_max['rate']:.0f}/s "
+                   f"({raw_max['received']}/{raw_max['sent']}); bridge CPU {cpu_us:.1f} us/pose "
+                   f"on {os.cpu_count()} cpus"},
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "added latency p99, ms",
          "value": p99, "reference": raw_p99, "ratio": raw_p99 / p99 if p99 > 0 else 0.0,
-         "ok": bool(p99 < TARGET_P99_MS),
-         "target": f"< {TARGET_P99_MS} ms at p99, UDP send to subscriber (median of {repeats} runs; "
-                   f"each: {each} ms; that run: p50 {p50:.2f} ms, UDP->bridge p99 {udp99:.2f} ms); "
-                   f"reference = raw zenoh put p99 paced at {offered:.0f}/s "
-                   f"({raw_paced['received']}/{raw_paced['sent']})"},
+         "ok": ok_lat,
+         "target": f"< {TARGET_P99_MS} ms at p99, UDP send to subscriber ({judged_txt}; p50 "
+                   f"{p50:.2f} ms, UDP->bridge p99 {udp99:.2f} ms); p99 of each run: {each} ms "
+                   f"(* = host steal >= {QUIET_STEAL_PCT} %; steal %: {steals}); reference = raw "
+                   f"zenoh put p99 paced at {offered:.0f}/s ({raw_paced['received']}/"
+                   f"{raw_paced['sent']})"},
     ]
     for row in rows:  # plain Python types for the JSON report
         for key in ("value", "reference", "ratio"):
             row[key] = float(row[key])
-        row["ok"] = bool(row["ok"])
+        row["ok"] = row["ok"] if row["ok"] is None else bool(row["ok"])
     return rows
 
 
