@@ -5,6 +5,9 @@ Each row holds at least ``case``, ``metric``, ``value``, ``reference``,
 ``ratio`` (value relative to the reference measured in the same run; > 1 means
 ours is better) and ``target`` (a human-readable goal) and ``ok`` (bool or None).
 Results print as a table and are written as JSON with the machine noted.
+
+Each case runs in a fresh Python process of its own (``--one NAME``), so no case measures
+in the company of what an earlier one left behind (Zenoh runtimes, threads, memory).
 """
 
 from __future__ import annotations
@@ -14,7 +17,9 @@ import importlib
 import json
 import os
 import platform
+import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -30,11 +35,31 @@ def machine() -> dict:
     }
 
 
+def _one(name: str, out: str) -> int:
+    """Run one case in this process and write its rows as JSON to ``out``."""
+    rows = importlib.import_module(f"benchmarks.{name}").run()
+    Path(out).write_text(json.dumps(rows))
+    return 0
+
+
+def _run_isolated(name: str) -> list[dict]:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "rows.json"
+        proc = subprocess.run([sys.executable, "-m", "benchmarks.run", "--one", name, "--rows", str(out)])
+        if proc.returncode != 0 or not out.exists():
+            raise RuntimeError(f"{name} exited with status {proc.returncode}")
+        return json.loads(out.read_text())
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/bench.json")
     ap.add_argument("-k", default="", help="run only cases whose module name contains this")
+    ap.add_argument("--one", help=argparse.SUPPRESS)   # internal: run one case in this process
+    ap.add_argument("--rows", help=argparse.SUPPRESS)  # internal: where --one writes its rows
     args = ap.parse_args(argv)
+    if args.one:
+        return _one(args.one, args.rows)
     here = Path(__file__).parent
     mods = sorted(p.stem for p in here.glob("bench_*.py") if args.k in p.stem)
     rows: list[dict] = []
@@ -42,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in mods:
         print(f"running {name} ...", flush=True)
         try:
-            rows.extend(importlib.import_module(f"benchmarks.{name}").run())
+            rows.extend(_run_isolated(name))
         except Exception:  # report and go on with the other cases
             traceback.print_exc()
             failed.append(name)
