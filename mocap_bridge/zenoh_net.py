@@ -23,6 +23,14 @@ was the largest part of the bridge's latency tail at 20,000 poses/s (p99 2.7-3.0
 it, 1.6 ms without, ``make bench``), so tpods sessions set it to 0 ms: whatever is
 queued still goes out in one batch, nothing waits for more. A ``--zenoh-config`` file
 keeps its own value unless ``--zenoh-batch-ms`` is given.
+
+Receive threads: Zenoh's receive runtime has two worker threads by default; both run the
+Python callbacks of the subscribers and take turns on the interpreter lock. On the 2-core
+bench machine one worker gave a shorter tail for the same load (raw put at 20,000/s,
+p99 0.8-1.4 ms against 1.4-4.2 ms, three pairs; bridge runs pooled p99 1.12 against
+1.40 ms, eight pairs) and the same maximum rate (77,000-87,000/s). So before its first
+session a tpods process sets ``ZENOH_RUNTIME`` to ``(rx: (worker_threads: 1))`` unless the
+environment already sets ``ZENOH_RUNTIME`` (Zenoh reads it once per process).
 """
 
 from __future__ import annotations
@@ -42,6 +50,10 @@ MODES = ("peer", "client", "router")
 DEFAULT_BATCH_MS = 0
 """Zenoh's transmit batching time limit for tpods sessions, ms (zenoh's own default: 1)."""
 _BATCH_KEY = "transport/link/tx/queue/batching/time_limit"
+RUNTIME_ENV = "ZENOH_RUNTIME"
+DEFAULT_RUNTIME = "(rx: (worker_threads: 1))"
+"""Zenoh runtime settings for tpods processes (see the module notes); a user's own
+``ZENOH_RUNTIME`` wins."""
 
 
 def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
@@ -138,6 +150,7 @@ def open_session(args: Any = None, /, **kwargs: Any):
     ``zenoh_config``, ``zenoh_mode``, ``zenoh_batch_ms``) override it. Raises :class:`UserError` (one line)
     when the configuration is bad or the session cannot open.
     """
+    os.environ.setdefault(RUNTIME_ENV, DEFAULT_RUNTIME)  # before zenoh starts its runtimes
     import zenoh
 
     def opt(name: str, default: Any = None) -> Any:

@@ -92,3 +92,34 @@ def test_default_sessions_find_each_other_without_multicast(monkeypatch):
     finally:
         for s in (c, b, a):
             s.close()
+
+
+_RX_PROBE = """
+import os, time
+from mocap_bridge.zenoh_net import open_session
+ep = "tcp/127.0.0.1:%d"
+a = open_session(listen=[ep], no_multicast=True)
+b = open_session(connect=[ep], no_multicast=True)
+time.sleep(0.5)
+names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
+print(sum(n.startswith("rx-") for n in names))
+a.close(); b.close()
+"""
+
+
+@pytest.mark.parametrize("user_value,expected", [(None, 1), ("(rx: (worker_threads: 3))", 3)])
+def test_one_receive_thread_unless_the_user_sets_zenoh_runtime(user_value, expected):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("thread names need /proc")
+    env = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
+    if user_value is not None:
+        env["ZENOH_RUNTIME"] = user_value
+    out = subprocess.run([sys.executable, "-c", _RX_PROBE % free_port()], env=env,
+                         capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[2])
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert int(out.stdout.strip().splitlines()[-1]) == expected
