@@ -111,21 +111,25 @@ def _bridge_proc(port: int, ep: str, ready, stop, out) -> None:
 
 
 def _sender_proc(port: int, n_bodies: int, rate_hz: float, seconds: float, go, out) -> None:
-    from mocap_bridge.sources.vicon_udp import build_datagram
+    from mocap_bridge.sources.vicon_udp import tracker_datagrams
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     dest = ("127.0.0.1", port)
     n = int(seconds * rate_hz)
     names = [f"body{j:02d}" for j in range(n_bodies)]
-    datagrams = [build_datagram(f + 1, [(j, names[j], (1000.0 + f, -500.0 + j, 30.0, 0.01, -0.02, 0.001 * f))
-                                        for j in range(n_bodies)]) for f in range(n)]
+    # as Tracker sends them: object items (type 0) in blocks padded to the Data Block Size
+    block = int(os.environ.get("TPODS_BENCH_MOCAP_BLOCK", "1024"))
+    datagrams = [tracker_datagrams(
+        f + 1, [(0, names[j], (1000.0 + f, -500.0 + j, 30.0, 0.01, -0.02, 0.001 * f))
+                for j in range(n_bodies)], block) for f in range(n)]
     send_t = np.empty(n)
     go.wait()
     start = time.perf_counter() + 0.05
     for f in range(n):
         _pace(start + f / rate_hz)
         send_t[f] = time.time()
-        sock.sendto(datagrams[f], dest)
+        for d in datagrams[f]:
+            sock.sendto(d, dest)
     out.put(send_t)
 
 

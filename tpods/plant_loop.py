@@ -38,10 +38,13 @@ def push_sink(source, body: str = "tpods1") -> Sink:
     return sink
 
 
-def udp_sink(address: tuple[str, int], body: str = "tpods1") -> Sink:
+def udp_sink(address: tuple[str, int], body: str = "tpods1",
+             block_size: int | None = 1024) -> Sink:
     """Sink sending Vicon Tracker UDP datagrams (mm, Euler XYZ) to ``address``.
 
-    The bridge stamps these with its receive time: use it at time scale 1 only.
+    Each datagram is padded with zeros to ``block_size`` bytes as Tracker pads to its
+    "Data Block Size" (256, 512 or 1024; None sends the bare items). The bridge stamps
+    these with its receive time: use it at time scale 1 only.
     """
     from mocap_bridge.sources.vicon_udp import build_datagram
 
@@ -50,7 +53,7 @@ def udp_sink(address: tuple[str, int], body: str = "tpods1") -> Sink:
     def sink(frame: int, t: float, x: float, y: float, psi: float, occluded: bool) -> None:
         vals = (math.nan,) * 6 if occluded else (x * 1e3, y * 1e3, 0.0, 0.0, 0.0, psi)
         try:
-            sock.sendto(build_datagram(frame, [(0, body, vals)]), address)
+            sock.sendto(build_datagram(frame, [(0, body, vals)], block_size), address)
         except OSError:  # nobody listening: a mocap keeps streaming anyway
             pass
     sink.close = sock.close  # type: ignore[attr-defined]

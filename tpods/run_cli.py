@@ -73,6 +73,10 @@ def register(sub) -> None:
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
                    help="publish through the bridge over zenoh (default) or send Tracker UDP")
+    s.add_argument("--udp-block-size", type=int, choices=(0, 256, 512, 1024), default=1024,
+                   metavar="BYTES",
+                   help="udp: pad every datagram to this size as Tracker's Data Block Size does "
+                        "(256, 512 or 1024; 0 for no padding; default 1024)")
     s.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S s (default: Ctrl-C)")
     s.add_argument("--truth-out", default=None, metavar="DIR",
@@ -194,7 +198,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     elif args.mocap.startswith("udp:"):
         host, _, port = args.mocap[4:].rpartition(":")
         try:
-            sink = udp_sink((host or "127.0.0.1", int(port)), args.body)
+            sink = udp_sink((host or "127.0.0.1", int(port)), args.body,
+                            args.udp_block_size or None)
         except ValueError:
             raise UserError(f"--mocap udp:HOST:PORT, got {args.mocap!r}") from None
     else:

@@ -65,7 +65,7 @@ def test_bridge_udp_source_cli_duration(tpods_exe, tmp_path):
     assert wait_for(bound, 60.0, 0.05), "the bridge never bound its UDP port"
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     for f in range(1, 6):
-        tx.sendto(build_datagram(f, [(1, "m", (1.0, 2.0, 3.0, 0.0, 0.0, 0.1))]), ("127.0.0.1", port))
+        tx.sendto(build_datagram(f, [(0, "m", (1.0, 2.0, 3.0, 0.0, 0.0, 0.1))], 1024), ("127.0.0.1", port))
     tx.sendto(b"junk", ("127.0.0.1", port))
     tx.close()
     out, err = p.communicate(timeout=30)
