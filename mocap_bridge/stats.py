@@ -88,4 +88,7 @@ def console_line(snap: dict[str, Any]) -> str:
     if "datagrams" in snap["source_counters"]:
         parts.insert(2, f"{snap['datagram_rate_hz']:7.1f} dgram/s")
         parts.append(f"malformed {snap['malformed']}")
+    skipped = snap["source_counters"].get("skipped_items", 0)
+    if skipped:
+        parts.append(f"skipped items {skipped}")
     return "mocap: " + " | ".join(parts)

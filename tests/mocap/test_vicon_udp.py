@@ -213,7 +213,7 @@ def test_udp_to_zenoh_values_duplicates_gaps_occlusion(zenoh_pair):
     ]
     with RunningBridge(bridge, src) as rb:
         for k, (f, items) in enumerate(frames):
-            tx.sendto(build_datagram(f, items), src.address)
+            tx.sendto(build_datagram(f, items, 1024), src.address)  # padded as Tracker sends
             assert wait_for(lambda k=k: src.counters["datagrams"] > k, 5.0)
         assert wait_for(lambda: len(col.of_key("/pose")) >= 6, 10.0)
         assert wait_for(lambda: len(col.of_key("/stats")) >= 1, 10.0)
@@ -367,3 +367,15 @@ def test_tracker_capture_padded_to_every_block_size_is_bridged_whole(zenoh_pair)
         assert c["malformed"] == n_broken == 3
         assert c["skipped_type_3"] == sum(len(tracker_datagrams(f, it, block)) for f, it in frames if f % 5 == 0)
         assert c["padded"] == n_sent - n_broken  # every Tracker datagram carried padding
+
+
+def test_console_line_names_skipped_items():
+    from mocap_bridge.stats import BridgeStats, console_line
+
+    st_ = BridgeStats(source="vicon-udp:51001")
+    dec = DatagramDecoder()
+    st_.source_counters = dec.counters
+    assert "skipped" not in console_line(st_.snapshot())
+    dec.decode(build_datagram(1, [_item(0, "a")], 256, extra_items=[(4, b"xy")]), 0.0)
+    line = console_line(st_.snapshot())
+    assert "skipped items 1" in line and "malformed 0" in line
