@@ -75,6 +75,11 @@ class SerialLink:
             except OSError:
                 pass
 
+    @property
+    def pending(self) -> bytes:
+        """Bytes received after the last complete line (a line still without its terminator)."""
+        return self._buf
+
     def readline(self, deadline: float) -> bytes | None:
         """Next non-empty line without its terminator, or None once ``deadline`` (monotonic) passes.
 

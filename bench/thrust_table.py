@@ -69,27 +69,61 @@ class ThrustTable:
     # ------------------------------------------------------------------ I/O
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], source: str = "thrust table") -> ThrustTable:
+        """A table from parsed TOML; UserError naming ``source`` on any problem.
+
+        Integers and floats are both numbers (``duty_range = [10, 90]`` is fine); a
+        boolean is not. ``unit`` is required: thrust in N read as gf is 100x off.
+        """
+        def num(x: Any) -> float:
+            if isinstance(x, bool):
+                raise TypeError(f"{x!r} is not a number")
+            return float(x)
+
         try:
             nozzles = data["nozzles"]
-            coeffs = {int(k): tuple(float(a) for a in v["coefficients"]) for k, v in nozzles.items()}
+            if not isinstance(nozzles, Mapping):
+                raise TypeError("nozzles must be tables [nozzles.1], [nozzles.2], ...")
+            coeffs = {int(k): tuple(num(a) for a in v["coefficients"]) for k, v in nozzles.items()}
             unit = str(data.get("unit", "gf"))
-            lo, hi = (float(x) for x in data.get("duty_range", (10.0, 90.0)))
+            lo, hi = (num(x) for x in data.get("duty_range", (10.0, 90.0)))
             p = data.get("pressure_psi")
+            p = None if p is None else num(p)
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{source}: malformed thrust table ({exc.__class__.__name__}: {exc})") from None
         known = {"nozzles", "unit", "duty_range", "pressure_psi"}
         extra = {k: v for k, v in data.items() if k not in known}
-        return cls(coeffs, unit, (lo, hi), None if p is None else float(p), extra)
+        try:
+            table = cls(coeffs, unit, (lo, hi), p, extra)
+        except UserError as exc:
+            raise UserError(f"{source}: {exc}") from None
+        if "unit" not in data:
+            raise UserError(f'{source}: no unit: add unit = "gf" (gram-force) or unit = "N"')
+        return table
 
     @classmethod
     def load(cls, path: str | Path) -> ThrustTable:
-        """Read a TOML thrust table; raise UserError with the file name on any problem."""
+        """Read a TOML thrust table; raise UserError with the file name on any problem.
+
+        A UTF-8 byte order mark (Windows Notepad, PowerShell) is skipped; CRLF line ends
+        are TOML.
+        """
         path = Path(path)
         try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
+            raw = path.read_bytes()
         except FileNotFoundError:
             raise UserError(f"{path}: thrust table not found") from None
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read the thrust table ({exc.strerror or exc})") from None
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            raise UserError(f"{path}: UTF-16 text; TOML must be UTF-8 (save it as UTF-8)")
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = raw[:exc.start].count(b"\n") + 1
+            raise UserError(f"{path}: line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 "
+                            f"(TOML must be UTF-8; save it as UTF-8)") from None
+        try:
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise UserError(f"{path}: not valid TOML ({exc})") from None
         return cls.from_dict(data, str(path))

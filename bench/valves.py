@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -35,6 +36,23 @@ def _fmt(x: float) -> str:
     return f"{x:.3f}".rstrip("0").rstrip(".")
 
 
+# Telnet commands (RFC 854): IAC WILL/WONT/DO/DONT <option>, IAC SB ... IAC SE, IAC <command>.
+# A Wi-Fi bridge in telnet mode sends some on connect; the option byte may be printable.
+_TELNET = re.compile(rb"\xff(?:[\xfb-\xfe].|\xfa.*?\xff\xf0|[\xf0-\xf9])", re.S)
+_NOT_TEXT = re.compile(rb"[^\t\x20-\x7e]")
+
+
+def clean_reply(raw: bytes) -> tuple[str, int]:
+    """A reply line as text, without what real links add around it.
+
+    Drops telnet negotiation, NUL and every other control or non-ASCII byte (a
+    USB-serial adapter or a board resetting as the port opens delivers such bytes
+    first), then surrounding whitespace. Returns ``(text, number of bytes dropped)``.
+    """
+    kept = _NOT_TEXT.sub(b"", _TELNET.sub(b"", raw))
+    return kept.decode("ascii").strip(), len(raw) - len(kept)
+
+
 class ValveController:
     """Protocol-v1 valve controller.
 
@@ -44,23 +62,38 @@ class ValveController:
         timeout: seconds to wait for each reply.
         duty_limits: ``(low, high)`` percent: an open valve's duty must lie in this
             range (0 always means closed); violations raise UserError before sending.
+        boot_s: how long after opening the port a board may take to start answering:
+            an Arduino Uno/Nano/Mega resets when the port opens (DTR) and its sketch
+            runs 1.5-2 s later. Before the first command ``PING`` is sent (again every
+            0.5 s) until ``PONG`` comes back or this time has passed; lines before it
+            (boot banner, replies to commands the board half-heard) are skipped.
+            Default 3 s when the driver opens ``url`` itself, 0 (no wait) for a port
+            object passed in.
         **serial_settings: other pyserial settings.
 
     Use as a context manager; ``identify()`` before channel commands (it learns the
-    number of channels).
+    number of channels). ``dropped_bytes`` counts bytes removed from replies (NUL,
+    telnet negotiation, other non-text bytes), ``skipped_lines`` lines that were not
+    a reply (boot banner, an echo of the command).
     """
 
     def __init__(self, url: str | Any, baudrate: int = 115200, timeout: float = 1.0,
-                 duty_limits: tuple[float, float] = (0.0, 100.0), **serial_settings: Any) -> None:
+                 duty_limits: tuple[float, float] = (0.0, 100.0), boot_s: float | None = None,
+                 **serial_settings: Any) -> None:
         self.url = url
         self.baudrate = baudrate
         self.timeout = timeout
         self.duty_limits = duty_limits
+        self.boot_s = (3.0 if isinstance(url, str) else 0.0) if boot_s is None else float(boot_s)
         self.serial_settings = serial_settings
         self.n_channels: int | None = None
         self.identity: ValveIdentity | None = None
         self._link: SerialLink | None = None
         self._lock = threading.RLock()
+        self._opened_t = 0.0
+        self._sync_pending = False
+        self.dropped_bytes = 0
+        self.skipped_lines = 0
         self.last_command_t = 0.0
         """Monotonic time of the last command answered (any thread)."""
         self.last_caller_t = 0.0
@@ -71,6 +104,8 @@ class ValveController:
         if self._link is None:
             self._link = SerialLink(self.url, "valve controller", baudrate=self.baudrate,
                                     **self.serial_settings)
+            self._opened_t = time.monotonic()
+            self._sync_pending = self.boot_s > 0
         return self
 
     def close(self) -> None:
@@ -91,20 +126,63 @@ class ValveController:
             self.open()
         link = self._link
         with self._lock:
-            link.reset_input()  # a late reply to an earlier, timed-out command
-            link.write(line.encode("ascii") + b"\n")
-            deadline = time.monotonic() + self.timeout
-            raw = link.readline(deadline)
-            if raw is None:
+            if self._sync_pending:
+                self._sync_pending = False
+                self._wait_boot(link)
+            reply = self._exchange(link, line, self.timeout)
+            if reply is None:
+                partial = clean_reply(link.pending)[0]
+                if partial:
+                    raise DeviceError(f"valve controller at {link.url} answered {line!r} with {partial!r} "
+                                      f"but no end of line within {self.timeout:g} s (replies end with \\n)")
                 raise DeviceError(f"valve controller at {link.url} did not answer {line!r} "
                                   f"within {self.timeout:g} s")
             self.last_command_t = time.monotonic()
             if not _feeder:
                 self.last_caller_t = self.last_command_t
-        reply = raw.decode("ascii", "replace").strip()
         if reply.startswith("ERR"):
             raise DeviceError(f"valve controller refused {line!r}: {reply}")
         return reply
+
+    def _exchange(self, link: SerialLink, line: str, timeout: float) -> str | None:
+        """Send ``line``; the first reply line within ``timeout`` (None: none came).
+
+        Lines that hold nothing but noise and an exact echo of ``line`` are skipped.
+        """
+        link.reset_input()  # a late reply to an earlier, timed-out command
+        link.write(line.encode("ascii") + b"\n")
+        deadline = time.monotonic() + timeout
+        while True:
+            raw = link.readline(deadline)
+            if raw is None:
+                return None
+            text, dropped = clean_reply(raw)
+            self.dropped_bytes += dropped
+            if text and text != line:
+                return text
+            self.skipped_lines += bool(text)
+
+    def _wait_boot(self, link: SerialLink) -> None:
+        """Before the first command: PING until PONG, for up to ``boot_s`` after opening."""
+        end = self._opened_t + self.boot_s
+        heard = None
+        sent = 0
+        while True:
+            reply = self._exchange(link, "PING", min(self.timeout, 0.5))
+            sent += 1
+            if reply == "PONG":
+                return
+            if reply is not None:
+                heard = reply
+                self.skipped_lines += 1
+            if time.monotonic() >= end:
+                break
+        if heard is None:
+            raise DeviceError(
+                f"valve controller at {link.url} sent nothing in the {time.monotonic() - self._opened_t:.1f} s "
+                f"after the port opened ({sent} PINGs; a board that resets on open answers within about 2 s): "
+                f"check the port, the cable and the baud rate")
+        # it talks but never said PONG: let the caller's command report what it answers
 
     def _expect_ok(self, line: str) -> None:
         reply = self.command(line)

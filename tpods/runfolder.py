@@ -15,8 +15,11 @@ file and the row.
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,20 +90,62 @@ class Run:
                    self.thrust_t, self.thrust_n, self.meta)
 
 
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+_LINE_END = re.compile(r"\r\n|\r|\n")
+
+
 def read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
-    """Read a numeric CSV with exactly-named columns; refuse bad content by row."""
+    """Read a numeric CSV with exactly-named columns; refuse bad content by row (see read_table_lines)."""
+    return read_table_lines(path, columns)[0]
+
+
+def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Read a numeric CSV with exactly-named columns; the values and each row's file line.
+
+    Reads what spreadsheets and editors write: a UTF-8 byte order mark, CRLF or CR line
+    ends, blank lines and lines of empty cells (skipped), spaces around values, quoted
+    headers, columns in any order, extra columns (ignored, whatever their encoding) and
+    a trailing comma on data rows. Error messages name the file line (header = line 1
+    unless blank lines precede it).
+    """
     if not path.is_file():
         raise UserError(f"{path}: file not found")
+    data = path.read_bytes()
+    if data.startswith(_UTF16_BOMS):
+        raise UserError(f"{path}: UTF-16 text (Excel's 'Unicode Text'); save it as 'CSV UTF-8' or plain CSV")
+    # Bytes that are not UTF-8 (Excel's plain 'CSV' is in the Windows code page) can only
+    # matter in extra columns: a replaced character in a required cell is refused below.
+    text = data.decode("utf-8-sig", errors="replace")
+    lines = _LINE_END.split(text)
+    blank = [not ln.replace(",", "").replace('"', "").strip() for ln in lines]
+    if all(blank):
+        raise UserError(f"{path}: file is empty")
+    header_idx = blank.index(False)
     try:
-        df = pd.read_csv(path, skipinitialspace=True)
+        # One DataFrame row per physical line after the header (blank lines kept, dropped
+        # below), so row i is file line header_idx + 2 + i. index_col=False: pandas would
+        # otherwise take the first column as the index when rows end with a comma.
+        with warnings.catch_warnings():  # values beyond the header's columns: ignored like extra columns
+            warnings.simplefilter("ignore", pd.errors.ParserWarning)
+            df = pd.read_csv(io.StringIO(text), skipinitialspace=True, skip_blank_lines=False,
+                             header=header_idx, index_col=False, keep_default_na=False, na_values=[""])
     except pd.errors.EmptyDataError:
         raise UserError(f"{path}: file is empty") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+    except pd.errors.ParserError as exc:
         raise UserError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
     df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in columns if c not in df.columns]
     if missing:
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} (header must hold {','.join(columns)})")
+        hint = ""
+        head = lines[header_idx]
+        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+            if sep in head and "," not in head:
+                hint = f"; the header is separated by {name}, the format uses commas"
+        raise UserError(f"{path}: missing column(s) {', '.join(missing)} "
+                        f"(header must hold {','.join(columns)}{hint})")
+    line_no = np.arange(len(df)) + header_idx + 2
+    keep = ~df.isna().all(axis=1).to_numpy()
+    df, line_no = df[keep], line_no[keep]
     if len(df) == 0:
         raise UserError(f"{path}: no data rows")
     sub = df[list(columns)]
@@ -109,14 +154,14 @@ def read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
     if bad.any():
         row, col = np.argwhere(bad)[0]
         raw = sub.iloc[row, col]
-        # Row numbers are file lines: header is line 1, first data row is line 2.
-        raise UserError(f"{path}: line {row + 2}: column {columns[col]} is not a finite number ({raw!r})")
+        shown = "empty cell" if isinstance(raw, float) and math.isnan(raw) else repr(raw)
+        raise UserError(f"{path}: line {line_no[row]}: column {columns[col]} is not a finite number ({shown})")
     t = values[:, 0]
     nonincr = np.nonzero(np.diff(t) <= 0)[0]
     if nonincr.size:
         i = nonincr[0] + 1
-        raise UserError(f"{path}: line {i + 2}: time {t[i]:g} does not increase (previous {t[i - 1]:g})")
-    return values
+        raise UserError(f"{path}: line {line_no[i]}: time {t[i]:g} does not increase (previous {t[i - 1]:g})")
+    return values, line_no
 
 
 def read_run(path: str | Path) -> Run:
@@ -129,21 +174,21 @@ def read_run(path: str | Path) -> Run:
     thrust_t = thrust_n = None
     duty = None
     if thrust_file.exists():
-        tv = read_table(thrust_file, THRUST_COLUMNS)
+        tv, tlines = read_table_lines(thrust_file, THRUST_COLUMNS)
         thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
         if np.any(thrust_n < 0):
             row = int(np.argwhere(thrust_n < 0)[0][0])
-            raise UserError(f"{thrust_file}: line {row + 2}: negative thrust")
+            raise UserError(f"{thrust_file}: line {tlines[row]}: negative thrust")
     if cmd_file.exists() or thrust_t is None:
-        cv = read_table(cmd_file, COMMAND_COLUMNS)
+        cv, clines = read_table_lines(cmd_file, COMMAND_COLUMNS)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         bad = (duty < 0) | (duty > 100)
         if bad.any():
             row = int(np.argwhere(bad)[0][0])
-            raise UserError(f"{cmd_file}: line {row + 2}: duty outside 0..100 %")
+            raise UserError(f"{cmd_file}: line {clines[row]}: duty outside 0..100 %")
     else:
         cmd_t = thrust_t
-    pv = read_table(path / "poses.csv", POSE_COLUMNS)
+    pv, plines = read_table_lines(path / "poses.csv", POSE_COLUMNS)
     pose_t, pose = pv[:, 0], pv[:, 1:]
     span_t = thrust_t if thrust_t is not None else cmd_t
     span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"
@@ -151,7 +196,7 @@ def read_run(path: str | Path) -> Run:
     if outside.any():
         i = int(np.nonzero(outside)[0][0])
         raise UserError(
-            f"{path / 'poses.csv'}: line {i + 2}: pose time {pose_t[i]:g} s lies outside the commanded "
+            f"{path / 'poses.csv'}: line {plines[i]}: pose time {pose_t[i]:g} s lies outside the commanded "
             f"span {span_t[0]:g}..{span_t[-1]:g} s of {span_name}")
     if len(pose_t) < 2:
         raise UserError(f"{path / 'poses.csv'}: need at least 2 poses")
@@ -159,7 +204,7 @@ def read_run(path: str | Path) -> Run:
     meta_file = path / "run.json"
     if meta_file.exists():
         try:
-            meta = json.loads(meta_file.read_text())
+            meta = json.loads(meta_file.read_text(encoding="utf-8-sig"))  # Notepad may add a BOM
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise UserError(f"{meta_file}: not valid JSON ({exc})") from None
         if not isinstance(meta, dict):
