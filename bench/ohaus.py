@@ -4,7 +4,10 @@ Commands are case-sensitive ASCII ended by CR LF: ``IP`` print now, ``P`` print,
 ``SP`` print when stable, ``CP`` continuous print, ``0P`` stop, ``Z`` zero, ``T`` tare,
 ``PU`` print unit, ``xU`` set unit, ``PV`` version. ``ES`` means the balance refused a
 command; settings commands may answer ``OK!``. A weight line is a right-justified
-signed number, a space, the unit, then ``?`` when unstable (``      12.34 g ?``).
+signed number, a space, the unit, then ``?`` when unstable (``      12.34 g ?``);
+Navigator, Explorer, Ranger and Defender lines may carry a legend after it (gross, net,
+tare, preset tare, total), a centre-of-zero mark or a time stamp, and may leave the unit
+field blank: :func:`parse_line` and docs/valve-protocol.md ("OHAUS balance lines").
 
 A balance reading in grams is a force in gram-force: the session converts at the
 boundary and keeps units in column names.
@@ -40,21 +43,39 @@ TO_GRAMS = {"g": 1.0, "kg": 1000.0, "mg": 1e-3, "ct": 0.2, "oz": 28.349523125,
 """Grams per unit for the units a Scout prints (``tl``: Hong Kong tael)."""
 
 _KNOWN_UNITS = {u.lower(): u for u in TO_GRAMS} | {"n": "N", "pcs": "PCS", "%": "%"}
-_FLAGS = {"?", "n", "g", "net", "gross", "gs", "nt", "t", "tare", "st", "us"}
+
+GROSS, NET = "gross", "net"
+_LEGENDS = {"g": GROSS, "b/g": GROSS, "gross": GROSS, "gs": GROSS,
+            "n": NET, "net": NET, "nt": NET,
+            "t": "tare", "tare": "tare", "pt": "preset tare",
+            "total": "total", "tot": "total", "accum": "total"}
+"""Legends (lower-cased) -> what the number is. ``G``, ``B/G``, ``GROSS`` gross; ``N``,
+``NET``, ``Net`` net (``GS``/``NT``: other makers' spellings, kept); ``T``/``Tare`` the
+stored tare value, ``PT`` a preset tare, ``TOTAL`` an accumulated total: those three are
+not the load on the pan. Sources: docs/valve-protocol.md, "OHAUS balance lines"."""
+_NOT_LOAD = ("tare", "preset tare", "total")
+_MARKS = {"c", "st", "a", "o", "u", "accept", "under", "over"}
+"""Accepted marks that change nothing: ``C`` centre of zero, ``ST`` stable (other makers),
+check-weighing status ``A``/``O``/``U`` (older Navigator) and ``Accept``/``Under``/``Over``
+(Defender 5000)."""
 _UNSTABLE_FLAGS = {"?", "us"}
+_TIME = re.compile(r"^\d{1,2}:\d{2}:\d{2}$")
 _WEIGHT = re.compile(
     r"^\s*(?P<pre>\?\s*)?(?P<sign>[-+])?\s*(?P<num>\d+(?:[.,]\d*)?|[.,]\d+)"
-    r"\s*(?P<unit>%|[A-Za-z]+(?::[A-Za-z]+)?)(?P<rest>.*)$")
+    r"(?P<rest>(?:\s*[A-Za-z%?]|\s).*)?$")
+_LABEL_FIRST = re.compile(r"^\s*(?P<label>[A-Za-z/]+):?\s+(?P<body>[-+?\d.,].*)$")
 
 
 @dataclass(frozen=True)
 class Reading:
-    """One balance reading: ``value`` in ``unit``, ``stable`` flag, host monotonic time ``t``."""
+    """One balance reading: ``value`` in ``unit``, ``stable`` flag, host monotonic time ``t``,
+    ``legend`` ``"gross"``/``"net"`` when the balance printed one (None: no legend)."""
 
     value: float
     unit: str
     stable: bool
     t: float = math.nan
+    legend: str | None = None
 
     @property
     def grams(self) -> float | None:
@@ -63,39 +84,142 @@ class Reading:
         return None if f is None else self.value * f
 
 
-def parse_weight_line(line: bytes | str, t: float = math.nan) -> Reading | None:
-    """Parse one weight line of a Scout, Scout Pro or Navigator; None if it is not one.
+@dataclass(frozen=True)
+class LineResult:
+    """What one line is: ``kind`` ``"reading"`` (``reading`` set), ``"not_load"`` (a tare,
+    preset-tare or total line: well formed, but not the load on the pan) or ``"refused"``
+    (garbage, partial or ambiguous); ``reason`` says why for the last two."""
 
-    Tolerates leading/trailing spaces, a sign separated from the digits, a decimal
-    comma, the unit glued to the number, ``?`` anywhere after the number (or before
-    it), and net/gross indicators (``N``, ``G``, ``NET``). Rejects partial lines (no
-    unit), unknown units, stray characters and non-finite numbers.
-    """
-    if isinstance(line, bytes):
-        try:
-            line = line.decode("ascii")
-        except UnicodeDecodeError:
-            return None
-    line = line.strip("\r\n\x00")
-    if not line.isprintable():
-        return None
-    m = _WEIGHT.match(line)
+    kind: str
+    reading: Reading | None = None
+    reason: str = ""
+    legend: str | None = None
+
+
+def _refused(reason: str) -> LineResult:
+    return LineResult("refused", reason=reason)
+
+
+def _parse_body(text: str, t: float, unit: str | None) -> LineResult:
+    m = _WEIGHT.match(text)
     if m is None:
-        return None
-    unit = _KNOWN_UNITS.get(m["unit"].lower())
-    if unit is None:
-        return None
-    rest = m["rest"].replace("?", " ? ").split()
-    if any(tok.lower() not in _FLAGS for tok in rest):
-        return None
-    stable = m["pre"] is None and not any(tok.lower() in _UNSTABLE_FLAGS for tok in rest)
+        return _refused("no number where the weight field should be")
+    toks = (m["rest"] or "").replace("?", " ? ").split()
+    unit_sym = None
+    n_ambiguous = False
+    if toks:
+        first = toks[0]
+        sym = _KNOWN_UNITS.get(first.lower())
+        legend_too = first.lower() in _LEGENDS
+        if sym is not None and not legend_too:
+            unit_sym = sym
+        elif sym is not None and first.lower() == "n":
+            # newton, or the net legend with print unit off; 'N ... N': unit then legend
+            if unit == "N" or any(_LEGENDS.get(x.lower()) == NET for x in toks[1:]):
+                unit_sym = "N"
+            else:
+                n_ambiguous = True
+        elif sym is not None and first == sym:
+            unit_sym = sym  # 'g': grams are printed lower case; 'G' is the gross legend
+        if unit_sym is not None:
+            toks = toks[1:]
+    stable = m["pre"] is None
+    kinds: list[str] = []
+    for tok in toks:
+        low = tok.lower()
+        if low in _UNSTABLE_FLAGS:
+            stable = False
+        elif low in _LEGENDS:
+            kinds.append(_LEGENDS[low])
+        elif low in _MARKS or _TIME.match(tok):
+            pass
+        else:
+            what = "unit" if unit_sym is None and tok is toks[0] else "field"
+            return _refused(f"unknown {what} {tok!r} after the number")
     value = float(m["num"].replace(",", "."))
     if m["sign"] == "-":
         value = -value
     if not math.isfinite(value):
-        return None
-    return Reading(value, unit, stable, t)
+        return _refused("the number is not finite")
+    not_load = [k for k in _NOT_LOAD if k in kinds]
+    if not_load:
+        return LineResult("not_load", reason=f"a {not_load[0]} line, not the load on the pan",
+                          legend=not_load[0])
+    if len(set(kinds)) > 1:
+        return _refused("both a gross and a net legend: ambiguous")
+    legend = kinds[0] if kinds else None
+    if unit_sym is None:
+        if not toks:
+            return _refused("a number with neither unit nor legend (a partial line, or print "
+                            "unit off with no legend): ambiguous")
+        if n_ambiguous and unit is None:
+            return _refused("'N' after the number is either the unit newton or the net legend "
+                            "with print unit off, and no unit was verified on the balance (PU): "
+                            "ambiguous")
+        if unit is None:
+            return _refused("no unit field (print unit off?) and no unit verified on the "
+                            "balance (PU)")
+        unit_sym = unit
+    return LineResult("reading", Reading(value, unit_sym, stable, t, legend), legend=legend)
 
+
+def parse_line(line: bytes | str, t: float = math.nan, unit: str | None = None) -> LineResult:
+    """Classify one line from an OHAUS balance (see :func:`parse_weight_line`).
+
+    ``unit``: the unit verified on the balance (``PU``), used only for a line whose unit
+    field is empty (print unit off) and to read a lone ``N`` (newton or net legend)."""
+    if isinstance(line, bytes):
+        try:
+            line = line.decode("ascii")
+        except UnicodeDecodeError:
+            return _refused("bytes that are not ASCII")
+    line = line.strip("\r\n\x00")
+    if not line.strip():
+        return _refused("an empty line")
+    if not line.isprintable():
+        return _refused("control characters in the line")
+    m = _LABEL_FIRST.match(line)
+    if m is None or m["label"].lower() not in _LEGENDS:
+        return _parse_body(line, t, unit)
+    # legend first (Ranger print-key block 'G ... 12.34 kg', 7000-series label field)
+    label = _LEGENDS[m["label"].lower()]
+    res = _parse_body(m["body"], t, unit)
+    if res.kind == "refused":
+        return res
+    if label in _NOT_LOAD:
+        return LineResult("not_load", reason=f"a {label} line, not the load on the pan", legend=label)
+    if res.kind == "not_load":
+        return res
+    r = res.reading
+    assert r is not None
+    if r.legend not in (None, label):
+        return _refused(f"legend {m['label']!r} before the number and {r.legend!r} after it: ambiguous")
+    return LineResult("reading", Reading(r.value, r.unit, r.stable, r.t, label), legend=label)
+
+
+def parse_weight_line(line: bytes | str, t: float = math.nan, unit: str | None = None) -> Reading | None:
+    """Parse one weight line of an OHAUS balance; None if it is not a load reading.
+
+    Reads the Scout, Scout Pro, Navigator, Explorer, Adventurer, Ranger and Defender
+    layouts: a right-justified number (sign possibly apart from the digits, decimal
+    comma accepted, ``?`` before it = unstable), the unit (possibly glued to the number),
+    ``?`` when unstable, then legends: ``G``/``B/G``/``GROSS`` and ``N``/``NET`` keep the
+    value and set ``Reading.legend``; ``C`` (centre of zero), check-weighing marks and an
+    interval-print time stamp ``hh:mm:ss`` are accepted. None for a tare (``T``), preset
+    tare (``PT``) or total (``TOTAL``) line, a line whose unit field is empty while no
+    ``unit`` was verified (a lone ``N`` is the net legend or the unit newton: read by the
+    verified unit, never guessed), a bare number, unknown units or fields, stray characters
+    and non-finite numbers. :func:`parse_line` says which and why.
+    """
+    return parse_line(line, t, unit).reading
+
+
+class NotALoadReading(DeviceError):
+    """The balance printed only lines that are not the load on the pan (tare, preset tare,
+    totals, or the other legend than the one being acquired)."""
+
+
+_UNSET = object()
 
 ACQUISITION_MODES = ("auto", "continuous", "poll")
 """How :meth:`OhausScout.start_continuous` acquires readings (see the module docstring)."""
@@ -122,6 +246,15 @@ class OhausScout:
 
     Garbage lines are counted in ``n_garbage`` (the first few kept in
     ``garbage_examples``) and skipped; ``ES`` answers raise DeviceError from commands.
+    Well-formed lines that are not the load on the pan (tare, preset tare, totals: see
+    :func:`parse_weight_line`) are counted apart in ``n_skipped_legend`` (examples in
+    ``skipped_examples``); while acquiring, a reading whose legend (gross/net/none)
+    differs from the first one's is skipped there too (a print template printing both,
+    or a tare pressed at the keypad). ``last_error`` holds the reason of the last line
+    not used. When only such lines arrive, :class:`NotALoadReading` (a DeviceError) says
+    what the balance printed. A line with an empty unit field (print unit off) is read
+    in ``verified_unit``, the unit the balance reported to ``PU`` (:meth:`unit`), and
+    refused while none is known (``xU`` clears it: unit numbers differ between models).
     When polling, an ``IP`` unanswered after :attr:`poll_reply_timeout` is sent again
     (``n_poll_timeouts``); a valid reading that arrives while no ``IP`` is outstanding
     (a reply later than that) is dropped and counted in ``n_late_replies``.
@@ -148,6 +281,15 @@ class OhausScout:
         self.n_garbage = 0
         self.n_readings = 0
         self.garbage_examples: list[bytes] = []
+        self.n_skipped_legend = 0
+        self.skipped_examples: list[bytes] = []
+        self.last_error = ""
+        """Why the last line not used was refused or skipped."""
+        self.verified_unit: str | None = None
+        """The unit the balance reported to ``PU``; None until :meth:`unit` succeeded."""
+        self._skipped_since_valid = 0
+        self._last_skipped = b""
+        self._legend_lock: Any = _UNSET
         self.continuous = False
         """True while ``CP`` printing is on."""
         self.acquisition = acquisition
@@ -203,14 +345,52 @@ class OhausScout:
     def _send(self, cmd: str) -> None:
         self.link.write(cmd.encode("ascii") + b"\r\n")
 
-    def _garbage(self, raw: bytes) -> None:
+    def _garbage(self, raw: bytes, reason: str = "") -> None:
         self.n_garbage += 1
+        self.last_error = reason or "not a weight line"
         if len(self.garbage_examples) < 5:
             self.garbage_examples.append(raw[:80])
 
+    def _skipped(self, raw: bytes, reason: str) -> None:
+        self.n_skipped_legend += 1
+        self._skipped_since_valid += 1
+        self._last_skipped = raw.strip()[:80]
+        self.last_error = reason
+        if len(self.skipped_examples) < 5:
+            self.skipped_examples.append(raw[:80])
+
+    def _classify(self, raw: bytes, t: float) -> Reading | None:
+        """The load reading in ``raw``, or None (counted as garbage or as skipped)."""
+        res = parse_line(raw, t, self.verified_unit)
+        if res.kind == "not_load":
+            self._skipped(raw, res.reason)
+            return None
+        if res.reading is None:
+            self._garbage(raw, res.reason)
+            return None
+        r = res.reading
+        if self.acquiring:
+            if self._legend_lock is _UNSET:
+                self._legend_lock = r.legend
+            elif r.legend != self._legend_lock:
+                self._skipped(raw, f"a {r.legend or 'no-legend'} reading while acquiring "
+                                   f"{self._legend_lock or 'no-legend'} readings")
+                return None
+        self._skipped_since_valid = 0
+        return r
+
+    def _not_load_error(self, what: str) -> NotALoadReading:
+        text = self._last_skipped.decode("ascii", "replace")
+        n = self._skipped_since_valid
+        return NotALoadReading(
+            f"OHAUS balance at {self.link.url} {what} only lines that are not the load on the pan "
+            f"({n} line{'s' if n > 1 else ''}, the last {text!r}: {self.last_error}); set its print output "
+            f"to the displayed weight (gross or net) only")
+
     def _timeout_error(self, what: str, seconds: float) -> DeviceError:
+        why = f"; last line refused: {self.last_error}" if self.last_error else ""
         return DeviceError(f"OHAUS balance at {self.link.url} sent no {what} within {seconds:g} s "
-                           f"(is it on, connected, and set to the same baud rate and format?)")
+                           f"(is it on, connected, and set to the same baud rate and format?{why})")
 
     def _no_continuous(self, cmd: str) -> None:
         if self.continuous:
@@ -230,18 +410,24 @@ class OhausScout:
         self.link.reset_input()
         self._send(mode)
         deadline = time.monotonic() + timeout
+        self._skipped_since_valid = 0
+        self.last_error = ""
         while True:
             raw = self.link.readline(deadline)
             if raw is None:
+                if self._skipped_since_valid:
+                    raise self._not_load_error(f"answered {mode!r} with")
                 raise self._timeout_error(f"reading after {mode!r}", timeout)
             text = raw.strip()
             if text == b"ES":
                 raise DeviceError(f"OHAUS balance refused {mode!r} (ES)")
             if text == b"OK!":
                 continue
-            r = parse_weight_line(raw, time.monotonic())
+            n_skipped = self.n_skipped_legend
+            r = self._classify(raw, time.monotonic())
             if r is None:
-                self._garbage(raw)
+                if self.n_skipped_legend > n_skipped:  # a print template may follow with the load
+                    deadline = min(deadline, time.monotonic() + self.ack_timeout)
                 continue
             self.n_readings += 1
             return r
@@ -289,19 +475,26 @@ class OhausScout:
         return self._setting("T")
 
     def unit(self) -> str:
-        """``PU``: the current unit symbol."""
+        """``PU``: the current unit symbol; a known one becomes ``verified_unit`` (the unit
+        of lines printed with the unit field off)."""
+        self.verified_unit = None
         text = self._reply_line("PU")
         r = parse_weight_line(text)
-        return r.unit if r is not None else text.split()[0]
+        sym = r.unit if r is not None else text.split()[0]
+        self.verified_unit = _KNOWN_UNITS.get(sym.lower())
+        return sym
 
     def set_unit(self, unit: int | str) -> bool:
-        """``xU``: select unit number ``x`` (model-specific; 1 is grams, ``"g"`` accepted)."""
+        """``xU``: select unit number ``x`` (model-specific: 1 is grams on a Scout, kilograms
+        on a Defender 5000; ``"g"`` sends 1). Clears ``verified_unit``: call :meth:`unit` to
+        verify."""
         if isinstance(unit, str):
             if unit != "g":
                 raise UserError("set_unit takes the balance's unit number; only 'g' (1) is known by name")
             unit = 1
         if not 1 <= int(unit) <= 99:
             raise UserError(f"unit number must be 1-99, got {unit}")
+        self.verified_unit = None
         return self._setting(f"{int(unit)}U")
 
     def version(self) -> str:
@@ -361,6 +554,8 @@ class OhausScout:
         """
         self._pending.clear()
         self.fallback_reason = None
+        self._legend_lock = _UNSET
+        self._skipped_since_valid = 0
         if self.acquisition == "poll":
             self._start_polling(None)
             return
@@ -374,6 +569,10 @@ class OhausScout:
         end = self._last_valid + self.probe_s
         while True:
             raw = self.link.readline(end)
+            if raw is None and self._skipped_since_valid:
+                self._send("0P")
+                self.continuous = False
+                raise self._not_load_error("printed after 'CP'")
             if raw is None:
                 self._send("0P")  # in case it starts printing later
                 self.continuous = False
@@ -388,9 +587,8 @@ class OhausScout:
                 return
             if text == b"OK!":
                 continue
-            r = parse_weight_line(raw, time.monotonic())
+            r = self._classify(raw, time.monotonic())
             if r is None:
-                self._garbage(raw)
                 continue
             self._last_valid = r.t
             self.n_readings += 1
@@ -444,6 +642,8 @@ class OhausScout:
         self.link.reset_input()
 
     def _silent_error(self) -> DeviceError:
+        if self._skipped_since_valid:
+            return self._not_load_error(f"printed for {self.silence_timeout:g} s")
         extra = f" ({self.n_poll_timeouts} IP unanswered)" if self._polling and self.n_poll_timeouts else ""
         return DeviceError(f"OHAUS balance at {self.link.url} went silent: no valid reading "
                            f"for {self.silence_timeout:g} s{extra}")
@@ -453,10 +653,14 @@ class OhausScout:
         text = raw.strip()
         if text in (b"OK!", b"ES"):
             return
-        if parse_weight_line(raw) is None:
-            self._garbage(raw)
-        else:
+        res = parse_line(raw, math.nan, self.verified_unit)
+        if res.kind == "reading":
             self.n_late_replies += 1
+        elif res.kind == "not_load":
+            self.n_skipped_legend += 1  # no reply to anything: not counted towards silence
+            self.last_error = res.reason
+        else:
+            self._garbage(raw, res.reason)
 
     def _next_polled(self, deadline: float) -> Reading | None:
         """Polling: send ``IP`` unless its reply could not arrive before ``deadline``;
@@ -499,9 +703,8 @@ class OhausScout:
                 raise DeviceError("OHAUS balance refused 'IP' (ES): it can be neither polled nor, "
                                   "in this mode, read continuously")
             self._outstanding = False
-            r = parse_weight_line(raw, now)
-            if r is None:
-                self._garbage(raw)  # the reply, garbled: ask again
+            r = self._classify(raw, now)
+            if r is None:  # the reply, garbled or not a load reading: ask again
                 continue
             rtt = now - self._t_sent
             self._rtt = rtt if not math.isfinite(self._rtt) else 0.8 * self._rtt + 0.2 * rtt
@@ -532,14 +735,15 @@ class OhausScout:
                 if now >= deadline:
                     return None
                 raise self._silent_error()
-            r = parse_weight_line(raw, now)
+            text = raw.strip()
+            if text == b"ES" and self.continuous:
+                raise DeviceError("OHAUS balance refused continuous printing (ES to 'CP'); "
+                                  "enable continuous/auto print in its menu, or use the auto or "
+                                  "poll acquisition mode")
+            if text == b"OK!":
+                continue
+            r = self._classify(raw, now)
             if r is None:
-                if raw.strip() == b"ES" and self.continuous:
-                    raise DeviceError("OHAUS balance refused continuous printing (ES to 'CP'); "
-                                      "enable continuous/auto print in its menu, or use the auto or "
-                                      "poll acquisition mode")
-                if raw.strip() != b"OK!":
-                    self._garbage(raw)
                 continue
             self._last_valid = now
             self.n_readings += 1

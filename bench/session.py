@@ -297,11 +297,15 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                                      "firmware": ident.firmware, "n_channels": ident.n_channels}
         steps = plan_steps(config, ident.n_channels)
         valves.off()
+        with contextlib.suppress(DeviceError):  # PU: the unit of lines printed without one
+            scale.unit()
+        # a balance that prints only tare/total lines fails here with NotALoadReading
         check = scale.read("IP")
         if reading_to_gf(check) is None:
             raise DeviceError(f"the balance reads in {check.unit!r}; set it to grams (g)")
         meta["devices"]["scale"] = {"url": str(scale.url), "version": scale.version(),
-                                    "unit": check.unit, "settings": scale.settings}
+                                    "unit": check.unit, "unit_verified": scale.verified_unit,
+                                    "legend": check.legend, "settings": scale.settings}
         _write_json(out / "run.json", meta)
         rec.add(check, -1, "check", -1, 0, 0.0)
         bar = tqdm(total=round(config.planned_s, 1), unit="s", desc="characterise", file=sys.stderr,
@@ -390,7 +394,10 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                        "loop_overhead_pct": 100.0 * (loop_s - config.planned_s) / config.planned_s},
             "counts": {"readings": len(rec.rows), "garbage_lines": scale.n_garbage,
                        "garbage_examples": [repr(g) for g in scale.garbage_examples],
-                       "other_unit_readings": rec.n_other_unit, "steps_done": len(table),
+                       "other_unit_readings": rec.n_other_unit,
+                       "skipped_legend_lines": scale.n_skipped_legend,
+                       "skipped_legend_examples": [repr(g) for g in scale.skipped_examples],
+                       "steps_done": len(table),
                        "watchdog_feeds": guard.feeds if guard is not None else 0},
         })
         _write_json(out / "run.json", meta)

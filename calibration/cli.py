@@ -67,7 +67,7 @@ def _scale_readings(args) -> tuple[list[float], int]:
     from calibration.mass import take_readings
 
     try:
-        from bench.ohaus import OhausScout
+        from bench.ohaus import NotALoadReading, OhausScout
     except ImportError:
         raise UserError("--scale needs the OHAUS driver (bench/ohaus.py), which is not installed; "
                         "use --readings-from FILE or --values") from None
@@ -78,7 +78,8 @@ def _scale_readings(args) -> tuple[list[float], int]:
                     stable_timeout=args.timeout) as scale, \
             tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
                  disable=args.json or None) as bar:
-        return take_readings(lambda: scale.read(mode="SP"), args.readings, progress=bar.update)
+        return take_readings(lambda: scale.read(mode="SP"), args.readings, progress=bar.update,
+                             fatal=(NotALoadReading,))
 
 
 def cmd_mass(args: argparse.Namespace) -> int:

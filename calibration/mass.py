@@ -126,13 +126,16 @@ def parse_readings_text(text: str, default_unit: str = "g", source: str = "readi
 
 
 def take_readings(read: Callable[[], Any], n: int, max_attempts: int | None = None,
-                  progress: Callable[[int], None] | None = None) -> tuple[list[float], int]:
+                  progress: Callable[[int], None] | None = None,
+                  fatal: tuple[type[BaseException], ...] = ()) -> tuple[list[float], int]:
     """Collect ``n`` stable readings (kg) from ``read()``.
 
     ``read()`` returns an object with ``value``, ``unit`` and ``stable`` attributes
     (the OHAUS driver's Reading) or a (value, unit, stable) tuple. Unstable or
     unparseable readings (DeviceError, ValueError) are counted and skipped; after
     ``max_attempts`` (default 3 n) calls without n stable readings, DeviceError.
+    Exceptions of a type in ``fatal`` are raised at once (a balance that prints only
+    tare or total lines will not start printing the load by being asked again).
     Returns (readings_kg, skipped).
     """
     if n < 2:
@@ -152,6 +155,8 @@ def take_readings(read: Callable[[], Any], n: int, max_attempts: int | None = No
                 stable = r.stable
                 grams = getattr(r, "grams", None)  # the OHAUS Reading knows its units
                 kg = grams * 1e-3 if grams is not None else to_kg(float(r.value), str(r.unit))
+        except fatal:
+            raise
         except (DeviceError, ValueError, TypeError, UserError):
             skipped += 1
             continue

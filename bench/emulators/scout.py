@@ -14,6 +14,13 @@ Commands (case-sensitive, ended by CR LF; a lone CR or LF is accepted too):
 (1 g, 2 kg, 3 ct, 4 oz, 5 lb; ``OK!``), ``PV`` version; anything else answers ``ES``.
 With ``continuous_print=False`` (continuous print disabled in the balance's menu, or a
 model without it) ``CP`` and ``xP`` answer ``ES`` and print nothing.
+
+Print content (default: the Scout's ``      12.34 g ?`` and nothing else): ``legend``
+prints a legend after the stability field (``"N"``, ``"NET"``, ``"G"``, ``"B/G"``: a
+Navigator, Ranger or Defender with a legend), ``print_unit=False`` blanks the unit field
+(Defender 5000 "Print Content: Unit OFF"), and ``print_content`` lists the lines of one
+print in order: ``"weight"`` (the displayed weight) and ``"tare"`` (the stored tare value
+with the legend ``T``, as a Defender or Ranger prints it when tare is in its print content).
 """
 
 from __future__ import annotations
@@ -63,6 +70,7 @@ class EmulatedScout:
         garbage_prob: probability that a printed line is replaced by garbage.
         print_rate_hz: continuous print rate.
         continuous_print: False: ``CP`` and ``xP`` are refused with ``ES``.
+        legend, print_unit, print_content: what a print holds (module docstring).
         stable_band_g: a reading is unstable while |lagged - target| exceeds this.
         seed: random seed.
         clock: monotonic clock, seconds.
@@ -75,7 +83,11 @@ class EmulatedScout:
                  garbage_prob: float = 0.01, print_rate_hz: float = 10.0,
                  stable_band_g: float = 1.0, seed: int | None = 0,
                  version: str = "SCOUT STX EMU 1.00", continuous_print: bool = True,
+                 legend: str | None = None, print_unit: bool = True,
+                 print_content: tuple[str, ...] = ("weight",),
                  clock: Callable[[], float] = time.monotonic) -> None:
+        if not print_content or set(print_content) - {"weight", "tare"}:
+            raise ValueError(f"print_content items are 'weight' and 'tare', got {print_content!r}")
         self.valves = valves
         self.table = table if table is not None else ThrustTable.default()
         self.nozzle_under_test = nozzle_under_test
@@ -87,6 +99,9 @@ class EmulatedScout:
         self.garbage_prob = garbage_prob
         self.print_rate_hz = print_rate_hz
         self.continuous_print = continuous_print
+        self.legend = legend
+        self.print_unit = print_unit
+        self.print_content = tuple(print_content)
         self.stable_band_g = stable_band_g
         self.version = version
         self.clock = clock
@@ -151,13 +166,24 @@ class EmulatedScout:
         unstable = settling or bool(self.rng.random() < self.unstable_prob)
         return value, not unstable
 
-    def format_reading(self, value_g: float, stable: bool) -> bytes:
+    def format_reading(self, value_g: float, stable: bool, legend: str | None = None) -> bytes:
+        """One weight line: ``legend`` (default ``self.legend``) after the stability field."""
+        legend = self.legend if legend is None else legend
         unit, factor = UNITS[self.unit_no]
         dec = _DECIMALS[unit]
-        text = f"{value_g * factor:10.{dec}f} {unit}"
-        if not stable:
+        field = unit if self.print_unit else " " * max(len(unit), 2)
+        text = f"{value_g * factor:10.{dec}f} {field}"
+        if legend:
+            text += f" {' ' if stable else '?'} {legend}"
+        elif not stable:
             text += " ?"
         return text.encode() + b"\r\n"
+
+    def print_lines(self, value_g: float, stable: bool) -> bytes:
+        """The lines of one print, in ``print_content`` order."""
+        return b"".join(self.format_reading(value_g, stable) if item == "weight"
+                        else self.format_reading(self.zero_offset_g, True, "T")
+                        for item in self.print_content)
 
     def _emit(self, now: float, data: bytes, kind: str) -> bytes:
         self.sent.append(SentLine(now, data, kind))
@@ -168,7 +194,7 @@ class EmulatedScout:
             junk = GARBAGE[int(self.rng.integers(len(GARBAGE)))]
             return self._emit(now, junk + b"\r\n", "garbage")
         value, stable = self._measure(now)
-        return self._emit(now, self.format_reading(value, stable), "weight")
+        return self._emit(now, self.print_lines(value, stable), "weight")
 
     # ------------------------------------------------------------ protocol
     def command(self, cmd: str, now: float | None = None) -> bytes:
@@ -182,7 +208,7 @@ class EmulatedScout:
             if cmd == "SP":
                 value, stable = self._measure(now)
                 if stable:
-                    return self._emit(now, self.format_reading(value, True), "weight")
+                    return self._emit(now, self.print_lines(value, True), "weight")
                 self._pending_sp += 1
                 return b""
             if not self.continuous_print and (cmd == "CP" or (
@@ -232,7 +258,7 @@ class EmulatedScout:
                 value, stable = self._measure(now)
                 if stable:
                     for _ in range(self._pending_sp):
-                        out.append(self._emit(now, self.format_reading(value, True), "weight"))
+                        out.append(self._emit(now, self.print_lines(value, True), "weight"))
                     self._pending_sp = 0
             if self._next_print is not None and now >= self._next_print:
                 out.append(self._weight_line(now))

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bench.ohaus import Reading, parse_weight_line
+from bench.ohaus import Reading, parse_line, parse_weight_line
 
 
 @pytest.mark.parametrize("line, value, unit, stable", [
@@ -20,7 +20,6 @@ from bench.ohaus import Reading, parse_weight_line
     (b"   +7,50 g", 7.5, "g", True),                      # decimal comma
     (b"  0.4321 oz", 0.4321, "oz", True),
     (b"? 12.34 g", 12.34, "g", False),
-    (b"   1.234 N", 1.234, "N", True),
 ])
 def test_parses_scout_variants(line, value, unit, stable):
     r = parse_weight_line(line)
@@ -49,3 +48,65 @@ def test_grams_conversion():
     assert Reading(0.5, "kg", True).grams == pytest.approx(500.0)
     assert Reading(1.0, "PCS", True).grams is None
     assert math.isnan(Reading(1.0, "g", True).t)
+
+
+# Issue 14: the row (b"   1.234 N", 1.234, "N", True) used to sit in test_parses_scout_variants.
+# A lone N after the number is the unit newton or, with print unit off, the net legend
+# (Defender 5000 manual, 5.5): read by the unit verified on the balance, never guessed.
+def test_lone_n_is_read_by_the_verified_unit():
+    line = b"   1.234 N"
+    res = parse_line(line)
+    assert res.kind == "refused" and "ambiguous" in res.reason and res.reading is None
+    assert parse_weight_line(line, unit="N") == Reading(1.234, "N", True)
+    assert parse_weight_line(line, unit="g") == Reading(1.234, "g", True, legend="net")
+    assert parse_weight_line(b"   1.234 N N", unit="g") == Reading(1.234, "N", True, legend="net")
+
+
+@pytest.mark.parametrize("line, legend", [
+    (b"   12.34 g   N\r\n", "net"),
+    (b"   12.34 g ? NET", "net"),
+    (b"   12.34 g   Net", "net"),
+    (b"   12.34 g   G", "gross"),
+    (b"   12.34 g   B/G", "gross"),
+    (b"   12.34 g   GROSS", "gross"),
+    (b"      12.34 g\r\n", None),
+])
+def test_gross_and_net_keep_their_value_and_say_which(line, legend):
+    r = parse_weight_line(line)
+    assert r is not None and r.value == 12.34 and r.unit == "g" and r.legend == legend
+
+
+@pytest.mark.parametrize("line, kind", [
+    (b"     0.50 kg    T  ", "tare"),
+    (b"     0.50 kg    Tare", "tare"),
+    (b"      0.500    kg   PT", "preset tare"),
+    (b"     207.80 g TOTAL", "total"),
+    (b"T             0.50 kg", "tare"),
+])
+def test_tare_preset_tare_and_totals_are_not_load_readings(line, kind):
+    res = parse_line(line)
+    assert parse_weight_line(line) is None
+    assert (res.kind, res.legend) == ("not_load", kind) and kind in res.reason
+
+
+@pytest.mark.parametrize("line, reason", [
+    (b"      1.234         G", "no unit field"),
+    (b"   12.34 g   G N", "ambiguous"),
+    (b"  12.3", "ambiguous"),
+    (b"12.34 furlong", "unknown unit 'furlong'"),
+    (b"12.34 g xyz", "unknown field 'xyz'"),
+    (b"\xa5\xa5 g ?", "ASCII"),
+    (b"", "empty"),
+])
+def test_refusals_say_why(line, reason):
+    res = parse_line(line)
+    assert res.kind == "refused" and res.reading is None and reason in res.reason
+
+
+def test_unit_off_lines_use_the_verified_unit_only():
+    line = b"      1.234         N"
+    assert parse_weight_line(line) is None
+    assert parse_weight_line(line, unit="kg") == Reading(1.234, "kg", True, legend="net")
+    assert parse_weight_line(b"      1.234       ? G", unit="g") == Reading(1.234, "g", False, legend="gross")
+    # a printed unit wins over the verified one
+    assert parse_weight_line(b"    1.234 kg   NET", unit="g") == Reading(1.234, "kg", True, legend="net")
