@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from tpods.argtypes import nonneg_float, positive_float
-from tpods.errors import UserError
+from common.argtypes import nonneg_float, positive_float
+from common.errors import UserError
 
 
 def register(sub) -> None:
@@ -156,7 +156,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bench.fit import fit_steps, max_error_pct_full_scale
     from bench.plots import plot_fit_orders, plot_time_series
     from bench.session import read_session
-    from bench.thrust_table import ThrustTable
+    from common.thrust_table import ThrustTable
 
     raw, steps = read_session(args.run_dir)
     result = fit_steps(steps, args.order, args.criterion)
@@ -191,7 +191,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     import threading
 
     from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-    from bench.thrust_table import load_thrust_table
+    from common.thrust_table import load_thrust_table
 
     table = load_thrust_table(args.table)
     if args.channels < 1:

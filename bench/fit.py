@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.thrust_table import ThrustTable
-from tpods.errors import UserError
+from common.errors import UserError
+from common.thrust_table import ThrustTable
 
 ORDERS = (1, 2, 3, 4)
 CRITERIA = ("aicc", "bic", "cv")

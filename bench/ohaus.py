@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bench.serial_link import SerialLink
-from tpods.errors import DeviceError, UserError
+from common.errors import DeviceError, UserError
 
 TO_GRAMS = {"g": 1.0, "kg": 1000.0, "mg": 1e-3, "ct": 0.2, "oz": 28.349523125,
             "lb": 453.59237, "ozt": 31.1034768, "dwt": 1.55517384, "gn": 0.06479891,

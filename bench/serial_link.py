@@ -13,7 +13,7 @@ import re
 import time
 from typing import Any
 
-from tpods.errors import DeviceError
+from common.errors import DeviceError
 
 _EOL = re.compile(rb"[\r\n]")
 MAX_LINE = 512

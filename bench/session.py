@@ -45,9 +45,9 @@ import numpy as np
 import pandas as pd
 
 from bench.ohaus import OhausScout, Reading
-from bench.thrust_table import GF_TO_N
 from bench.valves import ValveController
-from tpods.errors import DeviceError, UserError
+from common.errors import DeviceError, UserError
+from common.thrust_table import GF_TO_N
 
 RAW_COLUMNS = ["t_s", "window", "phase", "step", "n_open", "duty_pct", "reading_gf", "stable"]
 STEP_COLUMNS = ["step", "n_open", "duty_pct", "t_start_s", "t_end_s", "n", "n_unstable",

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bench.serial_link import SerialLink
-from tpods.errors import DeviceError, UserError
+from common.errors import DeviceError, UserError
 
 
 @dataclass(frozen=True)

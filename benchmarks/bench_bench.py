@@ -21,7 +21,7 @@ import numpy as np
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from bench.fit import fit_steps, max_error_pct_full_scale
 from bench.session import read_session
-from bench.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable
 
 EXE = str(Path(sys.executable).with_name("tpods"))
 

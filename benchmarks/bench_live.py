@@ -54,11 +54,11 @@ def _batch_ms() -> int | None:
 def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out) -> None:
     import zenoh
 
+    from common.zenoh_net import open_session
     from estimator.inputs import phase_sine
     from estimator.model import PlantParams
     from estimator.sim import SimConfig, simulate
     from mocap_bridge.pose import encode_pose, pose_key, yaw_quat
-    from mocap_bridge.zenoh_net import open_session
     from tpods.player import cmd_key, encode_command
 
     cmd_t, duty = phase_sine(seconds, 50.0)
@@ -113,8 +113,8 @@ def _echo_proc(ep: str, ready, stop) -> None:
     """The reference: decode each pose, publish a reply (one Python hop on Zenoh)."""
     import zenoh
 
+    from common.zenoh_net import open_session
     from mocap_bridge.pose import pose_key
-    from mocap_bridge.zenoh_net import open_session
 
     session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     pub = session.declare_publisher(f"bench/echo/{BODY}",
@@ -175,7 +175,7 @@ def _latencies(pub_t: np.ndarray, items, t_key: str = "t_pub"):
 
 
 def run() -> list[dict]:
-    from mocap_bridge.zenoh_net import open_session
+    from common.zenoh_net import open_session
 
     seconds = float(os.environ.get("TPODS_BENCH_LIVE_S", "15"))
     rate_hz = float(os.environ.get("TPODS_BENCH_LIVE_HZ", "1000"))

@@ -8,7 +8,7 @@ includes the UDP hop, parsing, encoding and Zenoh. Reference, measured in the sa
 raw Zenoh ``put`` of the same payloads from a Python publisher process to the same kind
 of subscriber (maximum rate, and latency when paced at the bridge's rate). Both
 publishers use the tpods Zenoh settings (transmit batching limit 0 ms, see
-:mod:`mocap_bridge.zenoh_net`).
+:mod:`common.zenoh_net`).
 
 Host interference. This is a virtual machine: the hypervisor sometimes takes a virtual
 CPU away for milliseconds ("steal" time in ``/proc/stat``). Every thread on that CPU
@@ -90,9 +90,9 @@ def _pace(due: float) -> None:
 
 
 def _bridge_proc(port: int, ep: str, ready, stop, out) -> None:
+    from common.zenoh_net import open_session
     from mocap_bridge.bridge import Bridge
     from mocap_bridge.sources.vicon_udp import ViconUDPSource
-    from mocap_bridge.zenoh_net import open_session
 
     session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     src = ViconUDPSource(port=port, bind="127.0.0.1")
@@ -136,8 +136,8 @@ def _sender_proc(port: int, n_bodies: int, rate_hz: float, seconds: float, go, o
 def _raw_proc(ep: str, n: int, rate_hz: float, go, out) -> None:
     import zenoh
 
+    from common.zenoh_net import open_session
     from mocap_bridge.pose import encode_pose, yaw_quat
-    from mocap_bridge.zenoh_net import open_session
 
     session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     pub = session.declare_publisher("bench/raw/body/pose", encoding=zenoh.Encoding("application/json"),
@@ -219,8 +219,8 @@ def _sub_proc(ep: str, key: str, count, ready, stop, out, capacity: int = 0) -> 
     objects, a collection pass over them stalled the receive thread for tens of ms,
     latency that is the harness's and not the bridge's. Decodes at the end and
     returns arrays: frame, capture time, bridge receive time, subscriber receive time."""
+    from common.zenoh_net import open_session
     from mocap_bridge.pose import decode_pose
-    from mocap_bridge.zenoh_net import open_session
 
     gc.disable()
     session = open_session(listen=[ep], no_multicast=True)

@@ -7,7 +7,7 @@ import time
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from bench.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable
 from estimator.inputs import phase_sine
 from estimator.model import PlantParams, dynamics, integrate_zoh
 from estimator.sim import SimConfig, pose_times, simulate

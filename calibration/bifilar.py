@@ -37,7 +37,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
-from tpods.errors import UserError
+from common.errors import UserError
 
 G_STANDARD = 9.80665  # m/s^2
 MIN_OSCILLATIONS = 3  # full oscillations a trace must show

@@ -8,8 +8,8 @@ import math
 import sys
 from pathlib import Path
 
-from tpods.argtypes import float_list, int_at_least, nonneg_float, positive_float
-from tpods.errors import UserError
+from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
+from common.errors import UserError
 
 
 def register(sub) -> None:
@@ -163,7 +163,7 @@ def _register_bifilar(cal) -> None:
 def _read_poses(path_text: str) -> tuple:
     import numpy as np
 
-    from tpods.runfolder import POSE_COLUMNS, read_table
+    from common.runfolder import POSE_COLUMNS, read_table
 
     path = Path(path_text)
     if path.is_dir():

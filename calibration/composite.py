@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from tpods.errors import UserError
+from common.errors import UserError
 
 
 @dataclass(frozen=True)

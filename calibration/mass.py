@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tpods.errors import DeviceError, UserError
+from common.errors import DeviceError, UserError
 
 UNIT_TO_KG = {"g": 1e-3, "kg": 1.0, "mg": 1e-6, "lb": 0.45359237, "oz": 0.028349523125}
 

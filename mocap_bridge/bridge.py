@@ -25,7 +25,7 @@ class Bridge:
     """Publish pose samples on Zenoh.
 
     Args:
-        session: an open ``zenoh.Session`` (see :func:`mocap_bridge.zenoh_net.open_session`).
+        session: an open ``zenoh.Session`` (see :func:`common.zenoh_net.open_session`).
         prefix: key prefix; poses go to ``<prefix>/<body>/pose``, stats to ``<prefix>/stats``.
         axis_map: mocap-to-table mapping and yaw projection (ignored for sources whose
             poses are already in the table frame: replay, sim).

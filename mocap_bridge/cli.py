@@ -10,13 +10,13 @@ import threading
 import time
 from contextlib import contextmanager
 
-from tpods.argtypes import nonneg_float, positive_float
-from tpods.errors import UserError
+from common.argtypes import nonneg_float, positive_float
+from common.errors import UserError
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from mocap_bridge.zenoh_net import add_zenoh_options
+    from common.zenoh_net import add_zenoh_options
     from tpods.cli import group
 
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
@@ -112,11 +112,11 @@ class _Console:
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
+    from common.zenoh_net import open_session
     from mocap_bridge.bridge import Bridge
     from mocap_bridge.pose import AxisMap
     from mocap_bridge.sources import open_source
     from mocap_bridge.stats import console_line
-    from mocap_bridge.zenoh_net import open_session
 
     if not args.prefix.strip("/"):
         raise UserError("--prefix must not be empty")
@@ -159,8 +159,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from common.zenoh_net import open_session
     from mocap_bridge.recorder import Recorder, subscribe
-    from mocap_bridge.zenoh_net import open_session
 
     console = _Console(args.quiet)
     stop = threading.Event()

@@ -9,7 +9,7 @@ Layout of ``OUT``::
 poses.csv times are the sample's ``t_src`` when the source has its own timeline
 (replay, sim), otherwise ``t - t0`` with ``t0`` the capture time of the first sample
 received (or the ``t0`` given). Values are written with 12 significant digits, like
-``tpods.runfolder.write_run``; samples.csv keeps full precision (shortest repr).
+``common.runfolder.write_run``; samples.csv keeps full precision (shortest repr).
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import IO, Any
 
 import tpods
+from common.errors import UserError
 from mocap_bridge.pose import decode_pose, sanitize_chunk
 from mocap_bridge.sources.replay import SAMPLE_COLUMNS
-from tpods.errors import UserError
 
 
 def _f(v: float | None) -> str:

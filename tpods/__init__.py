@@ -1,3 +1,6 @@
-"""TPODS lab-bench toolkit: shared pieces (CLI, run folders, errors)."""
+"""TPODS lab-bench toolkit: the application floor (the ``tpods`` command line, the lab-day
+orchestration: demo, valve player, plant-in-the-loop module)."""
 
-__version__ = "0.1.0"
+from common import __version__
+
+__all__ = ["__version__"]

@@ -2,7 +2,7 @@
 
 Each package contributes its sub-commands through ``register(subparsers)`` in its
 own ``cli`` module. Handlers return an exit status. User errors
-(:class:`tpods.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
+(:class:`common.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import re
 import sys
 
 import tpods
-from tpods.errors import UserError
+from common.errors import UserError
 
 
 class _Parser(argparse.ArgumentParser):

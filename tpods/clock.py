@@ -17,7 +17,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from tpods.errors import UserError
+from common.errors import UserError
 
 
 @dataclass

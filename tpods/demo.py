@@ -35,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from tpods.argtypes import positive_float
-from tpods.errors import UserError
+from common.argtypes import positive_float
+from common.errors import UserError
 
 BODY = "tpods1"
 
 
 def register(sub) -> None:
-    from mocap_bridge.zenoh_net import add_zenoh_options
+    from common.zenoh_net import add_zenoh_options
 
     p = sub.add_parser("demo", help="run the lab day on emulated devices (no hardware needed)",
                        description="Thrust characterisation on emulated devices, mass and bifilar Izz, a "
@@ -86,8 +86,8 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
     from bench.ohaus import OhausScout
     from bench.plots import plot_fit_orders, plot_time_series
     from bench.session import SessionConfig, read_session, run_session
-    from bench.thrust_table import ThrustTable
     from bench.valves import ValveController
+    from common.thrust_table import ThrustTable
 
     truth = ThrustTable.default()
     duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
@@ -189,9 +189,9 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
     """Simulated module + live estimator + player over Zenoh; returns the live summary."""
     from tqdm import tqdm
 
-    from bench.thrust_table import ThrustTable
+    from common.thrust_table import ThrustTable
+    from common.zenoh_net import open_session
     from estimator.model import PlantParams
-    from mocap_bridge.zenoh_net import open_session
     from tpods.clock import LabClock
     from tpods.plant_loop import MocapNoise, SimulatedModule
     from tpods.player import cmd_key
@@ -291,10 +291,10 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
 
 
 def stage_batch(out: Path, table) -> dict[str, Any]:
-    from bench.thrust_table import ThrustTable
+    from common.runfolder import read_run
+    from common.thrust_table import ThrustTable
     from estimator.batch import estimate_run
     from estimator.plots_batch import plot_residuals
-    from tpods.runfolder import read_run
 
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
@@ -326,8 +326,8 @@ def plot_run(out: Path, live: dict[str, Any], truth: tuple[float, float]) -> lis
     import matplotlib.pyplot as plt
     import pandas as pd
 
+    from common.runfolder import read_run
     from estimator.plots_ekf import plot_error_bounds
-    from tpods.runfolder import read_run
 
     d = out / "run"
     run = read_run(d / "live")

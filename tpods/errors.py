@@ -1,12 +1,3 @@
-"""Errors that the CLI reports as one clear line instead of a traceback."""
+"""Moved to :mod:`common.errors`; this alias lasts until estimator/ imports from there."""
 
-
-class UserError(Exception):
-    """Bad file, bad argument or missing device: the user can fix it.
-
-    The CLI prints ``tpods: error: <message>`` and exits with status 2.
-    """
-
-
-class DeviceError(UserError):
-    """A device did not answer, answered nonsense or refused a command."""
+from common.errors import *  # noqa: F401,F403

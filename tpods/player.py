@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from common.errors import UserError
 from tpods.clock import LabClock
-from tpods.errors import UserError
 
 CMD_SCHEMA = "tpods.cmd/1"
 CMD_KINDS = ("set", "hold", "end")

@@ -9,13 +9,13 @@ import threading
 import time
 from pathlib import Path
 
-from tpods.argtypes import fraction, nonneg_float, positive_float
-from tpods.errors import UserError
+from common.argtypes import fraction, nonneg_float, positive_float
+from common.errors import UserError
 
 
 def register(sub) -> None:
     """Add the ``run`` group to the `tpods` parser."""
-    from mocap_bridge.zenoh_net import add_zenoh_options
+    from common.zenoh_net import add_zenoh_options
     from tpods.cli import group
 
     g = group(sub, "run", "run a module: play an input on its valves, simulate a module")
@@ -106,8 +106,8 @@ def _clock(args):
 def cmd_play(args: argparse.Namespace) -> int:
     from bench.session import Terminated, parse_duty_steps, sigterm_raises
     from bench.valves import ValveController
+    from common.zenoh_net import open_session
     from estimator.inputs import make_input
-    from mocap_bridge.zenoh_net import open_session
     from tpods.player import cmd_key, play
 
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
@@ -167,7 +167,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
     import numpy as np
 
     from bench.emulators import EmulatedValveController, serve_pty
-    from bench.thrust_table import load_thrust_table
+    from common.thrust_table import load_thrust_table
     from estimator.model import PlantParams
     from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
 
@@ -186,9 +186,9 @@ def cmd_plant(args: argparse.Namespace) -> int:
     session = bridge = source = None
     bridge_thread = None
     if args.mocap == "zenoh":
+        from common.zenoh_net import open_session
         from mocap_bridge.bridge import Bridge
         from mocap_bridge.sources.sim import PushSource
-        from mocap_bridge.zenoh_net import open_session
 
         session = open_session(args)
         source = PushSource("plant")

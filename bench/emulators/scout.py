@@ -2,7 +2,7 @@
 
 The pan reads ``load_g`` (an object on the pan) plus the thrust, in gram-force, of
 the nozzle under test of a linked :class:`EmulatedValveController`: the truth
-:class:`bench.thrust_table.ThrustTable` (default: the paper's Table 2) at that
+:class:`common.thrust_table.ThrustTable` (default: the paper's Table 2) at that
 channel's duty for the number of open valves. The reading follows the truth through
 a first-order lag, with Gaussian noise, a slow linear zero drift, occasional
 unstable readings and occasional garbage lines, all seeded and configurable.
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.emulators.valves import EmulatedValveController
-from bench.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable
 
 UNITS = {1: ("g", 1.0), 2: ("kg", 1e-3), 3: ("ct", 5.0), 4: ("oz", 1 / 28.349523125),
          5: ("lb", 1 / 453.59237)}

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tpods.errors import UserError
+from common.errors import UserError
 
 
 def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",

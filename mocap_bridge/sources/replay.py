@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from common.errors import UserError
+from common.runfolder import POSE_COLUMNS, read_table
 from mocap_bridge.pose import sanitize_chunk
 from mocap_bridge.sources.sim import Frame, Playback, frames_from_planar
-from tpods.errors import UserError
-from tpods.runfolder import POSE_COLUMNS, read_table
 
 SAMPLE_COLUMNS = ("body", "frame", "t", "t_recv", "t_src", "x", "y", "z", "qx", "qy", "qz",
                   "qw", "yaw", "occluded", "t_rx")

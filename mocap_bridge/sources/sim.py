@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import UserError
 from mocap_bridge.pose import PoseSample, yaw_quat
-from tpods.errors import UserError
 
 # one body in one frame: body, x, y, z (m), qx, qy, qz, qw, occluded
 BodyPose = tuple[str, float, float, float, float, float, float, float, bool]
@@ -145,7 +145,7 @@ class SimSource(Playback):
                            config=SimConfig(seed=0 if seed is None else seed))
             name = "sim:phase-sine"
         else:
-            from tpods.runfolder import read_run
+            from common.runfolder import read_run
 
             run = read_run(run_dir)
             truth = run.truth

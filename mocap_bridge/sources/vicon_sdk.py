@@ -40,8 +40,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from common.errors import DeviceError, UserError
 from mocap_bridge.pose import PoseSample, occluded_sample
-from tpods.errors import DeviceError, UserError
 
 BACKENDS = ("auto", "vicon_dssdk", "pyvicon")
 DEFAULT_PORT = 801  # "The function defaults to connecting on port 801" (ViconDataStream.Connect)

@@ -29,8 +29,8 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
+from common.errors import UserError
 from mocap_bridge.pose import PoseSample, euler_xyz_to_quat, occluded_sample
-from tpods.errors import UserError
 
 DEFAULT_PORT = 51001
 BLOCK_SIZES = (256, 512, 1024)

@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
+from common.errors import UserError
+from common.runfolder import read_run
 from estimator.batch import batch_ls, estimate_run, parse_window
 from estimator.crlb import crlb
 from estimator.inputs import phase_sine, translate_rotate
 from estimator.model import PlantParams
 from estimator.sim import SimConfig, simulate, write_sim_run
-from tpods.errors import UserError
-from tpods.runfolder import read_run
 
 
 def _sim(mass, izz, seed, *, duration=30.0, drop=0.0, cmd_rate=50.0, pose_rate=120.0,

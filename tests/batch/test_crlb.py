@@ -28,7 +28,7 @@ def _setup(duration=6.0, cmd_rate=50.0, pose_rate=120.0, input_="sine"):
         cmd_t, duty = phase_sine(duration, cmd_rate)
     else:
         cmd_t, duty = translate_rotate(duration, cmd_rate)
-    from bench.thrust_table import ThrustTable
+    from common.thrust_table import ThrustTable
 
     thrust = ThrustTable.default().thrust_n(duty)
     t = pose_times(0.0, duration, pose_rate)

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from bench.thrust_table import ThrustTable
+from common.errors import UserError
+from common.thrust_table import ThrustTable
 from estimator.controller import (
     InverseTable,
     OrbitFollower,
@@ -16,7 +17,6 @@ from estimator.controller import (
 from estimator.design import DesignSettings, SineInput, evaluate_commands, evaluate_sine, search
 from estimator.inputs import translate_rotate
 from estimator.model import PlantParams
-from tpods.errors import UserError
 
 TABLE = ThrustTable.default()
 

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from bench.ohaus import OhausScout
-from bench.thrust_table import ThrustTable
 from bench.valves import ValveController
+from common.thrust_table import ThrustTable
 from tpods.cli import main
 
 

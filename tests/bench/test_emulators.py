@@ -7,9 +7,9 @@ import pytest
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from bench.ohaus import OhausScout, parse_weight_line
-from bench.thrust_table import ThrustTable
 from bench.valves import ValveController
-from tpods.errors import DeviceError
+from common.errors import DeviceError
+from common.thrust_table import ThrustTable
 
 
 class Clock:

@@ -4,8 +4,8 @@ import pytest
 
 from bench.ohaus import OhausScout
 from bench.valves import ValveController
+from common.errors import DeviceError, UserError
 from tests.bench.fakeport import ScriptedPort
-from tpods.errors import DeviceError, UserError
 
 ID = (b"ID?\n", b"TPODS-VALVES 1.2 4\r\n")
 

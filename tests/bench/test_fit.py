@@ -12,8 +12,8 @@ from bench.fit import (
     max_error_pct_full_scale,
     select_order,
 )
-from bench.thrust_table import ThrustTable
-from tpods.errors import UserError
+from common.errors import UserError
+from common.thrust_table import ThrustTable
 
 D = np.arange(10.0, 91.0, 10.0)
 TABLE = ThrustTable.default()

@@ -12,11 +12,11 @@ from bench.emulators import EmulatedScout, serve_pty
 from bench.fit import fit_steps
 from bench.ohaus import OhausScout, parse_weight_line
 from bench.session import SessionConfig, read_session, run_session
-from bench.thrust_table import ThrustTable
 from bench.valves import ValveController
+from common.errors import DeviceError, UserError
+from common.thrust_table import ThrustTable
 from tests.bench.conftest import Bench, run_json
 from tests.bench.fakeport import ScriptedPort
-from tpods.errors import DeviceError, UserError
 
 IP = b"IP\r\n"
 

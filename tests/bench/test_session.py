@@ -11,10 +11,10 @@ import pytest
 from bench.fit import max_error_pct_full_scale
 from bench.ohaus import OhausScout
 from bench.session import SessionConfig, plan_steps, read_session, run_session, summarize_steps
-from bench.thrust_table import ThrustTable
 from bench.valves import ValveController
+from common.errors import DeviceError, UserError
+from common.thrust_table import ThrustTable
 from tests.bench.conftest import Bench, recorded, run_json
-from tpods.errors import DeviceError, UserError
 
 
 def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp_path):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from calibration.bifilar import Pendulum, simulate_trace
+from common.runfolder import write_run
 from tpods.cli import main
-from tpods.runfolder import write_run
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "calibration" / "examples" / "truss_two_modules.toml"
 

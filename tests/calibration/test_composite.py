@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration.composite import Part, combine, load_parts
-from tpods.errors import UserError
+from common.errors import UserError
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "calibration" / "examples" / "truss_two_modules.toml"
 

@@ -12,7 +12,7 @@ from calibration.bifilar import (
     period_eq19,
     period_from_times,
 )
-from tpods.errors import UserError
+from common.errors import UserError
 
 
 def test_eq19_hand_values():

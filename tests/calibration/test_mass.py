@@ -11,7 +11,7 @@ from calibration.mass import (
     take_readings,
     to_kg,
 )
-from tpods.errors import DeviceError, UserError
+from common.errors import DeviceError, UserError
 
 
 def test_gum_budget_by_hand():

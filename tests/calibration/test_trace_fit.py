@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibration.bifilar import Pendulum, fit_swing_trace, simulate_trace, swing_and_estimate
-from tpods.errors import UserError
+from common.errors import UserError
 
 # (mass kg, Izz kg m^2, D m, h m, c1 1/s, c2 1/rad): a lone module (D/h 0.1), the nominal
 # module on short strings (D/h 0.133), a truss on a wide suspension (D/h 0.2)

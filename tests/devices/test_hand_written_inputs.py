@@ -13,9 +13,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from bench.thrust_table import ThrustTable
-from tpods.errors import UserError
-from tpods.runfolder import read_run
+from common.errors import UserError
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
 
 TIDY_COMMANDS = b"t,d1,d2,d3,d4\n0,50,50,0,0\n1,20,0,20,0\n2,0,0,0,0\n"
 TIDY_POSES = b"t,x,y,psi\n0,0,0,0\n0.5,0.01,-0.02,0.1\n1,0.04,-0.05,0.3\n2,0.1,-0.1,3.1\n"
@@ -102,7 +102,7 @@ def test_trailing_values_without_a_header_do_not_shift_the_columns(tmp_path):
 
 
 def test_excel_style_copy_of_a_simulated_run_reads_the_same(tmp_path):
-    from tpods.runfolder import write_run
+    from common.runfolder import write_run
 
     t = np.array([0.0, 0.7, 1.9, 3.0])
     duty = np.array([[50, 50, 0, 0], [20, 0, 20, 0], [33.25, 10, 90, 0], [0, 0, 0, 0]])

@@ -257,10 +257,10 @@ def test_ls_ekf_names_the_parameter_its_window_cannot_determine():
     """LS window without torque (translate-then-rotate, first 6 s): Izz has an infinite
     variance. ls-ekf refused with 'non-physical start (mass or Izz <= 0)', which was not the
     reason (found by a parameter sweep)."""
+    from common.errors import UserError
     from estimator.inputs import translate_rotate
     from estimator.model import PlantParams
     from estimator.sim import SimConfig, simulate
-    from tpods.errors import UserError
 
     cmd_t, duty = translate_rotate(6.0, 50.0)
     sim = simulate(cmd_t, duty, PlantParams(1.5, 6e-3), config=SimConfig(seed=3))

@@ -3,7 +3,7 @@ import subprocess
 
 import numpy as np
 
-from tpods.runfolder import read_run
+from common.runfolder import read_run
 
 
 def run(exe, *args, cwd=None):

@@ -3,8 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from tpods.errors import UserError
-from tpods.runfolder import read_run, write_run
+from common.errors import UserError
+from common.runfolder import read_run, write_run
 
 
 def _good(tmp_path):

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bench.thrust_table import ThrustTable
+from common.errors import UserError
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
 from estimator.inputs import make_input, phase_sine, translate_rotate
 from estimator.model import PlantParams, dynamics, wrap_angle
 from estimator.sim import SimConfig, simulate, write_sim_run
-from tpods.errors import UserError
-from tpods.runfolder import read_run
 
 
 def _reference(cmd_t, thrust, t_out, p: PlantParams):

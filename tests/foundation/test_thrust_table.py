@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from bench.thrust_table import GF_TO_N, ThrustTable, load_thrust_table
-from tpods.errors import UserError
+from common.errors import UserError
+from common.thrust_table import GF_TO_N, ThrustTable, load_thrust_table
 
 
 def test_table2_values():

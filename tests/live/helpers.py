@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from contextlib import contextmanager
 
-from bench.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable
+from common.zenoh_net import open_session
 from estimator.model import PlantParams
-from mocap_bridge.zenoh_net import open_session
 from tests.mocap.conftest import free_port, matching, wait_for
 from tpods.clock import LabClock
 from tpods.plant_loop import SimulatedModule

@@ -6,8 +6,8 @@ import time
 
 import pytest
 
+from common.errors import UserError
 from tpods.clock import LabClock
-from tpods.errors import UserError
 
 
 def test_scaled_clock_is_consistent_and_invertible():

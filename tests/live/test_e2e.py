@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
+from common.runfolder import read_run
 from tests.live.helpers import TRUTH, run_lab_procs, switch_lag_ms
 from tpods.cli import main
-from tpods.runfolder import read_run
 
 MAX_LAG_MS = 1.0
 """Mean valve-switch lag (lab ms) above which the emulated lab is not a valid test."""

@@ -17,11 +17,11 @@ import pandas as pd
 import pytest
 
 from bench.emulators import EmulatedValveController, serve_pty
-from bench.thrust_table import ThrustTable
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
 from tests.live.helpers import TRUTH
 from tests.mocap.conftest import free_port, wait_for
 from tpods.plant_loop import PlantLoop, udp_sink
-from tpods.runfolder import read_run
 
 ZARGS = ["--no-multicast"]
 

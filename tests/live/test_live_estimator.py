@@ -10,14 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.thrust_table import ThrustTable
+from common.errors import UserError
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
 from estimator.ekf import PAPER, estimate_filter
 from estimator.inputs import phase_sine
 from estimator.live import LiveConfig, LiveEstimator, LiveRecorder, decode_estimate
 from estimator.model import PlantParams
 from estimator.sim import SimConfig, simulate
-from tpods.errors import UserError
-from tpods.runfolder import read_run
 
 T0 = 1.763e9
 TABLE = ThrustTable.default()

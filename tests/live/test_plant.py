@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from bench.emulators import EmulatedValveController
-from bench.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable
 from estimator.model import PlantParams, integrate_zoh
 from mocap_bridge.sources.vicon_udp import parse_datagram
 from tests.mocap.conftest import free_port

@@ -12,9 +12,9 @@ import pytest
 
 from bench.emulators import EmulatedValveController, serve_pty
 from bench.valves import ValveController
+from common.errors import UserError
 from estimator.inputs import phase_sine
 from tpods.clock import LabClock
-from tpods.errors import UserError
 from tpods.player import decode_command, encode_command, play
 
 

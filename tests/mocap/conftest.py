@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from mocap_bridge.zenoh_net import open_session
+from common.zenoh_net import open_session
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:

@@ -1,7 +1,7 @@
 """Replay, simulation and push sources; the recorder; record-then-replay round trip.
 
 "Unchanged" means: every line of the recorded ``<body>/poses.csv`` has the same text as
-the original ``poses.csv`` written by ``tpods.runfolder.write_run`` (12 significant
+the original ``poses.csv`` written by ``common.runfolder.write_run`` (12 significant
 digits) for t, x and y, and for psi whenever the written psi lies inside (-pi, pi]; a
 psi outside (unwrapped, or pi rounded up to 3.14159265359 by the 12-digit format) comes
 back as the same angle wrapped to (-pi, pi] (the payload carries wrapped yaw; the
@@ -18,6 +18,8 @@ import time
 import numpy as np
 import pytest
 
+from common.errors import UserError
+from common.runfolder import write_run
 from estimator.inputs import phase_sine
 from estimator.model import PlantParams, wrap_angle
 from estimator.sim import SimConfig, simulate, write_sim_run
@@ -27,8 +29,6 @@ from mocap_bridge.recorder import Recorder, subscribe
 from mocap_bridge.sources.replay import ReplaySource
 from mocap_bridge.sources.sim import PushSource, SimSource
 from tests.mocap.conftest import RunningBridge, matching, wait_for
-from tpods.errors import UserError
-from tpods.runfolder import write_run
 
 
 def _odd_run(path, n=400, seed=5):

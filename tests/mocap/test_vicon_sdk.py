@@ -13,12 +13,12 @@ import types
 import numpy as np
 import pytest
 
+from common.errors import DeviceError, UserError
 from mocap_bridge.bridge import Bridge
 from mocap_bridge.pose import decode_pose
 from mocap_bridge.sources import open_source
 from mocap_bridge.sources.vicon_sdk import ViconSDKSource
 from tests.mocap.conftest import Collector, subscribe_ready, wait_for
-from tpods.errors import DeviceError, UserError
 
 
 class SDKError(Exception):

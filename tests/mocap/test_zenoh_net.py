@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from mocap_bridge.zenoh_net import add_zenoh_options, build_config, open_session
+from common.errors import UserError
+from common.zenoh_net import add_zenoh_options, build_config, open_session
 from tests.mocap.conftest import Collector, free_port, subscribe_ready, wait_for
-from tpods.errors import UserError
 
 
 def _parse(argv):
@@ -96,7 +96,7 @@ def test_default_sessions_find_each_other_without_multicast(monkeypatch):
 
 _RX_PROBE = """
 import os, time
-from mocap_bridge.zenoh_net import open_session
+from common.zenoh_net import open_session
 ep = "tcp/127.0.0.1:%d"
 a = open_session(listen=[ep], no_multicast=True)
 b = open_session(connect=[ep], no_multicast=True)

@@ -5,9 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from common.errors import UserError
 from estimator.model_select import decide, diagnose, ljung_box
 from estimator.models import MODELS, fixed_for, model_of, names_for, resolve_names
-from tpods.errors import UserError
 
 
 def test_model_names_are_nested_and_mapped():

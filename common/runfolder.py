@@ -1,0 +1,243 @@
+"""Run folders: the on-disk contract between recorders, simulators and estimators.
+
+A run is a folder holding (see docs/run-format.md):
+
+- ``commands.csv``  ``t,d1,d2,d3,d4``: duty percent per thruster, zero-order hold;
+  the last row marks the end of the commanded span.
+- ``thrusts.csv``   optional ``t,T1,T2,T3,T4`` in newtons, same hold rule; used
+  instead of commands.csv + thrust table when present.
+- ``poses.csv``     ``t,x,y,psi``: metres and radians, lab frame; psi may be wrapped.
+- ``run.json``      optional metadata (truth for simulated runs).
+
+Readers validate and refuse bad input with one :class:`UserError` line naming the
+file and the row.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from common.errors import UserError
+
+COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
+THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
+POSE_COLUMNS = ("t", "x", "y", "psi")
+
+
+@dataclass
+class Run:
+    """A loaded run folder (arrays in SI units).
+
+    Attributes:
+        path: the folder.
+        cmd_t: (Nc,) command switch times, s.
+        duty_pct: (Nc, 4) duty per thruster, percent, or None if only thrusts.csv exists.
+        thrust_n: (Nc', 4) thrusts, N, from thrusts.csv, or None.
+        thrust_t: (Nc',) times of thrust_n rows, or None.
+        pose_t: (N,) pose times, s.
+        pose: (N, 3) x (m), y (m), psi (rad, as recorded: may be wrapped).
+        meta: run.json contents ({} when absent).
+    """
+
+    path: Path
+    cmd_t: np.ndarray
+    duty_pct: np.ndarray | None
+    pose_t: np.ndarray
+    pose: np.ndarray
+    thrust_t: np.ndarray | None = None
+    thrust_n: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def truth(self) -> dict[str, Any] | None:
+        """The simulator's truth block from run.json, if any."""
+        return self.meta.get("truth")
+
+    def thrust_profile(self, table=None, clamp: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Switch times (Nc,) and thrusts (Nc, 4) in newtons.
+
+        thrusts.csv wins when present; otherwise commands.csv is mapped through
+        ``table`` (default: the paper's Table 2).
+        """
+        if self.thrust_n is not None:
+            return self.thrust_t, self.thrust_n
+        from common.thrust_table import load_thrust_table
+
+        table = table if table is not None else load_thrust_table(None)
+        try:
+            return self.cmd_t, table.thrust_n(self.duty_pct, clamp=clamp)
+        except UserError as exc:
+            raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
+
+    def window(self, t0: float | None, t1: float | None) -> Run:
+        """A copy restricted to poses in [t0, t1] (commands are kept whole)."""
+        lo = -math.inf if t0 is None else t0
+        hi = math.inf if t1 is None else t1
+        keep = (self.pose_t >= lo) & (self.pose_t <= hi)
+        if keep.sum() < 2:
+            raise UserError(f"{self.path}: window {t0}:{t1} holds fewer than 2 poses")
+        return Run(self.path, self.cmd_t, self.duty_pct, self.pose_t[keep], self.pose[keep],
+                   self.thrust_t, self.thrust_n, self.meta)
+
+
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+_LINE_END = re.compile(r"\r\n|\r|\n")
+
+
+def read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
+    """Read a numeric CSV with exactly-named columns; refuse bad content by row (see read_table_lines)."""
+    return read_table_lines(path, columns)[0]
+
+
+def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Read a numeric CSV with exactly-named columns; the values and each row's file line.
+
+    Reads what spreadsheets and editors write: a UTF-8 byte order mark, CRLF or CR line
+    ends, blank lines and lines of empty cells (skipped), spaces around values, quoted
+    headers, columns in any order, extra columns (ignored, whatever their encoding) and
+    a trailing comma on data rows. Error messages name the file line (header = line 1
+    unless blank lines precede it).
+    """
+    if not path.is_file():
+        raise UserError(f"{path}: file not found")
+    data = path.read_bytes()
+    if data.startswith(_UTF16_BOMS):
+        raise UserError(f"{path}: UTF-16 text (Excel's 'Unicode Text'); save it as 'CSV UTF-8' or plain CSV")
+    # Bytes that are not UTF-8 (Excel's plain 'CSV' is in the Windows code page) can only
+    # matter in extra columns: a replaced character in a required cell is refused below.
+    text = data.decode("utf-8-sig", errors="replace")
+    lines = _LINE_END.split(text)
+    blank = [not ln.replace(",", "").replace('"', "").strip() for ln in lines]
+    if all(blank):
+        raise UserError(f"{path}: file is empty")
+    header_idx = blank.index(False)
+    try:
+        # One DataFrame row per physical line after the header (blank lines kept, dropped
+        # below), so row i is file line header_idx + 2 + i. index_col=False: pandas would
+        # otherwise take the first column as the index when rows end with a comma.
+        with warnings.catch_warnings():  # values beyond the header's columns: ignored like extra columns
+            warnings.simplefilter("ignore", pd.errors.ParserWarning)
+            df = pd.read_csv(io.StringIO(text), skipinitialspace=True, skip_blank_lines=False,
+                             header=header_idx, index_col=False, keep_default_na=False, na_values=[""])
+    except pd.errors.EmptyDataError:
+        raise UserError(f"{path}: file is empty") from None
+    except pd.errors.ParserError as exc:
+        raise UserError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        hint = ""
+        head = lines[header_idx]
+        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+            if sep in head and "," not in head:
+                hint = f"; the header is separated by {name}, the format uses commas"
+        raise UserError(f"{path}: missing column(s) {', '.join(missing)} "
+                        f"(header must hold {','.join(columns)}{hint})")
+    line_no = np.arange(len(df)) + header_idx + 2
+    keep = ~df.isna().all(axis=1).to_numpy()
+    df, line_no = df[keep], line_no[keep]
+    if len(df) == 0:
+        raise UserError(f"{path}: no data rows")
+    sub = df[list(columns)]
+    values = sub.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raw = sub.iloc[row, col]
+        shown = "empty cell" if isinstance(raw, float) and math.isnan(raw) else repr(raw)
+        raise UserError(f"{path}: line {line_no[row]}: column {columns[col]} is not a finite number ({shown})")
+    t = values[:, 0]
+    nonincr = np.nonzero(np.diff(t) <= 0)[0]
+    if nonincr.size:
+        i = nonincr[0] + 1
+        raise UserError(f"{path}: line {line_no[i]}: time {t[i]:g} does not increase (previous {t[i - 1]:g})")
+    return values, line_no
+
+
+def read_run(path: str | Path) -> Run:
+    """Load and validate a run folder."""
+    path = Path(path)
+    if not path.is_dir():
+        raise UserError(f"{path}: run folder not found")
+    thrust_file = path / "thrusts.csv"
+    cmd_file = path / "commands.csv"
+    thrust_t = thrust_n = None
+    duty = None
+    if thrust_file.exists():
+        tv, tlines = read_table_lines(thrust_file, THRUST_COLUMNS)
+        thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
+        if np.any(thrust_n < 0):
+            row = int(np.argwhere(thrust_n < 0)[0][0])
+            raise UserError(f"{thrust_file}: line {tlines[row]}: negative thrust")
+    if cmd_file.exists() or thrust_t is None:
+        cv, clines = read_table_lines(cmd_file, COMMAND_COLUMNS)
+        cmd_t, duty = cv[:, 0], cv[:, 1:]
+        bad = (duty < 0) | (duty > 100)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise UserError(f"{cmd_file}: line {clines[row]}: duty outside 0..100 %")
+    else:
+        cmd_t = thrust_t
+    pv, plines = read_table_lines(path / "poses.csv", POSE_COLUMNS)
+    pose_t, pose = pv[:, 0], pv[:, 1:]
+    span_t = thrust_t if thrust_t is not None else cmd_t
+    span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"
+    outside = (pose_t < span_t[0]) | (pose_t > span_t[-1])
+    if outside.any():
+        i = int(np.nonzero(outside)[0][0])
+        raise UserError(
+            f"{path / 'poses.csv'}: line {plines[i]}: pose time {pose_t[i]:g} s lies outside the commanded "
+            f"span {span_t[0]:g}..{span_t[-1]:g} s of {span_name}")
+    if len(pose_t) < 2:
+        raise UserError(f"{path / 'poses.csv'}: need at least 2 poses")
+    meta: dict[str, Any] = {}
+    meta_file = path / "run.json"
+    if meta_file.exists():
+        try:
+            meta = json.loads(meta_file.read_text(encoding="utf-8-sig"))  # Notepad may add a BOM
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise UserError(f"{meta_file}: not valid JSON ({exc})") from None
+        if not isinstance(meta, dict):
+            raise UserError(f"{meta_file}: must hold a JSON object")
+    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta)
+
+
+def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.ndarray) -> None:
+    data = np.column_stack([np.asarray(t, float), np.asarray(values, float)])
+    header = ",".join(columns)
+    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
+
+
+def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thrust_t=None,
+              thrust_n=None, meta: dict[str, Any] | None = None) -> Path:
+    """Write a run folder (creating it). Returns the folder path."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    if duty_pct is not None:
+        _write_csv(path / "commands.csv", COMMAND_COLUMNS, cmd_t, duty_pct)
+    if thrust_n is not None:
+        _write_csv(path / "thrusts.csv", THRUST_COLUMNS, thrust_t, thrust_n)
+    _write_csv(path / "poses.csv", POSE_COLUMNS, pose_t, pose)
+    if meta is not None:
+        (path / "run.json").write_text(json.dumps(meta, indent=2, default=_json_default) + "\n")
+    return path
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -1,0 +1,210 @@
+"""Thrust tables: per-nozzle thrust as a polynomial in PWM duty, one per nozzle count.
+
+Thrust of one nozzle falls as more nozzles fire at once (shared air supply), so a
+table holds one polynomial for each number ``k`` of simultaneously open valves.
+The thrust of channel ``i`` is ``poly_k(D_i)`` with ``k`` the number of channels
+with ``D > 0``; ``D == 0`` means closed and gives exactly 0 N.
+
+The TOML format (see docs/run-format.md) is::
+
+    unit = "gf"                 # or "N"
+    duty_range = [10.0, 90.0]   # valid duty, percent
+    pressure_psi = 60.0
+    [nozzles.1]
+    coefficients = [a0, a1, a2, a3]   # ascending powers of D (percent)
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.errors import UserError
+
+GF_TO_N = 9.80665e-3
+"""One gram-force in newtons."""
+
+_UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
+
+
+@dataclass(frozen=True)
+class ThrustTable:
+    """Per-nozzle thrust polynomials indexed by the number of open nozzles.
+
+    Attributes:
+        coefficients: ``{k: (a0, a1, ...)}`` ascending powers of duty in percent,
+            giving thrust in ``unit``.
+        unit: ``"gf"`` or ``"N"``.
+        duty_range: ``(low, high)`` valid duty in percent for an open valve.
+        pressure_psi: accumulator pressure the table was measured at (or None).
+        extra: any other top-level keys from the file (fit statistics, source).
+    """
+
+    coefficients: Mapping[int, tuple[float, ...]]
+    unit: str = "gf"
+    duty_range: tuple[float, float] = (10.0, 90.0)
+    pressure_psi: float | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.unit not in _UNIT_TO_N:
+            raise UserError(f"thrust table unit must be 'gf' or 'N', not {self.unit!r}")
+        lo, hi = self.duty_range
+        if not (0.0 <= lo < hi <= 100.0):
+            raise UserError(f"thrust table duty_range must satisfy 0 <= low < high <= 100, got {self.duty_range}")
+        if not self.coefficients:
+            raise UserError("thrust table has no [nozzles.k] entries")
+        for k, c in self.coefficients.items():
+            if not isinstance(k, int) or k < 1:
+                raise UserError(f"thrust table nozzle count must be a positive integer, got {k!r}")
+            if len(c) < 1 or not np.all(np.isfinite(c)):
+                raise UserError(f"thrust table [nozzles.{k}] coefficients must be finite numbers")
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "thrust table") -> ThrustTable:
+        """A table from parsed TOML; UserError naming ``source`` on any problem.
+
+        Integers and floats are both numbers (``duty_range = [10, 90]`` is fine); a
+        boolean is not. ``unit`` is required: thrust in N read as gf is 100x off.
+        """
+        def num(x: Any) -> float:
+            if isinstance(x, bool):
+                raise TypeError(f"{x!r} is not a number")
+            return float(x)
+
+        try:
+            nozzles = data["nozzles"]
+            if not isinstance(nozzles, Mapping):
+                raise TypeError("nozzles must be tables [nozzles.1], [nozzles.2], ...")
+            coeffs = {int(k): tuple(num(a) for a in v["coefficients"]) for k, v in nozzles.items()}
+            unit = str(data.get("unit", "gf"))
+            lo, hi = (num(x) for x in data.get("duty_range", (10.0, 90.0)))
+            p = data.get("pressure_psi")
+            p = None if p is None else num(p)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise UserError(f"{source}: malformed thrust table ({exc.__class__.__name__}: {exc})") from None
+        known = {"nozzles", "unit", "duty_range", "pressure_psi"}
+        extra = {k: v for k, v in data.items() if k not in known}
+        try:
+            table = cls(coeffs, unit, (lo, hi), p, extra)
+        except UserError as exc:
+            raise UserError(f"{source}: {exc}") from None
+        if "unit" not in data:
+            raise UserError(f'{source}: no unit: add unit = "gf" (gram-force) or unit = "N"')
+        return table
+
+    @classmethod
+    def load(cls, path: str | Path) -> ThrustTable:
+        """Read a TOML thrust table; raise UserError with the file name on any problem.
+
+        A UTF-8 byte order mark (Windows Notepad, PowerShell) is skipped; CRLF line ends
+        are TOML.
+        """
+        path = Path(path)
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            raise UserError(f"{path}: thrust table not found") from None
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read the thrust table ({exc.strerror or exc})") from None
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            raise UserError(f"{path}: UTF-16 text; TOML must be UTF-8 (save it as UTF-8)")
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = raw[:exc.start].count(b"\n") + 1
+            raise UserError(f"{path}: line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 "
+                            f"(TOML must be UTF-8; save it as UTF-8)") from None
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise UserError(f"{path}: not valid TOML ({exc})") from None
+        return cls.from_dict(data, str(path))
+
+    @classmethod
+    def default(cls) -> ThrustTable:
+        """The paper's Table 2 (60 psi), shipped with the package."""
+        text = resources.files("common").joinpath("data/table2_60psi.toml").read_text()
+        return cls.from_dict(tomllib.loads(text), "built-in Table 2")
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "unit": self.unit,
+            "duty_range": [float(self.duty_range[0]), float(self.duty_range[1])],
+        }
+        if self.pressure_psi is not None:
+            out["pressure_psi"] = float(self.pressure_psi)
+        out.update(self.extra)
+        out["nozzles"] = {str(k): {"coefficients": [float(a) for a in self.coefficients[k]]}
+                          for k in sorted(self.coefficients)}
+        return out
+
+    def save(self, path: str | Path) -> None:
+        import tomli_w
+
+        Path(path).write_text(tomli_w.dumps(self.to_dict()))
+
+    # ---------------------------------------------------------- evaluation
+    @property
+    def max_nozzles(self) -> int:
+        return max(self.coefficients)
+
+    def per_nozzle(self, duty_pct: np.ndarray | float, k: int) -> np.ndarray:
+        """Thrust of one nozzle in the table's unit at ``duty_pct`` with ``k`` nozzles open.
+
+        No range check: this is the raw polynomial (for plots and fits).
+        """
+        if k not in self.coefficients:
+            raise UserError(f"thrust table has no entry for {k} open nozzle(s)")
+        c = np.asarray(self.coefficients[k], dtype=float)
+        return np.polynomial.polynomial.polyval(np.asarray(duty_pct, dtype=float), c)
+
+    def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
+        """Per-channel thrust in newtons for duty rows.
+
+        Args:
+            duty_pct: shape ``(..., n_channels)``, duty in percent; 0 = closed.
+            clamp: if True, open duties outside ``duty_range`` are clamped into it;
+                otherwise they raise UserError.
+
+        Returns:
+            Array of the same shape, newtons; closed channels give exactly 0.
+            A negative polynomial value (below the valve's opening threshold) is
+            returned as 0 N: a nozzle cannot pull.
+        """
+        d = np.asarray(duty_pct, dtype=float)
+        if d.ndim == 0:
+            raise UserError("duty must be given per channel")
+        if not np.all(np.isfinite(d)):
+            raise UserError("duty contains NaN or infinity")
+        if np.any(d < 0) or np.any(d > 100):
+            raise UserError(f"duty must lie in 0..100 %, got {d[(d < 0) | (d > 100)].ravel()[0]:g}")
+        is_open = d > 0
+        lo, hi = self.duty_range
+        bad = is_open & ((d < lo) | (d > hi))
+        if np.any(bad):
+            if not clamp:
+                raise UserError(
+                    f"duty {d[bad].ravel()[0]:g} % is outside the thrust table's valid range "
+                    f"{lo:g}-{hi:g} % (use the clamp option to saturate)")
+            d = np.where(is_open, np.clip(d, lo, hi), 0.0)
+        k = is_open.sum(axis=-1)
+        out = np.zeros_like(d)
+        for kk in np.unique(k):
+            if kk == 0:
+                continue
+            rows = k == kk
+            out[rows] = np.where(is_open[rows], self.per_nozzle(d[rows], int(kk)), 0.0)
+        return np.maximum(out, 0.0) * _UNIT_TO_N[self.unit]
+
+
+def load_thrust_table(path: str | Path | None) -> ThrustTable:
+    """The table at ``path``, or the paper's Table 2 when ``path`` is None."""
+    return ThrustTable.default() if path is None else ThrustTable.load(path)
