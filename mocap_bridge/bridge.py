@@ -13,7 +13,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from mocap_bridge.pose import ENCODING, AxisMap, PoseSample, encode_pose, pose_key
+from common.wire import ENCODING, encode_pose, pose_key
+from mocap_bridge.pose import AxisMap, PoseSample
 from mocap_bridge.stats import BodyStats, BridgeStats, encode_stats
 
 DEFAULT_PREFIX = "tpods/mocap"

@@ -1,38 +1,28 @@
-"""Pose samples, the Zenoh payload schema, Euler/quaternion/yaw maths and axis mapping.
+"""Pose samples, Euler/quaternion/yaw maths and axis mapping.
 
 Pure functions, no I/O. A :class:`PoseSample` is what every source yields; the bridge
 maps it to the table frame (:class:`AxisMap`), computes the planar yaw and encodes it
 with :func:`encode_pose`. Consumers (recorder, live estimator) decode with
-:func:`decode_pose`.
-
-Payload (JSON, Zenoh encoding ``application/json``), schema ``tpods.pose/1``::
-
-    {"schema": "tpods.pose/1", "body": "tpods1", "frame": 1234,
-     "t": 1763770000.123,      # capture time, s, host clock (time.time()): t_recv - latency
-     "t_recv": 1763770000.125, # host time the bridge received the frame, s
-     "x": 0.1, "y": -0.2, "z": 0.01,          # metres, table frame (z along the normal)
-     "qx": 0, "qy": 0, "qz": 0.38, "qw": 0.92, # orientation, table frame, unit quaternion
-     "yaw": 0.78,              # rad, about the table normal, wrapped to (-pi, pi]
-     "occluded": false,
-     "t_src": 12.5}            # optional: time on the source's own timeline (replay, sim), s
-
-An occluded body has ``"occluded": true`` and ``null`` for x, y, z, qx, qy, qz, qw, yaw
-(never fake zeros).
+:func:`decode_pose`. The payload format (schema ``tpods.pose/1``) lives in
+:mod:`common.wire`; its names are re-exported here as the bridge's public API.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import re
 from dataclasses import dataclass
-from functools import lru_cache
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
-SCHEMA = "tpods.pose/1"
-STATS_SCHEMA = "tpods.mocap-stats/1"
-ENCODING = "application/json"
-POSE_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw", "yaw")
+from common.wire import (  # noqa: F401  (re-exported: the bridge's payload API)
+    ENCODING,
+    POSE_FIELDS,
+    SCHEMA,
+    STATS_SCHEMA,
+    decode_pose,
+    encode_pose,
+    pose_key,
+    sanitize_chunk,
+)
 
 
 class PoseSample(NamedTuple):
@@ -172,108 +162,3 @@ class AxisMap:
         if self.yaw_offset_rad:
             yaw = wrap_pi(yaw + self.yaw_offset_rad)
         return (x, y, z, q[0], q[1], q[2], q[3], yaw)
-
-
-# ------------------------------------------------------------------ keys
-
-_KEY_BAD = re.compile(r"[^A-Za-z0-9_.\-]")
-
-
-def sanitize_chunk(name: str) -> str:
-    """A body name as one valid Zenoh key chunk (and file name): ``[A-Za-z0-9_.-]+``."""
-    s = _KEY_BAD.sub("_", name.strip())
-    if not s or set(s) <= {"."}:
-        s = "_" + s
-    return s
-
-
-def pose_key(prefix: str, body: str) -> str:
-    """``<prefix>/<body>/pose`` with the body name sanitised."""
-    return f"{prefix.rstrip('/')}/{sanitize_chunk(body)}/pose"
-
-
-# ------------------------------------------------------------------ payload
-
-
-_HEAD = '{"schema":"' + SCHEMA + '","body":%s,"frame":%d,"t":%r,"t_recv":%r,'
-_FMT_POSE = _HEAD + ('"x":%.17g,"y":%.17g,"z":%.17g,"qx":%.17g,"qy":%.17g,"qz":%.17g,"qw":%.17g,'
-                     '"yaw":%.17g,"occluded":false')
-_FMT_OCC = _HEAD + ('"x":null,"y":null,"z":null,"qx":null,"qy":null,"qz":null,"qw":null,'
-                    '"yaw":null,"occluded":true')
-
-
-@lru_cache(maxsize=4096)
-def _json_str(s: str) -> str:
-    return json.dumps(s)
-
-
-def encode_pose(body: str, frame: int, t: float, t_recv: float,
-                pose: tuple[float, ...] | None, t_src: float | None = None) -> bytes:
-    """Encode one pose payload (schema ``tpods.pose/1``).
-
-    Every value keeps full double precision (17 significant digits), so a decoded
-    payload holds exactly the floats that were encoded.
-
-    Args:
-        pose: table-frame ``(x, y, z, qx, qy, qz, qw, yaw)`` (m, unit quaternion, rad),
-            or None when the body is occluded. Any non-finite value makes it occluded.
-    """
-    head = (_json_str(body), frame, float(t), float(t_recv))
-    if pose is not None and math.isfinite(sum(pose)):
-        text = _FMT_POSE % (head + tuple(pose))
-    else:
-        text = _FMT_OCC % head
-    if t_src is not None:
-        text += ',"t_src":%r' % float(t_src)  # noqa: UP031 (one format family, fast path)
-    return (text + "}").encode()
-
-
-def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def decode_pose(payload: bytes | bytearray | memoryview | str,
-                counters: dict[str, int] | None = None) -> dict[str, Any] | None:
-    """Decode and validate a pose payload; None for anything malformed.
-
-    When ``counters`` is given, ``counters['malformed']`` is incremented for a bad
-    payload and ``counters['other_schema']`` for valid JSON of another schema (e.g.
-    the stats messages on ``tpods/mocap/stats``), which also return None.
-    """
-    def bad(kind: str = "malformed") -> None:
-        if counters is not None:
-            counters[kind] = counters.get(kind, 0) + 1
-        return None
-
-    try:
-        d = json.loads(bytes(payload) if not isinstance(payload, str) else payload)
-    except (ValueError, UnicodeDecodeError):
-        return bad()
-    if not isinstance(d, dict):
-        return bad()
-    schema = d.get("schema")
-    if schema != SCHEMA:
-        return bad("other_schema" if isinstance(schema, str) and not schema.startswith("tpods.pose/")
-                   else "malformed")
-    occ = d.get("occluded")
-    frame = d.get("frame")
-    if (not isinstance(d.get("body"), str) or not isinstance(occ, bool)
-            or not isinstance(frame, int) or isinstance(frame, bool)
-            or not _is_num(d.get("t")) or not _is_num(d.get("t_recv"))):
-        return bad()
-    if d.get("t_src") is not None and not _is_num(d["t_src"]):
-        return bad()
-    if occ:
-        for k in POSE_FIELDS:
-            d[k] = None
-    else:
-        if not all(_is_num(d.get(k)) for k in POSE_FIELDS):
-            return bad()
-        if not -math.pi - 1e-9 <= d["yaw"] <= math.pi + 1e-9:
-            return bad()
-        for k in POSE_FIELDS:
-            d[k] = float(d[k])
-    d["t"] = float(d["t"])
-    d["t_recv"] = float(d["t_recv"])
-    d.setdefault("t_src", None)
-    return d

@@ -24,7 +24,7 @@ from typing import IO, Any
 
 import tpods
 from common.errors import UserError
-from mocap_bridge.pose import decode_pose, sanitize_chunk
+from common.wire import decode_pose, sanitize_chunk
 from mocap_bridge.sources.replay import SAMPLE_COLUMNS
 
 

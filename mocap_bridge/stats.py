@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from mocap_bridge.pose import STATS_SCHEMA
+from common.wire import STATS_SCHEMA
 
 
 @dataclass

@@ -190,11 +190,11 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
     from tqdm import tqdm
 
     from common.thrust_table import ThrustTable
+    from common.wire import cmd_key
     from common.zenoh_net import open_session
     from estimator.model import PlantParams
     from tpods.clock import LabClock
     from tpods.plant_loop import MocapNoise, SimulatedModule
-    from tpods.player import cmd_key
 
     d = out / "run"
     d.mkdir(parents=True, exist_ok=True)

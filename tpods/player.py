@@ -36,57 +36,15 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.wire import (  # noqa: F401  (re-exported: the player's command API)
+    CMD_KINDS,
+    CMD_SCHEMA,
+    DEFAULT_PREFIX,
+    cmd_key,
+    decode_command,
+    encode_command,
+)
 from tpods.clock import LabClock
-
-CMD_SCHEMA = "tpods.cmd/1"
-CMD_KINDS = ("set", "hold", "end")
-DEFAULT_PREFIX = "tpods"
-
-
-def cmd_key(body: str, prefix: str = DEFAULT_PREFIX) -> str:
-    """``<prefix>/<body>/cmd`` with the body name sanitised into one key chunk."""
-    from mocap_bridge.pose import sanitize_chunk
-
-    return f"{prefix.strip('/')}/{sanitize_chunk(body)}/cmd"
-
-
-def encode_command(body: str, seq: int, t: float, duty_pct, kind: str = "set") -> bytes:
-    """One command payload (schema ``tpods.cmd/1``); duties in percent, ``t`` lab seconds."""
-    d = ",".join(repr(float(x)) for x in duty_pct)
-    return ('{"schema":"%s","body":%s,"seq":%d,"kind":"%s","t":%r,"duty":[%s]}'  # noqa: UP031
-            % (CMD_SCHEMA, json.dumps(body), int(seq), kind, float(t), d)).encode()
-
-
-def decode_command(payload: bytes | bytearray | memoryview | str,
-                   counters: dict[str, int] | None = None, n_channels: int = 4
-                   ) -> dict[str, Any] | None:
-    """Decode and validate a command payload; None (and ``counters['malformed']`` + 1) if bad."""
-    def bad() -> None:
-        if counters is not None:
-            counters["malformed"] = counters.get("malformed", 0) + 1
-        return None
-
-    try:
-        d = json.loads(bytes(payload) if not isinstance(payload, str) else payload)
-    except (ValueError, UnicodeDecodeError):
-        return bad()
-    if not isinstance(d, dict) or d.get("schema") != CMD_SCHEMA:
-        return bad()
-    t, duty, seq, kind = d.get("t"), d.get("duty"), d.get("seq"), d.get("kind", "set")
-    if (not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t)
-            or not isinstance(seq, int) or isinstance(seq, bool) or kind not in CMD_KINDS
-            or not isinstance(duty, list) or len(duty) != n_channels):
-        return bad()
-    try:
-        vals = [float(x) for x in duty]
-    except (TypeError, ValueError):
-        return bad()
-    if any(isinstance(x, bool) for x in duty) or not all(math.isfinite(x) and 0.0 <= x <= 100.0
-                                                        for x in vals):
-        return bad()
-    d["t"] = float(t)
-    d["duty"] = vals
-    return d
 
 
 class CommandLog:
