@@ -268,7 +268,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     """
     from tqdm import tqdm
 
-    import tpods
+    import common
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -276,7 +276,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     meta: dict[str, Any] = {
         "kind": "thrust-characterisation",
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "software": f"tpods {tpods.__version__}",
+        "software": f"tpods {common.__version__}",
         "status": "running",
         "t0_unix": time.time(),
         "config": asdict(config),

@@ -58,9 +58,9 @@ def register(est) -> None:
 def cmd_live(args: argparse.Namespace) -> int:
     import tpods
     from bench.thrust_table import load_thrust_table
+    from common.console import Console as _Console
     from estimator.cli_ekf import _filter_config
     from estimator.live import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
-    from mocap_bridge.cli import _Console
     from mocap_bridge.zenoh_net import open_session
 
     table = load_thrust_table(args.thrust_table)

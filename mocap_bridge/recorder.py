@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import IO, Any
 
-import tpods
+import common
 from common.errors import UserError
 from common.wire import decode_pose, sanitize_chunk
 from mocap_bridge.sources.replay import SAMPLE_COLUMNS
@@ -81,7 +81,7 @@ class Recorder:
 
     def _write_meta(self) -> None:
         meta = {
-            "kind": "mocap-recording", "software": f"tpods {tpods.__version__}",
+            "kind": "mocap-recording", "software": f"tpods {common.__version__}",
             "created": _dt.datetime.fromtimestamp(self.started, _dt.UTC).isoformat(timespec="seconds"),
             "key": self.key, "t0_host_s": self.t0, "bodies": dict(self._names),
             "counters": dict(self.counters),

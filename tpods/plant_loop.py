@@ -7,7 +7,7 @@ thrusts (:func:`estimator.model.integrate_zoh`, split at every switch) with a ch
 truth (mass, Izz, optional friction and tilt; thrust from a *truth* thrust table) and
 emits a pose every ``1 / pose_rate_hz`` lab seconds with mocap-like noise, on the lab
 clock (real time or faster, :class:`tpods.clock.LabClock`). Where the poses go is a
-*sink*: :func:`push_sink` (the bridge's :class:`mocap_bridge.sources.sim.PushSource`,
+*sink*: :func:`push_sink` (the bridge's :class:`mocap_bridge.sources.push.PushSource`,
 published over Zenoh) or :func:`udp_sink` (Vicon Tracker datagrams for a
 ``tpods mocap bridge --source vicon-udp`` process). The true states at the pose times
 and the switch times are kept for the report (:meth:`PlantLoop.truth_arrays`).
@@ -220,7 +220,7 @@ class SimulatedModule:
                  switch_interval_s: float | None = 2e-4) -> None:
         from bench.emulators import EmulatedValveController
         from mocap_bridge.bridge import Bridge
-        from mocap_bridge.sources.sim import PushSource
+        from mocap_bridge.sources.push import PushSource
 
         self.valves = EmulatedValveController(n_channels)
         self.source = PushSource(f"plant:{body}")

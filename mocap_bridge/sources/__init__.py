@@ -11,7 +11,8 @@ Every source is an object with::
 ``batches`` yields lists of :class:`mocap_bridge.pose.PoseSample` (one list per datagram
 or mocap frame) until the source ends or ``stop`` is set; it never blocks longer than
 about 0.2 s without checking ``stop``. Live producers push into
-:class:`mocap_bridge.sources.sim.PushSource`.
+:class:`mocap_bridge.sources.push.PushSource`; the plant simulator's source is
+:class:`tpods.sim_source.SimSource` (it needs the estimator).
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
                 body: str | None = None, latency_s: float = 0.0):
     """Build a source from its command-line spec.
 
-    ``vicon-udp[:PORT]``, ``vicon-sdk:HOST[:PORT]``, ``replay:RUN_DIR``, ``sim[:RUN_DIR]``.
+    ``vicon-udp[:PORT]``, ``vicon-sdk:HOST[:PORT]``, ``replay:RUN_DIR`` (``sim[:RUN_DIR]``
+    is handled by the command line, see :mod:`tpods.sim_source`).
     """
     kind, _, arg = spec.partition(":")
     if kind == "vicon-udp":
@@ -50,10 +52,5 @@ def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
         if not arg:
             raise UserError("--source replay needs a folder, e.g. replay:runs/sim-1")
         return ReplaySource(Path(arg), rate_scale=rate_scale, body=body)
-    if kind == "sim":
-        from mocap_bridge.sources.sim import SimSource
-
-        return SimSource.from_run(Path(arg) if arg else None, rate_scale=rate_scale,
-                                  body=body or "tpods1")
     raise UserError(f"unknown source {spec!r}; use vicon-udp[:PORT], vicon-sdk:HOST, "
-                    "replay:RUN_DIR or sim[:RUN_DIR]")
+                    "replay:RUN_DIR or sim[:RUN_DIR]")  # sim: tpods.sim_source, via the CLI

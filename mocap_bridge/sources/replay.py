@@ -21,7 +21,7 @@ import pandas as pd
 from common.errors import UserError
 from common.runfolder import POSE_COLUMNS, read_table
 from common.wire import sanitize_chunk
-from mocap_bridge.sources.sim import Frame, Playback, frames_from_planar
+from mocap_bridge.sources.playback import Frame, Playback, frames_from_planar
 
 SAMPLE_COLUMNS = ("body", "frame", "t", "t_recv", "t_src", "x", "y", "z", "qx", "qy", "qz",
                   "qw", "yaw", "occluded", "t_rx")

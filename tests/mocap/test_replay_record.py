@@ -26,9 +26,10 @@ from estimator.sim import SimConfig, simulate, write_sim_run
 from mocap_bridge.bridge import Bridge
 from mocap_bridge.pose import decode_pose, encode_pose, yaw_quat
 from mocap_bridge.recorder import Recorder, subscribe
+from mocap_bridge.sources.push import PushSource
 from mocap_bridge.sources.replay import ReplaySource
-from mocap_bridge.sources.sim import PushSource, SimSource
 from tests.mocap.conftest import RunningBridge, matching, wait_for
+from tpods.sim_source import SimSource
 
 
 def _odd_run(path, n=400, seed=5):

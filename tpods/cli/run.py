@@ -188,7 +188,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
     if args.mocap == "zenoh":
         from common.zenoh_net import open_session
         from mocap_bridge.bridge import Bridge
-        from mocap_bridge.sources.sim import PushSource
+        from mocap_bridge.sources.push import PushSource
 
         session = open_session(args)
         source = PushSource("plant")

@@ -9,8 +9,10 @@ import sys
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float
+from common.console import Console
 from common.errors import UserError
 
 
@@ -89,28 +91,6 @@ def _stop_on_signals(stop: threading.Event):
             signal.signal(sig, h)
 
 
-class _Console:
-    def __init__(self, quiet: bool) -> None:
-        self.quiet = quiet
-        self.tty = sys.stderr.isatty()
-        self.dirty = False
-
-    def show(self, line: str) -> None:
-        if self.quiet:
-            return
-        if self.tty:
-            sys.stderr.write("\r" + line[:200] + "\x1b[K")
-            self.dirty = True
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
-
-    def end(self) -> None:
-        if self.dirty:
-            sys.stderr.write("\n")
-            self.dirty = False
-
-
 def cmd_bridge(args: argparse.Namespace) -> int:
     from common.zenoh_net import open_session
     from mocap_bridge.bridge import Bridge
@@ -122,11 +102,18 @@ def cmd_bridge(args: argparse.Namespace) -> int:
         raise UserError("--prefix must not be empty")
     if not math.isfinite(args.yaw_offset_deg):
         raise UserError("--yaw-offset-deg must be finite")
-    source = open_source(args.source, rate_scale=args.rate_scale, bind=args.bind, body=args.body,
-                         latency_s=args.latency_ms * 1e-3)
+    kind, _, arg = args.source.partition(":")
+    if kind == "sim":
+        from tpods.sim_source import SimSource
+
+        source = SimSource.from_run(Path(arg) if arg else None, rate_scale=args.rate_scale,
+                                    body=args.body or "tpods1")
+    else:
+        source = open_source(args.source, rate_scale=args.rate_scale, bind=args.bind,
+                             body=args.body, latency_s=args.latency_ms * 1e-3)
     if args.keep_zero_poses and hasattr(source, "decoder"):
         source.decoder.zero_is_occluded = False
-    console = _Console(args.quiet)
+    console = Console(args.quiet)
     stop = threading.Event()
     try:
         session = open_session(args)
@@ -162,7 +149,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from common.zenoh_net import open_session
     from mocap_bridge.recorder import Recorder, subscribe
 
-    console = _Console(args.quiet)
+    console = Console(args.quiet)
     stop = threading.Event()
     rec = Recorder(args.out, key=args.key, t0=args.t0)
     try:
