@@ -27,7 +27,11 @@ to the leading shape. This lets the Monte Carlo propagate many runs at once.
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -74,21 +78,260 @@ def wrench(thrust_n: np.ndarray, arm: float = ARM_M) -> np.ndarray:
     return np.stack([fx, fy, mz], axis=-1)
 
 
+# --------------------------------------------------------------------------------------
+# The plant, written once.
+#
+# Every effect adds terms to the state derivative and gives their partial derivatives
+# (analytic Jacobians) with respect to the states and to the parameters it involves.
+# The terms are Python expressions in these symbols:
+#
+#   u, v, r       body velocities and yaw rate      c, sn      cos(psi), sin(psi)
+#   fx, fy, mz    thruster wrench (:func:`wrench`)  im, ii     1/mass, 1/Izz
+#   sp            speed hypot(u, v)                 usp, vsp   u/sp, v/sp (0 at rest)
+#   ct, cr, kb, ax, ay   the parameters of PARAM_NAMES
+#
+# From this one table the module compiles (once per set of effects and estimated
+# parameters, cached) every form the consumers need: array functions for any leading
+# shape (:func:`dynamics`, :func:`jac_state`, :func:`jac_params`, the Monte Carlo and the
+# vectorised filter), the scalar stage function of the lean filter and the fused scalar
+# RK4 loop of the simulator and batch least squares (the expressions inlined: a Python
+# call per RK4 stage would double the cost of the batch fit). A new disturbance is one
+# more entry here.
+
+_SYMBOLS = ("u", "v", "r", "c", "sn", "fx", "fy", "mz", "im", "ii", "sp", "usp", "vsp",
+            "ct", "cr", "kb", "ax", "ay")
+_VARYING = frozenset(("u", "v", "r", "c", "sn", "sp", "usp", "vsp"))
+"""Symbols that change within a hold segment (the others are constant over a segment)."""
+_COLS = ("psi", "u", "v", "r")
+"""States the derivative depends on (x and y do not enter it)."""
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One physical effect of the plant.
+
+    Attributes:
+        name: what it is.
+        params: the parameters it brings; the effect is left out of the compiled code
+            while all of them are zero and none is estimated.
+        rates: state name -> its term in that state's derivative.
+        partials: (state, state or parameter name) -> partial derivative of that term.
+        speed: the terms use ``sp``, ``usp`` or ``vsp``.
+    """
+
+    name: str
+    params: tuple[str, ...]
+    rates: Mapping[str, str]
+    partials: Mapping[tuple[str, str], str]
+    speed: bool = False
+
+
+EFFECTS: tuple[Effect, ...] = (
+    Effect("kinematics (body velocities rotated into the lab frame)", (),
+           {"x": "u * c - v * sn", "y": "u * sn + v * c", "psi": "r"},
+           {("x", "psi"): "-u * sn - v * c", ("x", "u"): "c", ("x", "v"): "-sn",
+            ("y", "psi"): "u * c - v * sn", ("y", "u"): "sn", ("y", "v"): "c",
+            ("psi", "r"): "1.0"}),
+    Effect("thrusters (wrench of the four nozzles)", (),
+           {"u": "fx * im", "v": "fy * im", "r": "mz * ii"},
+           {("u", "mass"): "-fx * im * im", ("v", "mass"): "-fy * im * im",
+            ("r", "izz"): "-mz * ii * ii"}),
+    Effect("rigid body in a rotating frame", (),
+           {"u": "r * v", "v": "-r * u"},
+           {("u", "v"): "r", ("u", "r"): "v", ("v", "u"): "-r", ("v", "r"): "-u"}),
+    Effect("viscous friction", ("ct", "cr"),
+           {"u": "-ct * u * im", "v": "-ct * v * im", "r": "-cr * r * ii"},
+           {("u", "u"): "-ct * im", ("u", "mass"): "ct * u * im * im", ("u", "ct"): "-u * im",
+            ("v", "v"): "-ct * im", ("v", "mass"): "ct * v * im * im", ("v", "ct"): "-v * im",
+            ("r", "r"): "-cr * ii", ("r", "izz"): "cr * r * ii * ii", ("r", "cr"): "-r * ii"}),
+    Effect("yaw torque from translation (ball transfers)", ("kb",),
+           {"r": "kb * sp * ii"},
+           {("r", "u"): "kb * usp * ii", ("r", "v"): "kb * vsp * ii",
+            ("r", "izz"): "-kb * sp * ii * ii", ("r", "kb"): "sp * ii"}, speed=True),
+    Effect("table tilt (constant lab-frame acceleration)", ("ax", "ay"),
+           {"u": "ax * c + ay * sn", "v": "-ax * sn + ay * c"},
+           {("u", "psi"): "-ax * sn + ay * c", ("v", "psi"): "-ax * c - ay * sn",
+            ("u", "ax"): "c", ("u", "ay"): "sn", ("v", "ax"): "-sn", ("v", "ay"): "c"}),
+)
+
+ALL_EFFECTS = tuple(range(len(EFFECTS)))
+
+
+def active_effects(values: Mapping[str, Any], names: Sequence[str] = ()) -> tuple[int, ...]:
+    """Indices of the effects needed for parameter ``values`` when ``names`` are estimated."""
+    out = []
+    for i, e in enumerate(EFFECTS):
+        if not e.params or any(p in names or np.any(np.asarray(values.get(p, 0.0)) != 0)
+                               for p in e.params):
+            out.append(i)
+    return tuple(out)
+
+
+def _sum(terms: list[str]) -> str:
+    return " + ".join(f"({t})" for t in terms) if terms else "0.0"
+
+
+def _rate_exprs(effects) -> list[str]:
+    return [_sum([EFFECTS[i].rates[s] for i in effects if s in EFFECTS[i].rates])
+            for s in STATE_NAMES]
+
+
+def jacobian_pattern(effects, names: Sequence[str]) -> tuple[tuple[int, int], ...]:
+    """Non-zero ``(row, column)`` entries of the augmented Jacobian, row-major.
+
+    Rows are the six states, columns the six states followed by ``names``.
+    """
+    cols = STATE_NAMES + tuple(names)
+    pos = {(STATE_NAMES.index(s), cols.index(q)) for i in effects
+           for (s, q) in EFFECTS[i].partials if q in cols}
+    return tuple(sorted(pos))
+
+
+def _jac_exprs(effects, names) -> list[str]:
+    cols = STATE_NAMES + tuple(names)
+    return [_sum([EFFECTS[k].partials[(STATE_NAMES[i], cols[j])] for k in effects
+                  if (STATE_NAMES[i], cols[j]) in EFFECTS[k].partials])
+            for i, j in jacobian_pattern(effects, names)]
+
+
+def _uses_speed(effects) -> bool:
+    return any(EFFECTS[i].speed for i in effects)
+
+
+_ARGS = "psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay"
+_NS = {"cos": math.cos, "sin": math.sin, "hypot": math.hypot, "np": np}
+
+
+def _compile(src: str, name: str):
+    ns = dict(_NS)
+    exec(compile(src, f"<plant {name}>", "exec"), ns)  # noqa: S102 -- code built from EFFECTS
+    fn = ns[name]
+    fn.source = src
+    return fn
+
+
+@cache
+def array_function(effects: tuple[int, ...], names: tuple[str, ...] | None):
+    """``f(psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay)`` on arrays of any
+    broadcastable shapes: the six state derivatives, and with ``names`` given (not None)
+    also the Jacobian entries of :func:`jacobian_pattern` (a tuple each)."""
+    lines = [f"def f({_ARGS}):", "    c = np.cos(psi)", "    sn = np.sin(psi)",
+             "    im = 1.0 / mass", "    ii = 1.0 / izz"]
+    if _uses_speed(effects):
+        lines.append("    sp = np.hypot(u, v)")
+        if names is not None:
+            lines += ["    pos = sp > 0", "    safe = np.where(pos, sp, 1.0)",
+                      "    usp = np.where(pos, u / safe, 0.0)",
+                      "    vsp = np.where(pos, v / safe, 0.0)"]
+    rates = ", ".join(_rate_exprs(effects))
+    if names is None:
+        lines.append(f"    return ({rates})")
+    else:
+        lines.append(f"    return ({rates}), ({', '.join(_jac_exprs(effects, names))},)")
+    return _compile("\n".join(lines) + "\n", "f")
+
+
+@cache
+def scalar_stage(effects: tuple[int, ...], names: tuple[str, ...]):
+    """``f(psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay, vals)`` on floats: returns
+    the six state derivatives and appends the Jacobian entries of :func:`jacobian_pattern`
+    to the list ``vals`` (one RK4 stage of the lean filter)."""
+    lines = [f"def f({_ARGS}, vals):", "    c = cos(psi)", "    sn = sin(psi)",
+             "    im = 1.0 / mass", "    ii = 1.0 / izz"]
+    if _uses_speed(effects):
+        lines += ["    sp = hypot(u, v)", "    usp = u / sp if sp > 0.0 else 0.0",
+                  "    vsp = v / sp if sp > 0.0 else 0.0"]
+    lines.append(f"    vals += ({', '.join(_jac_exprs(effects, names))},)")
+    lines.append(f"    return ({', '.join(_rate_exprs(effects))})")
+    return _compile("\n".join(lines) + "\n", "f")
+
+
+_IDENT = re.compile(r"[A-Za-z_]\w*")
+
+
+@cache
+def scalar_rk4_chain(effects: tuple[int, ...], substeps: bool):
+    """The fused scalar RK4 loop over hold segments, compiled for ``effects``.
+
+    ``f(state, dts, w, mass, izz, ct, cr, kb, ax, ay[, nsub])`` -> list of the states
+    (6-tuples) at the end of every segment: ``dts`` segment lengths, ``w`` their wrenches
+    (3-sequences), ``nsub`` RK4 steps per segment (without ``substeps``: one step each).
+    Terms constant over a segment (thrust over mass, ...) are evaluated once per segment.
+    """
+    rates = _rate_exprs(effects)
+    hoisted: dict[str, str] = {}
+
+    def hoist(expr: str) -> str:
+        # split a sum of parenthesised terms and move the segment-constant ones out
+        terms = expr[1:-1].split(") + (") if expr != "0.0" else []
+        out = []
+        for t in terms:
+            if set(_IDENT.findall(t)) & _VARYING:
+                out.append(f"({t})")
+            else:
+                key = hoisted.setdefault(t, f"g{len(hoisted)}")
+                out.append(key)
+        return " + ".join(out) if out else "0.0"
+
+    body = [hoist(e) for e in rates]
+    speed = _uses_speed(effects)
+    ind = "            " if substeps else "        "
+    stage = []
+    for k in range(1, 5):
+        if k == 1:
+            stage.append(f"{ind}psi = PS\n{ind}u = U\n{ind}v = V\n{ind}r = R")
+        else:
+            f = "h2" if k < 4 else "h"
+            stage.append(f"{ind}psi = PS + {f} * k{k - 1}_2\n{ind}u = U + {f} * k{k - 1}_3\n"
+                         f"{ind}v = V + {f} * k{k - 1}_4\n{ind}r = R + {f} * k{k - 1}_5")
+        stage.append(f"{ind}c = cos(psi)\n{ind}sn = sin(psi)")
+        if speed:
+            stage.append(f"{ind}sp = hypot(u, v)")
+        stage += [f"{ind}k{k}_{i} = {e}" for i, e in enumerate(body)]
+    upd = "\n".join(f"{ind}{S} += h6 * (k1_{i} + 2 * k2_{i} + 2 * k3_{i} + k4_{i})"
+                    for i, S in enumerate(("X", "Y", "PS", "U", "V", "R")))
+    seg = "\n".join(f"        {g} = {t}" for t, g in hoisted.items())
+    head = ("def f(state, dts, w, mass, izz, ct, cr, kb, ax, ay, nsub=None):\n"
+            "    im = 1.0 / mass\n    ii = 1.0 / izz\n"
+            "    X, Y, PS, U, V, R = (float(a) for a in state)\n"
+            "    rows = [None] * len(dts)\n")
+    if substeps:
+        loop = ("    for i, (dt, (fx, fy, mz), n) in enumerate(zip(dts, w, nsub)):\n"
+                f"{seg}\n        h = dt / n if n else 0.0\n        h2 = 0.5 * h\n"
+                "        h6 = h / 6.0\n        for _ in range(n):\n")
+    else:
+        loop = ("    for i, (h, (fx, fy, mz)) in enumerate(zip(dts, w)):\n"
+                f"{seg}\n        h2 = 0.5 * h\n        h6 = h / 6.0\n")
+    src = (head + loop + "\n".join(stage) + "\n" + upd + "\n"
+           "        rows[i] = (X, Y, PS, U, V, R)\n    return rows\n")
+    return _compile(src, "f")
+
+
 def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0):
     """State derivative ``sdot``, shape (..., 6)."""
     s = np.asarray(s, dtype=float)
     w = wrench(thrust_n, arm)
-    psi, u, v, r = s[..., 2], s[..., 3], s[..., 4], s[..., 5]
-    c, sn = np.cos(psi), np.sin(psi)
-    speed = np.hypot(u, v)
+    f = array_function(ALL_EFFECTS, None)
+    rates = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
+              mass, izz, ct, cr, kb, ax, ay)
     out = np.empty(np.broadcast_shapes(s.shape, w.shape[:-1] + (6,)))
-    out[..., 0] = u * c - v * sn
-    out[..., 1] = u * sn + v * c
-    out[..., 2] = r
-    out[..., 3] = (w[..., 0] - ct * u) / mass + r * v + ax * c + ay * sn
-    out[..., 4] = (w[..., 1] - ct * v) / mass - r * u - ax * sn + ay * c
-    out[..., 5] = (w[..., 2] - cr * r + kb * speed) / izz
+    for i, v in enumerate(rates):
+        out[..., i] = v
     return out
+
+
+def _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, names, cols):
+    s = np.asarray(s, dtype=float)
+    w = wrench(thrust_n, arm)
+    lead = np.broadcast_shapes(s.shape[:-1], w.shape[:-1], np.shape(mass), np.shape(izz))
+    f = array_function(ALL_EFFECTS, names)
+    _, vals = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
+                mass, izz, ct, cr, kb, ax, ay)
+    J = np.zeros(lead + (6, len(cols)))
+    for (i, j), v in zip(jacobian_pattern(ALL_EFFECTS, names), vals, strict=True):
+        if j in cols:
+            J[..., i, cols[j]] = v
+    return J
 
 
 def jac_state(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0):
@@ -97,109 +340,32 @@ def jac_state(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0,
     The ``kb*sqrt(u^2+v^2)`` term is not differentiable at zero speed; its
     derivative is taken as 0 there (the one-sided limits average to 0).
     """
-    s = np.asarray(s, dtype=float)
-    lead = np.broadcast_shapes(s.shape[:-1], np.shape(thrust_n)[:-1], np.shape(mass),
-                               np.shape(izz))
-    psi, u, v, r = s[..., 2], s[..., 3], s[..., 4], s[..., 5]
-    c, sn = np.cos(psi), np.sin(psi)
-    speed = np.hypot(u, v)
-    safe = np.where(speed > 0, speed, 1.0)
-    du_speed = np.where(speed > 0, u / safe, 0.0)
-    dv_speed = np.where(speed > 0, v / safe, 0.0)
-    J = np.zeros(lead + (6, 6))
-    J[..., 0, 2] = -u * sn - v * c
-    J[..., 0, 3] = c
-    J[..., 0, 4] = -sn
-    J[..., 1, 2] = u * c - v * sn
-    J[..., 1, 3] = sn
-    J[..., 1, 4] = c
-    J[..., 2, 5] = 1.0
-    J[..., 3, 2] = -ax * sn + ay * c
-    J[..., 3, 3] = -ct / mass
-    J[..., 3, 4] = r
-    J[..., 3, 5] = v
-    J[..., 4, 2] = -ax * c - ay * sn
-    J[..., 4, 3] = -r
-    J[..., 4, 4] = -ct / mass
-    J[..., 4, 5] = -u
-    J[..., 5, 3] = kb * du_speed / izz
-    J[..., 5, 4] = kb * dv_speed / izz
-    J[..., 5, 5] = -cr / izz
-    return J
+    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, (), {j: j for j in range(6)})
 
 
 def jac_params(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
                names: tuple[str, ...] = ("mass", "izz")):
     """Analytic ``df/dtheta`` for the parameters ``names`` (from PARAM_NAMES), shape (..., 6, p)."""
-    s = np.asarray(s, dtype=float)
-    w = wrench(thrust_n, arm)
-    lead = np.broadcast_shapes(s.shape[:-1], w.shape[:-1], np.shape(mass), np.shape(izz))
-    psi, u, v, r = s[..., 2], s[..., 3], s[..., 4], s[..., 5]
-    c, sn = np.cos(psi), np.sin(psi)
-    speed = np.hypot(u, v)
-    J = np.zeros(lead + (6, len(names)))
-    for j, name in enumerate(names):
-        if name == "mass":
-            J[..., 3, j] = -(w[..., 0] - ct * u) / mass**2
-            J[..., 4, j] = -(w[..., 1] - ct * v) / mass**2
-        elif name == "izz":
-            J[..., 5, j] = -(w[..., 2] - cr * r + kb * speed) / izz**2
-        elif name == "ct":
-            J[..., 3, j] = -u / mass
-            J[..., 4, j] = -v / mass
-        elif name == "cr":
-            J[..., 5, j] = -r / izz
-        elif name == "kb":
-            J[..., 5, j] = speed / izz
-        elif name == "ax":
-            J[..., 3, j] = c
-            J[..., 4, j] = -sn
-        elif name == "ay":
-            J[..., 3, j] = sn
-            J[..., 4, j] = c
-        else:
-            raise ValueError(f"unknown parameter {name!r}; choose from {PARAM_NAMES}")
-    return J
+    names = tuple(names)
+    for n in names:
+        if n not in PARAM_NAMES:
+            raise ValueError(f"unknown parameter {n!r}; choose from {PARAM_NAMES}")
+    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, names,
+                {6 + j: j for j in range(len(names))})
 
 
-# --------------------------------------------------------------------------------------
-# Fast scalar path and the exact zero-order-hold integrator used by the simulator.
-
-
-def _rhs_scalar(x, y, psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay):
-    c = math.cos(psi)
-    sn = math.sin(psi)
-    return (
-        u * c - v * sn,
-        u * sn + v * c,
-        r,
-        (fx - ct * u) / m + r * v + ax * c + ay * sn,
-        (fy - ct * v) / m - r * u - ax * sn + ay * c,
-        (mz - cr * r + kb * math.hypot(u, v)) / izz,
-    )
-
-
-def _rk4_hold(state, dt, n_sub, fx, fy, mz, m, izz, ct, cr, kb, ax, ay):
-    """Advance a 6-tuple by ``dt`` seconds in ``n_sub`` RK4 steps under a constant wrench."""
-    h = dt / n_sub
-    h2 = 0.5 * h
-    x, y, psi, u, v, r = state
-    for _ in range(n_sub):
-        k1 = _rhs_scalar(x, y, psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-        k2 = _rhs_scalar(x + h2 * k1[0], y + h2 * k1[1], psi + h2 * k1[2], u + h2 * k1[3],
-                         v + h2 * k1[4], r + h2 * k1[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-        k3 = _rhs_scalar(x + h2 * k2[0], y + h2 * k2[1], psi + h2 * k2[2], u + h2 * k2[3],
-                         v + h2 * k2[4], r + h2 * k2[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-        k4 = _rhs_scalar(x + h * k3[0], y + h * k3[1], psi + h * k3[2], u + h * k3[3],
-                         v + h * k3[4], r + h * k3[5], fx, fy, mz, m, izz, ct, cr, kb, ax, ay)
-        h6 = h / 6.0
-        x += h6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
-        y += h6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        psi += h6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
-        u += h6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3])
-        v += h6 * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4])
-        r += h6 * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5])
-    return (x, y, psi, u, v, r)
+def rk4_hold_chain(s0, dts, w, params: PlantParams, nsub=None) -> list[tuple]:
+    """Fused scalar RK4 over hold segments (see :func:`scalar_rk4_chain`): the states at the
+    end of every segment. ``w`` (M, 3) wrenches; ``nsub`` (M,) steps per segment (default 1)."""
+    p = params
+    eff = active_effects({"ct": p.ct, "cr": p.cr, "kb": p.kb, "ax": p.ax, "ay": p.ay})
+    dts = dts.tolist() if isinstance(dts, np.ndarray) else list(dts)
+    w = w.tolist() if isinstance(w, np.ndarray) else list(w)
+    args = (p.mass_kg, p.izz_kgm2, p.ct, p.cr, p.kb, p.ax, p.ay)
+    if nsub is None:
+        return scalar_rk4_chain(eff, False)(s0, dts, w, *args)
+    nsub = nsub.tolist() if isinstance(nsub, np.ndarray) else list(nsub)
+    return scalar_rk4_chain(eff, True)(s0, dts, w, *args, nsub)
 
 
 def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: float = 1 / 480):
@@ -221,18 +387,14 @@ def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: flo
     from estimator.propagate import segment_thrust, zoh_segments
 
     events, cmd_idx, out_pos = zoh_segments(cmd_t, t_out)
-    w = wrench(segment_thrust(thrust_n, cmd_idx), params.arm_m).tolist()
-    p = (params.mass_kg, params.izz_kgm2, params.ct, params.cr, params.kb, params.ax, params.ay)
+    w = wrench(segment_thrust(thrust_n, cmd_idx), params.arm_m)
     dts = np.diff(events)
-    nsub = np.maximum(1, np.ceil(dts / max_step - 1e-9)).astype(int)
+    nsub = np.where(dts > 0, np.maximum(1, np.ceil(dts / max_step - 1e-9)), 0).astype(int)
     states = np.empty((len(events), 6))
-    state = tuple(float(a) for a in s0)
-    states[0] = state
-    for i in range(len(dts)):
-        if dts[i] > 0:
-            wi = w[i]
-            state = _rk4_hold(state, dts[i], int(nsub[i]), wi[0], wi[1], wi[2], *p)
-        states[i + 1] = state
+    states[0] = [float(a) for a in s0]
+    rows = rk4_hold_chain(states[0], dts, w, params, nsub)
+    if rows:
+        states[1:] = rows
     return states[out_pos]
 
 
