@@ -25,10 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and callers use it here)
 from common.errors import UserError
-
-GF_TO_N = 9.80665e-3
-"""One gram-force in newtons."""
 
 _UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
 

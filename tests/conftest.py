@@ -1,4 +1,4 @@
-"""Shared test fixtures."""
+"""Shared test fixtures (their helpers live in tests/support/)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,10 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from common.zenoh_net import open_session
+from tests.support.bench import Bench
+from tests.support.net import free_port, wait_for
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -22,3 +26,25 @@ def tpods_exe() -> str:
     if not found:
         pytest.fail("the tpods console script is not installed; run `make setup`")
     return found
+
+
+@pytest.fixture
+def zenoh_pair():
+    """Two in-process peers: ``pub`` listens, ``sub`` connects (loopback, no multicast)."""
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    pub = open_session(listen=[ep], no_multicast=True)
+    sub = open_session(connect=[ep], no_multicast=True)
+    assert wait_for(lambda: len(pub.info.peers_zid()) > 0, 10.0), "peers did not connect"
+    try:
+        yield pub, sub, ep
+    finally:
+        sub.close()
+        pub.close()
+
+
+@pytest.fixture
+def bench():
+    b = Bench()
+    yield b
+    b.stop()

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.runfolder import read_run
 from estimator.inputs import phase_sine
@@ -31,7 +32,7 @@ class SimSource(Playback):
                  seed: int | None = None) -> SimSource:
         if run_dir is None:
             cmd_t, duty = phase_sine(120.0, 50.0)
-            res = simulate(cmd_t, duty, PlantParams(2.268, 3.78e-3),
+            res = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2),
                            config=SimConfig(seed=0 if seed is None else seed))
             name = "sim:phase-sine"
         else:
@@ -43,7 +44,7 @@ class SimSource(Playback):
             st = run.meta.get("settings", {})
             try:
                 params = PlantParams(float(truth["mass_kg"]), float(truth["izz_kgm2"]),
-                                     float(truth.get("arm_m", 0.05)),
+                                     float(truth.get("arm_m", ARM_M)),
                                      *(float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")))
                 cfg = SimConfig(pose_rate_hz=float(st.get("pose_rate_hz", 120.0)),
                                 noise_pos_m=float(st.get("noise_pos_m", 0.01)),

@@ -207,7 +207,7 @@ def test_drivers_over_socket_url():
 
 
 def test_continuous_refused_is_a_clear_error():
-    from tests.bench.fakeport import ScriptedPort
+    from tests.support.fakeport import ScriptedPort
 
     port = ScriptedPort([(b"CP\r\n", b"ES\r\n")])
     s = OhausScout(port, acquisition="continuous")

@@ -5,7 +5,7 @@ import pytest
 from bench.ohaus import OhausScout
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
-from tests.bench.fakeport import ScriptedPort
+from tests.support.fakeport import ScriptedPort
 
 ID = (b"ID?\n", b"TPODS-VALVES 1.2 4\r\n")
 

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from tests.bench.conftest import recorded, run_json, start_session, wait_open
+from tests.support.bench import recorded, run_json, start_session, wait_open
 
 ARGS = ("--nozzles", "1,2", "--duty", "50,70", "--dwell", "1.5", "--settle", "0.1",
         "--zero-settle", "0.1", "--zero-dwell", "0.1", "--watchdog-ms", "300")

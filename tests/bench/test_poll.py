@@ -15,8 +15,8 @@ from bench.session import SessionConfig, read_session, run_session
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
 from common.thrust_table import ThrustTable
-from tests.bench.conftest import Bench, run_json
-from tests.bench.fakeport import ScriptedPort
+from tests.support.bench import Bench, run_json
+from tests.support.fakeport import ScriptedPort
 
 IP = b"IP\r\n"
 

@@ -14,7 +14,7 @@ from bench.session import SessionConfig, plan_steps, read_session, run_session, 
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
 from common.thrust_table import ThrustTable
-from tests.bench.conftest import Bench, recorded, run_json
+from tests.support.bench import Bench, recorded, run_json
 
 
 def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp_path):

@@ -48,8 +48,8 @@ from bench.emulators import EmulatedScout, serve_pty
 from bench.ohaus import NotALoadReading, OhausScout, Reading, parse_line, parse_weight_line
 from bench.session import SessionConfig, run_session
 from bench.valves import ValveController
-from tests.bench.conftest import Bench, run_json
-from tests.bench.fakeport import ScriptedPort
+from tests.support.bench import Bench, run_json
+from tests.support.fakeport import ScriptedPort
 
 NaN = math.nan
 

@@ -18,7 +18,7 @@ from bench.emulators import serve_pty
 from bench.emulators.valves import EmulatedValveController
 from bench.valves import ValveController, clean_reply
 from common.errors import DeviceError
-from tests.bench.fakeport import ScriptedPort
+from tests.support.fakeport import ScriptedPort
 
 # Serial.println ends every line with "\r\n": "followed by a carriage return character
 # (ASCII 13, or '\r') and a newline character (ASCII 10, or '\n')"

@@ -15,7 +15,7 @@ Sources read (each expected value below names the one it comes from):
 [PVTOOLS] steffensc/pyvicon-datatstream-module, pyvicon_datastream/tools.py (class name
          PyVicon, set-up sequence: enable_segment_data, ServerPush, Forward/Left/Up).
 
-The fakes (tests/mocap/test_vicon_sdk.py) return what these sources say each call returns.
+The fakes (tests/mocap_bridge/test_vicon_sdk.py) return what these sources say each call returns.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import math
 import pytest
 
 from mocap_bridge.sources.vicon_sdk import ViconSDKSource
-from tests.mocap.test_vicon_sdk import (
+from tests.mocap_bridge.test_vicon_sdk import (
     PV,
     Direction,
     FakeDSSDK,

@@ -8,7 +8,7 @@ from contextlib import contextmanager
 from common.thrust_table import ThrustTable
 from common.zenoh_net import open_session
 from estimator.model import PlantParams
-from tests.mocap.conftest import free_port, matching, wait_for
+from tests.support.net import free_port, matching, wait_for
 from tpods.clock import LabClock
 from tpods.plant_loop import SimulatedModule
 from tpods.player import cmd_key

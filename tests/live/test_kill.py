@@ -20,7 +20,7 @@ from bench.emulators import EmulatedValveController, serve_pty
 from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from tests.live.helpers import TRUTH
-from tests.mocap.conftest import free_port, wait_for
+from tests.support.net import free_port, wait_for
 from tpods.plant_loop import PlantLoop, udp_sink
 
 ZARGS = ["--no-multicast"]

@@ -14,7 +14,7 @@ from bench.emulators import EmulatedValveController
 from common.thrust_table import ThrustTable
 from estimator.model import PlantParams, integrate_zoh
 from mocap_bridge.sources.vicon_udp import parse_datagram
-from tests.mocap.conftest import free_port
+from tests.support.net import free_port
 from tpods.clock import LabClock
 from tpods.plant_loop import MocapNoise, PlantLoop
 

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
+from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
 
 
@@ -149,7 +150,8 @@ def _register_bifilar(cal) -> None:
                    help="inertia of a fixture to subtract, kg m^2")
     p.add_argument("--u-tare", type=nonneg_float, default=0.0, metavar="KGM2",
                    help="standard uncertainty of --tare-izz")
-    p.add_argument("--g", type=positive_float, default=9.80665, help="m/s^2 (default 9.80665)")
+    p.add_argument("--g", type=positive_float, default=G_STANDARD_MPS2,
+                   help=f"m/s^2 (default {G_STANDARD_MPS2})")
     p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
     p.add_argument("--window", type=float_list(2), default=None, metavar="T0,T1",
                    help="use only poses with T0 <= t <= T1, s (--poses)")

@@ -1,13 +1,9 @@
 import json
-import subprocess
 
 import numpy as np
 
 from common.runfolder import read_run
-
-
-def run(exe, *args, cwd=None):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=120, cwd=cwd)
+from tests.support.cli import run
 
 
 def test_help_on_every_level(tpods_exe):

@@ -28,7 +28,7 @@ from mocap_bridge.pose import decode_pose, encode_pose, yaw_quat
 from mocap_bridge.recorder import Recorder, subscribe
 from mocap_bridge.sources.push import PushSource
 from mocap_bridge.sources.replay import ReplaySource
-from tests.mocap.conftest import RunningBridge, matching, wait_for
+from tests.support.net import RunningBridge, matching, wait_for
 from tpods.sim_source import SimSource
 
 

@@ -1,4 +1,5 @@
-"""Fixtures: fast emulators (short lag, fast printing) served on ptys by the test process."""
+"""Bench helpers: fast emulators (short lag, fast printing) served on ptys by the test
+process, and reading a session's results. The ``bench`` fixture is in tests/conftest.py."""
 
 from __future__ import annotations
 
@@ -9,7 +10,6 @@ import time
 from pathlib import Path
 
 import pandas as pd
-import pytest
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from bench.ohaus import parse_weight_line
@@ -50,13 +50,6 @@ class Bench:
 
     def first_change_after(self, t: float):
         return next((c for c in self.valves.log if c.t > t), None)
-
-
-@pytest.fixture
-def bench():
-    b = Bench()
-    yield b
-    b.stop()
 
 
 def recorded(raw_csv: Path):

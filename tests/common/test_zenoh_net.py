@@ -9,7 +9,7 @@ import pytest
 
 from common.errors import UserError
 from common.zenoh_net import add_zenoh_options, build_config, open_session
-from tests.mocap.conftest import Collector, free_port, subscribe_ready, wait_for
+from tests.support.net import Collector, free_port, subscribe_ready, wait_for
 
 
 def _parse(argv):

@@ -22,7 +22,7 @@ from mocap_bridge.sources.vicon_udp import (
     tracker_datagrams,
     walk_datagram,
 )
-from tests.mocap.conftest import Collector, RunningBridge, subscribe_ready, wait_for
+from tests.support.net import Collector, RunningBridge, subscribe_ready, wait_for
 
 
 def _item(i, name, x=100.0, y=-250.0, z=12.5, rx=0.01, ry=-0.02, rz=1.0):

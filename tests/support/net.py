@@ -1,15 +1,12 @@
-"""Helpers for the mocap tests: free loopback ports and in-process Zenoh peers
-(explicit tcp/127.0.0.1 endpoints, multicast scouting off)."""
+"""Network helpers: free loopback ports, waiting, in-process Zenoh peers (explicit
+tcp/127.0.0.1 endpoints, multicast scouting off), a collecting subscriber and a bridge
+running in a thread. The ``zenoh_pair`` fixture is in tests/conftest.py."""
 
 from __future__ import annotations
 
 import socket
 import threading
 import time
-
-import pytest
-
-from common.zenoh_net import open_session
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -45,21 +42,6 @@ class Collector:
     def __len__(self) -> int:
         with self.lock:
             return len(self.items)
-
-
-@pytest.fixture
-def zenoh_pair():
-    """Two in-process peers: ``pub`` listens, ``sub`` connects (loopback, no multicast)."""
-    port = free_port()
-    ep = f"tcp/127.0.0.1:{port}"
-    pub = open_session(listen=[ep], no_multicast=True)
-    sub = open_session(connect=[ep], no_multicast=True)
-    assert wait_for(lambda: len(pub.info.peers_zid()) > 0, 10.0), "peers did not connect"
-    try:
-        yield pub, sub, ep
-    finally:
-        sub.close()
-        pub.close()
 
 
 def matching(publisher) -> bool:

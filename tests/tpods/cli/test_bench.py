@@ -9,11 +9,8 @@ import pytest
 from bench.ohaus import OhausScout
 from bench.valves import ValveController
 from common.thrust_table import ThrustTable
+from tests.support.cli import run
 from tpods.cli import main
-
-
-def run(exe, *args, timeout=120):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_help(capsys):

@@ -1,7 +1,6 @@
 """`tpods calibrate mass|bifilar|combine` end to end (emulated balance on a pty)."""
 
 import json
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -9,13 +8,12 @@ import pytest
 
 from calibration.bifilar import Pendulum, simulate_trace
 from common.runfolder import write_run
+from tests.support.cli import run
 from tpods.cli import main
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "calibration" / "examples" / "truss_two_modules.toml"
+EXAMPLE = Path(__file__).resolve().parents[3] / "calibration" / "examples" / "truss_two_modules.toml"
 
 
-def run(exe, *args):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=120)
 
 
 def _json(capsys, argv):

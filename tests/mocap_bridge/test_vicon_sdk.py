@@ -18,7 +18,7 @@ from mocap_bridge.bridge import Bridge
 from mocap_bridge.pose import decode_pose
 from mocap_bridge.sources import open_source
 from mocap_bridge.sources.vicon_sdk import ViconSDKSource
-from tests.mocap.conftest import Collector, subscribe_ready, wait_for
+from tests.support.net import Collector, subscribe_ready, wait_for
 
 
 class SDKError(Exception):

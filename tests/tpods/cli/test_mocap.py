@@ -11,7 +11,7 @@ from estimator.inputs import phase_sine
 from estimator.model import PlantParams
 from estimator.sim import SimConfig, simulate, write_sim_run
 from mocap_bridge.sources.vicon_udp import build_datagram
-from tests.mocap.conftest import free_port, wait_for
+from tests.support.net import free_port, wait_for
 
 
 def _run(exe, *args, timeout=60):
