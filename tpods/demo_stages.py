@@ -1,0 +1,257 @@
+"""The stages of ``tpods demo`` (see :mod:`tpods.demo`): each runs one part of the lab day
+on emulated devices, writes into its sub-folder of the report folder, prints a few lines and
+returns what the summary and the report need.
+
+- :func:`stage_bench`: characterisation session on an emulated valve controller and OHAUS
+  Scout, the cubic fits -> ``bench/thrust_table.toml``;
+- :func:`stage_mass`, :func:`stage_bifilar`: the ground truth (balance, bifilar swing);
+- :func:`stage_run`: the simulated module, ``tpods estimate live`` and ``tpods run play`` as
+  subprocesses over Zenoh on a shared lab clock -> ``run/``;
+- :func:`stage_batch`: batch least squares on the recorded run -> ``batch/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
+from bench.fit import fit_steps, max_error_pct_full_scale
+from bench.ohaus import OhausScout
+from bench.plots import plot_fit_orders, plot_time_series
+from bench.session import SessionConfig, read_session, run_session
+from bench.valves import ValveController
+from calibration.bifilar import swing_and_estimate
+from calibration.mass import mass_from_readings, take_readings
+from calibration.plots import plot_trace_fit
+from common.errors import UserError
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
+from common.wire import cmd_key
+from common.zenoh_net import open_session
+from estimator.batch import estimate_run
+from estimator.model import PlantParams
+from estimator.plots_batch import plot_residuals
+from tpods.clock import LabClock
+from tpods.plant_loop import MocapNoise, SimulatedModule
+
+BODY = "tpods1"
+
+
+def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
+    """Characterisation session on emulated devices and the cubic fits."""
+    truth = ThrustTable.default()
+    duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
+    cfg = SessionConfig(nozzles=(1, 2, 3, 4), duties_pct=duties, dwell_s=0.3, settle_s=0.3,
+                        zero_settle_s=0.3, zero_dwell_s=0.1, zero_every=3, watchdog_ms=300)
+    valves = EmulatedValveController(4)
+    scout = EmulatedScout(valves, truth, 1, lag_s=0.05, print_rate_hz=50, seed=seed)
+    sv, ss = serve_pty(valves), serve_pty(scout)
+    d = out / "bench"
+    print(f"   emulated valve controller on {sv.path}, emulated OHAUS Scout on {ss.path} "
+          f"(truth: Table 2; balance lag 50 ms, 50 Hz printing: a real Scout wants "
+          f"--settle 1.5 --dwell 5)")
+    try:
+        with ValveController(sv.path, duty_limits=cfg.duty_limits_pct) as vc, \
+                OhausScout(ss.path) as sc:
+            res = run_session(vc, sc, cfg, d, progress=True)
+    finally:
+        ss.stop()
+        sv.stop()
+    raw, steps = read_session(d)
+    fit = fit_steps(steps, 3 if quick else "auto")  # 5 duty steps are too few for AICc
+    table = fit.table(60.0, source="tpods demo: emulated characterisation")
+    table_path = d / "thrust_table.toml"
+    table.save(table_path)
+    grid = np.arange(10.0, 90.01, 0.5)
+    errs = max_error_pct_full_scale(table, truth, grid)
+    figs = [plot_fit_orders(fit, d / "thrust_fit_orders.png", truth=truth),
+            plot_time_series(raw, d / "thrust_timeseries.png", steps)]
+    print(f"   session {res.status}: {len(res.steps)} steps, {res.n_readings} readings "
+          f"({res.n_garbage} garbage lines skipped), valves closed; fitted orders "
+          f"{dict(sorted(fit.selected.items()))}")
+    print("   max |fit - Table 2|, % of full scale: "
+          + ", ".join(f"{k} nozzle(s) {v:.2f}" for k, v in errs.items()))
+    return {"table_path": table_path, "table": table, "errors_pct_fs": errs, "figures": figs,
+            "steps": len(res.steps), "readings": res.n_readings, "status": res.status,
+            "orders": {int(k): int(v) for k, v in fit.selected.items()}}
+
+
+def stage_mass(mass_kg: float, seed: int) -> dict[str, Any]:
+    """Weigh the module on an emulated Scout: 10 stable readings, GUM budget."""
+    scout = EmulatedScout(None, load_g=mass_kg * 1e3, lag_s=0.05, noise_g=0.2,
+                          print_rate_hz=50, seed=seed + 1)
+    srv = serve_pty(scout)
+    try:
+        with OhausScout(srv.path) as sc:
+            readings, skipped = take_readings(lambda: sc.read("IP"), 10)
+    finally:
+        srv.stop()
+    res = mass_from_readings(readings, accuracy_kg=2.5e-3, skipped=skipped)
+    print(f"   mass = {res.mass_kg:.5f} kg +- {res.u_combined_kg * 1e3:.2f} g (k=1; {res.n_readings} "
+          f"stable readings, {skipped} unstable skipped, accuracy +-2.5 g)")
+    return {"mass_kg": res.mass_kg, "sigma_kg": res.u_combined_kg}
+
+
+def stage_bifilar(out: Path, mass: dict[str, Any], izz_kgm2: float, seed: int) -> dict[str, Any]:
+    """An emulated bifilar swing of the module (the weighed mass) and Izz from its trace."""
+    d = out / "bifilar"
+    d.mkdir(parents=True, exist_ok=True)
+    demo = swing_and_estimate(mass["mass_kg"], izz_kgm2, spacing_m=0.10, length_m=1.0,
+                              release_deg=20.0, duration_s=30.0, seed=seed,
+                              u_mass_kg=mass["sigma_kg"], u_spacing_m=0.0005, u_length_m=0.002)
+    fit = demo.fit
+    fig = plot_trace_fit(fit, d / "bifilar_trace_fit.png")
+    print(f"   swing: D = 0.10 m, h = 1.0 m, 20 deg release, 30 s of mocap yaw at 120 Hz (1 deg "
+          f"noise); trace fit Izz = {fit.izz_kgm2:.6g} +- {fit.izz_sigma_kgm2:.2g} kg m^2; "
+          f"small-angle Eq. 19 on the same trace: {fit.details['izz_small_angle_kgm2']:.6g} "
+          f"({100 * demo.small_angle_error_rel:+.2f} %)")
+    return {"izz_kgm2": fit.izz_kgm2, "sigma_kgm2": fit.izz_sigma_kgm2, "figures": [fig],
+            "small_angle_kgm2": fit.details["izz_small_angle_kgm2"]}
+
+
+def _child_zenoh_args(args: argparse.Namespace, ep: str | None) -> list[str]:
+    if ep is not None:
+        return ["--connect", ep, "--no-multicast"]
+    out: list[str] = []
+    for e in args.connect or []:
+        out += ["--connect", e]
+    if args.no_multicast:
+        out.append("--no-multicast")
+    if args.zenoh_config:
+        out += ["--zenoh-config", args.zenoh_config]
+    if args.zenoh_mode:
+        out += ["--zenoh-mode", args.zenoh_mode]
+    return out
+
+
+def _tpods_exe() -> list[str]:
+    exe = Path(sys.executable).with_name("tpods")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "tpods.cli"]
+
+
+def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str, Any]:
+    """Simulated module + live estimator + player over Zenoh; returns the live summary."""
+    d = out / "run"
+    d.mkdir(parents=True, exist_ok=True)
+    own = not (args.connect or args.listen or args.zenoh_config)
+    ep = None
+    if own:  # a private loopback network: two demos on one machine do not mix
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+        session = open_session(listen=[ep], no_multicast=True)
+    else:
+        session = open_session(args)
+    zargs = _child_zenoh_args(args, ep)
+    exe = _tpods_exe()
+    clock = LabClock(args.time_scale, time.time())
+    params = PlantParams(args.mass, args.izz)
+    procs: dict[str, subprocess.Popen] = {}
+    logs = {}
+    try:
+        module = SimulatedModule(session, params, ThrustTable.default(), clock=clock, body=BODY,
+                                 noise=MocapNoise(0.01, math.radians(1.0)), seed=args.seed)
+        with module:
+            logs["live"] = (d / "live.log").open("w")
+            procs["live"] = subprocess.Popen(
+                exe + ["estimate", "live", "--body", BODY, "--thrust-table", str(table_path),
+                       "--method", args.method, "--out", str(d / "live"), "--exit-on-end",
+                       "--max-wait-ms", "10",
+                       "--json", "--quiet", *zargs],
+                stdout=subprocess.PIPE, stderr=logs["live"], text=True)
+            probe = session.declare_publisher(cmd_key(BODY))
+            t_wait = time.monotonic()
+            while not getattr(probe.matching_status, "matching", False):
+                if procs["live"].poll() is not None or time.monotonic() - t_wait > 60:
+                    raise UserError(f"the live estimator did not start (see {d / 'live.log'})")
+                time.sleep(0.05)
+            probe.undeclare()
+            time.sleep(0.3)
+            print(f"   module: emulated valves on {module.valves_path}, truth m = {args.mass:g} kg, "
+                  f"Izz = {args.izz:g} kg m^2, thrust truth Table 2, poses 120 Hz (1 cm, 1 deg)")
+            print(f"   live estimator ({args.method}, fitted thrust table) and player running; "
+                  f"{args.duration:g} s of lab time at time scale {args.time_scale:g} "
+                  f"({args.duration / args.time_scale:.0f} s real)")
+            logs["play"] = (d / "play.log").open("w")
+            procs["play"] = subprocess.Popen(
+                exe + ["run", "play", "--valves", module.valves_path, "--input", "phase-sine",
+                       "--duration", f"{args.duration:g}", "--body", BODY, "--out", str(d / "play"),
+                       "--time-scale", f"{args.time_scale:g}", "--clock-origin", repr(clock.origin),
+                       "--no-progress", *zargs],
+                stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
+            bar = tqdm(total=round(args.duration), desc="module run (lab time)", file=sys.stderr,
+                       mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
+                                                   "[{elapsed}<{remaining}]")
+            t_real0 = time.monotonic()
+            while procs["play"].poll() is None:
+                time.sleep(0.25)
+                el = (time.monotonic() - t_real0) * args.time_scale
+                bar.update(max(0, min(args.duration, el) - bar.n))
+            bar.close()
+            if procs["play"].returncode != 0:
+                raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
+                                f"{d / 'play.log'})")
+            try:
+                stdout, _ = procs["live"].communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                procs["live"].send_signal(signal.SIGTERM)
+                stdout, _ = procs["live"].communicate(timeout=30)
+            if procs["live"].returncode != 0 or not stdout.strip():
+                raise UserError(f"the live estimator failed (see {d / 'live.log'})")
+            summary = json.loads(stdout.strip().splitlines()[-1])
+        t_truth, s_truth = module.plant.truth_arrays()
+        t0_lab = json.loads((d / "live" / "run.json").read_text()).get("t0_lab") or t_truth[0]
+        np.savetxt(d / "truth.csv", np.column_stack([t_truth - t0_lab, s_truth]), delimiter=",",
+                   header="t,x,y,psi,u,v,r", comments="", fmt="%.12g")
+        play_meta = json.loads((d / "play" / "run.json").read_text())
+        summary["play"] = {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed",
+                                                         "counts", "timing")}
+        summary["plant"] = {"poses": module.plant.frames, "max_behind_lab_s":
+                            module.plant.max_behind_s, "valve_changes": len(module.plant.switches)}
+        summary["truth_t"], summary["truth_s"], summary["t0_lab"] = t_truth - t0_lab, s_truth, t0_lab
+        return summary
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        for fh in logs.values():
+            fh.close()
+        session.close()
+
+
+def stage_batch(out: Path, table) -> dict[str, Any]:
+    """Batch least squares on the run the live estimator recorded (fitted, then true table)."""
+    d = out / "batch"
+    d.mkdir(parents=True, exist_ok=True)
+    run = read_run(out / "run" / "live")
+    res = estimate_run(run, table, clamp=True)
+    (d / "estimate.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
+    fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
+                         title="Batch LS on the recorded run: residuals")
+    print(f"   batch LS on {len(run.pose_t)} recorded poses: m = {res.mass_kg:.5f} +- "
+          f"{res.mass_sigma_kg:.2g} kg, Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} "
+          f"kg m^2 ({'converged' if res.converged else 'NOT converged'}, {res.elapsed_s:.1f} s)")
+    # the same fit with the plant's true thrust table: what is left is not calibration
+    chk = estimate_run(run, ThrustTable.default(), clamp=True)
+    print(f"   check with the TRUE thrust table (Table 2): m = {chk.mass_kg:.5f} +- "
+          f"{chk.mass_sigma_kg:.2g} kg, Izz = {chk.izz_kgm2:.6g} +- {chk.izz_sigma_kgm2:.2g} kg m^2")
+    return {"mass_kg": res.mass_kg, "mass_sigma_kg": res.mass_sigma_kg, "izz_kgm2": res.izz_kgm2,
+            "izz_sigma_kgm2": res.izz_sigma_kgm2, "converged": res.converged, "figures": [fig],
+            "true_table": {"mass_kg": chk.mass_kg, "mass_sigma_kg": chk.mass_sigma_kg,
+                           "izz_kgm2": chk.izz_kgm2, "izz_sigma_kgm2": chk.izz_sigma_kgm2}}
