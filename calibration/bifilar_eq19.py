@@ -17,9 +17,11 @@ from typing import Any
 
 import numpy as np
 
+from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
 
-G_STANDARD = 9.80665  # m/s^2
+G_STANDARD = G_STANDARD_MPS2  # m/s^2 (the name calibration has always used)
+
 
 
 def izz_eq19(mass_kg, spacing_m, length_m, period_s, g: float = G_STANDARD):

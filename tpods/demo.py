@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from common.argtypes import positive_float
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.zenoh_net import add_zenoh_options
 
@@ -44,8 +45,9 @@ def register(sub) -> None:
                                    "of the recorded run; a report under runs/.")
     p.add_argument("--out", default=None, help="report folder (default runs/demo-<timestamp>)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--mass", type=positive_float, default=2.268, help="true mass, kg (default 2.268)")
-    p.add_argument("--izz", type=positive_float, default=3.78e-3,
+    p.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG,
+                   help=f"true mass, kg (default {PAPER_MASS_KG})")
+    p.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2,
                    help="true Izz, kg m^2 (default 3.78e-3, the paper's module)")
     p.add_argument("--duration", type=positive_float, default=120.0,
                    help="simulated run, lab seconds (default 120, as in the paper)")
