@@ -9,12 +9,13 @@ Two implementations of one filter:
   same nonlinear propagation and sets ``F`` to the analytic transition matrix, with an
   angle-wrapping residual and filterpy's Joseph-form update (:func:`run_filterpy`).
 
-Physics: :mod:`estimator.model` is the source of truth; for speed the lean path uses a
-fused scalar form of ``model.dynamics``, ``jac_state`` and ``jac_params``
-(:func:`_rhs_jac`, one cos/sin per RK4 stage), tested equal to them.
-The state transition matrix is integrated by the same RK4 scheme as
-:func:`estimator.propagate.rk4_stm`, one step per zero-order-hold segment (segments
-split at every pose time and every command switch, and at ``max_step_s``).
+Physics: :mod:`estimator.model` (compiled for the filter's parameter set by
+:class:`estimator.propagate.AugmentedPlant`: one scalar stage function per RK4 stage giving
+the derivative and the Jacobian entries); the transition matrix is assembled from the four
+stage Jacobians (:func:`estimator.propagate.propagate_stm`), the same RK4 as
+:func:`estimator.propagate.rk4_stm`, one step per zero-order-hold segment (segments split
+at every pose time and every command switch, and at ``max_step_s``). :func:`run_filter` is
+the loop for any parameter set (the extended filter of :mod:`estimator.ekf_ext` too).
 
 Filter conventions (SI units throughout):
 
@@ -32,23 +33,38 @@ Filter conventions (SI units throughout):
 from __future__ import annotations
 
 import math
-import threading
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cache
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimator.model import ARM_M, wrench
-from estimator.propagate import zoh_segments
+from estimator.model import ALL_EFFECTS, ARM_M, jacobian_pattern, scalar_stage, wrench
+from estimator.propagate import AugmentedPlant, propagate_stm, segment_thrust, zoh_segments
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r", "mass", "izz")
 STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s", "kg", "kg m^2")
 NX = 8
 NZ = 3
 TWO_PI = 2.0 * math.pi
-_I8 = np.eye(NX)
-_H = np.eye(NZ, NX)
 _dot = np.dot
+
+
+@cache
+def _eye(n: int) -> np.ndarray:
+    return np.eye(n)
+
+
+@cache
+def _h(n: int) -> np.ndarray:
+    return np.eye(NZ, n)
+
+def _known_plant(known, arm_m: float = ARM_M) -> AugmentedPlant:
+    ct, cr, kb, ax, ay = known
+    return AugmentedPlant.of(("mass", "izz"), {"arm": arm_m, "ct": ct, "cr": cr, "kb": kb,
+                                               "ax": ax, "ay": ay})
+
 
 # --------------------------------------------------------------------------------------
 # Configuration
@@ -100,6 +116,12 @@ class EkfConfig:
             raise ValueError("max_step_s must be positive")
         object.__setattr__(self, "_q_nz", tuple((i, float(q)) for i, q in enumerate(self.q_psd)
                                                if q))
+        object.__setattr__(self, "_plant", _known_plant(self.known, self.arm_m))
+
+    @property
+    def plant(self) -> AugmentedPlant:
+        """The filter's model: mass and Izz estimated, the known terms fixed."""
+        return self._plant
 
     @property
     def P0(self) -> np.ndarray:
@@ -147,174 +169,28 @@ def parse_state_values(text: str, what: str = "value") -> dict[int, float]:
 
 
 # --------------------------------------------------------------------------------------
-# Propagation (lean scalar/numpy path)
-
-# flat indices into an (8, 8) matrix of the non-zero entries of the augmented Jacobian
-_JAC_POS = [(0, 2), (0, 3), (0, 4), (1, 2), (1, 3), (1, 4), (2, 5),
-            (3, 2), (3, 3), (3, 4), (3, 5), (3, 6),
-            (4, 2), (4, 3), (4, 4), (4, 5), (4, 6),
-            (5, 3), (5, 4), (5, 5), (5, 7)]
-_JAC_FLAT = np.array([i * NX + j for i, j in _JAC_POS])
-_NW = 10  # RK4-STM slabs per step: 4 stage Jacobians, 3 + 2 + 1 products (+ identity)
-_PUT_CACHE: dict[int, np.ndarray] = {}
+# Propagation: the plant of :mod:`estimator.model`, RK4 of :mod:`estimator.propagate`
 
 
-def _put_index(n: int) -> np.ndarray:
-    """Flat indices of the stage-Jacobian entries in an (n, 11, 8, 8) workspace."""
-    idx = _PUT_CACHE.get(n)
-    if idx is None:
-        idx = np.concatenate([_JAC_FLAT + (i * (_NW + 1) + k) * NX * NX
-                              for i in range(n) for k in range(4)])
-        _PUT_CACHE[n] = idx
-    return idx
+def filter_plant(names: Sequence[str] = ("mass", "izz"), fixed: Mapping[str, float] | None = None
+                 ) -> AugmentedPlant:
+    """The filter's model: estimated parameters ``names``, the others at ``fixed``."""
+    return AugmentedPlant.of(names, fixed)
 
 
-def _rhs_jac(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals):
-    """Plant derivative (6-tuple, as ``model.dynamics``) and its Jacobian entries appended to ``vals``."""
-    c = math.cos(psi)
-    s = math.sin(psi)
-    uc = u * c
-    vs = v * s
-    us = u * s
-    vc = v * c
-    fxn = fx - ct * u
-    fyn = fy - ct * v
-    im = 1.0 / m
-    ii = 1.0 / izz
-    if kb:
-        sp = math.hypot(u, v)
-        mzn = mz - cr * r + kb * sp
-        dsu = kb * u / sp * ii if sp > 0.0 else 0.0
-        dsv = kb * v / sp * ii if sp > 0.0 else 0.0
-    else:
-        mzn = mz - cr * r
-        dsu = dsv = 0.0
-    vals += (-us - vc, c, -s, uc - vs, s, c, 1.0,
-             -ax * s + ay * c, -ct * im, r, v, -fxn * im * im,
-             -ax * c - ay * s, -r, -ct * im, -u, -fyn * im * im,
-             dsu, dsv, -cr * ii, -mzn * ii * ii)
-    return (uc - vs, us + vc, r, fxn * im + r * v + ax * c + ay * s,
-            fyn * im - r * u - ax * s + ay * c, mzn * ii)
-
-
-def _rk4_state(z, h, fx, fy, mz, known, vals):
-    """One RK4 step of the state under a constant wrench; appends the 4 stage Jacobians to ``vals``.
-
-    Args:
-        z: list of 8 floats. h: step, s. fx, fy, mz: body wrench. known: (ct, cr, kb, ax, ay).
-    Returns:
-        the new state, a list of 8 floats.
-    """
-    x, y, psi, u, v, r, m, izz = z
-    ct, cr, kb, ax, ay = known
-    h2 = 0.5 * h
-    k1 = _rhs_jac(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
-    p2, u2, v2, r2 = psi + h2 * k1[2], u + h2 * k1[3], v + h2 * k1[4], r + h2 * k1[5]
-    k2 = _rhs_jac(p2, u2, v2, r2, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
-    p3, u3, v3, r3 = psi + h2 * k2[2], u + h2 * k2[3], v + h2 * k2[4], r + h2 * k2[5]
-    k3 = _rhs_jac(p3, u3, v3, r3, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
-    p4, u4, v4, r4 = psi + h * k3[2], u + h * k3[3], v + h * k3[4], r + h * k3[5]
-    k4 = _rhs_jac(p4, u4, v4, r4, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
-    h6 = h / 6.0
-    return [x + h6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
-            y + h6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
-            psi + h6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]),
-            u + h6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3]),
-            v + h6 * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]),
-            r + h6 * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]), m, izz]
-
-
-def _stm_from_stages(vals: list, hs: list) -> np.ndarray:
-    """Transition matrix of consecutive RK4 steps from their stage Jacobians.
-
-    RK4 on ``Phi' = A(t) Phi`` from ``Phi = I`` with stage matrices A1..A4 (the same
-    stages as :func:`estimator.propagate.rk4_stm`) expands exactly to::
-
-        Phi = I + h/6 (A1 + 2 A2 + 2 A3 + A4) + h^2/6 (A2A1 + A3A2 + A4A3)
-                + h^3/12 (A3A2A1 + A4A3A2) + h^4/24 A4A3A2A1
-
-    evaluated here with three batched products over all steps at once.
-    """
-    n = len(hs)
-    W = _workspace(n)
-    W.put(_put_index(n), vals)
-    if n > 1:  # all steps at once: three batched products, one coefficient product
-        np.matmul(W[:, 1:4], W[:, 0:3], out=W[:, 4:7])
-        np.matmul(W[:, 2:4], W[:, 4:6], out=W[:, 7:9])
-        np.matmul(W[:, 3], W[:, 7], out=W[:, 9])
-        c = []
-        for h in hs:
-            h2 = h * h / 6.0
-            h3 = h * h * h / 12.0
-            c.append([h / 6.0, h / 3.0, h / 3.0, h / 6.0, h2, h2, h2, h3, h3,
-                      h * h * h * h / 24.0, 1.0])
-        phis = np.matmul(np.array(c)[:, None, :], W.reshape(n, _NW + 1, NX * NX))
-        phis = phis.reshape(n, NX, NX)
-        phi = phis[0]
-        for i in range(1, n):
-            phi = _dot(phis[i], phi)
-        return phi
-    phi = None
-    for i in range(n):
-        w = W[i]
-        np.matmul(w[1:4], w[0:3], out=w[4:7])
-        np.matmul(w[2:4], w[4:6], out=w[7:9])
-        _dot(w[3], w[7], out=w[9])
-        h = hs[i]
-        h2 = h * h / 6.0
-        h3 = h * h * h / 12.0
-        # slab 10 of the workspace holds the identity (coefficient 1)
-        p = _dot(np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0, h2, h2, h2, h3, h3,
-                           h * h * h * h / 24.0, 1.0]), w.reshape(_NW + 1, NX * NX))
-        p = p.reshape(NX, NX)
-        phi = p if phi is None else _dot(p, phi)
-    return phi
-
-
-_TLS = threading.local()
-
-
-def _workspace(n: int) -> np.ndarray:
-    """Per-thread (n, 11, 8, 8) scratch: slabs 0-3 stage Jacobians (zero outside their
-    pattern), 4-9 products (overwritten each step), 10 the identity."""
-    cache = getattr(_TLS, "ws", None)
-    if cache is None:
-        cache = _TLS.ws = {}
-    W = cache.get(n)
-    if W is None:
-        W = np.zeros((n, _NW + 1, NX, NX))
-        W[:, _NW] = _I8
-        cache[n] = W
-    return W
+_JAC_POS = jacobian_pattern(ALL_EFFECTS, ("mass", "izz"))
+"""Entries of the 8-state Jacobian with every effect present (what :data:`_rhs_jac` appends)."""
+_rhs_jac = scalar_stage(ALL_EFFECTS, ("mass", "izz"))
+"""The 8-state stage function with every effect compiled in (tests compare it to the model)."""
 
 
 def propagate(z, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: float = 0.01):
-    """Propagate the augmented state and its transition matrix over hold segments.
+    """Propagate the 8-state augmented state and its transition matrix over hold segments
+    (:func:`estimator.propagate.propagate_stm` with the known terms ``(ct, cr, kb, ax, ay)``).
 
-    Args:
-        z: (8,) state at the start.
-        seg_dt: sequence of segment lengths, s (zero-length segments are skipped).
-        seg_w: matching sequence of body wrenches (Fx N, Fy N, Mz N m).
-        known: (ct, cr, kb, ax, ay).
-        max_step_s: longest RK4 step; longer segments are split evenly.
-
-    Returns:
-        ``(z_end (8,) ndarray, Phi (8, 8))``.
+    Returns ``(z_end (8,), Phi (8, 8))``.
     """
-    zl = z.tolist() if isinstance(z, np.ndarray) else [float(a) for a in z]
-    vals: list[float] = []
-    hs: list[float] = []
-    for dt, w in zip(seg_dt, seg_w, strict=True):
-        if dt <= 0.0:
-            continue
-        n = max(1, math.ceil(dt / max_step_s - 1e-9))
-        h = dt / n
-        for _ in range(n):
-            zl = _rk4_state(zl, h, w[0], w[1], w[2], known, vals)
-            hs.append(h)
-    if not hs:
-        return np.array(zl), _I8.copy()
-    return np.array(zl), _stm_from_stages(vals, hs)
+    return propagate_stm(z, seg_dt, seg_w, _known_plant(known), max_step_s)
 
 
 # --------------------------------------------------------------------------------------
@@ -322,12 +198,27 @@ def propagate(z, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: flo
 
 
 def ekf_predict(z, P, seg_dt, seg_w, cfg: EkfConfig):
-    """EKF prediction over hold segments. Returns ``(z (8,), P (8, 8), Phi (8, 8))``."""
-    z1, phi = propagate(z, seg_dt, seg_w, cfg.known, cfg.max_step_s)
+    """EKF prediction over hold segments. Returns ``(z (n,), P (n, n), Phi (n, n))``."""
+    return _predict(z, P, seg_dt, seg_w, cfg.plant, cfg._q_nz, cfg.max_step_s)
+
+
+def _predict(z, P, seg_dt, seg_w, plant: AugmentedPlant, q_nz, max_step_s: float,
+             q_per_step: bool = False):
+    """``P <- Phi P Phi^T + diag(q) dt``, ``q_nz`` the non-zero ``(index, q)``; with
+    ``q_per_step`` the noise is added after every RK4 step instead of once."""
+    if q_per_step and q_nz:
+        z1, phis, hs = propagate_stm(z, seg_dt, seg_w, plant, max_step_s, per_step=True)
+        P1 = P
+        for phi, h in zip(phis, hs, strict=True):
+            P1 = _dot(_dot(phi, P1), phi.T)
+            for i, q in q_nz:
+                P1[i, i] += q * h
+        return z1, P1, None
+    z1, phi = propagate_stm(z, seg_dt, seg_w, plant, max_step_s)
     P1 = _dot(_dot(phi, P), phi.T)
-    if cfg._q_nz:
+    if q_nz:
         dt = float(sum(seg_dt))
-        for i, q in cfg._q_nz:
+        for i, q in q_nz:
             P1[i, i] += q * dt
     return z1, P1, phi
 
@@ -393,7 +284,12 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None,
         ``(z, P, info)`` with ``info = (nis, triggered)``: the normalised innovation
         squared (with the plain S) and whether underweighting was active.
     """
-    R = cfg.R if R is None else R
+    return _update(z, P, meas, cfg.R if R is None else R, cfg.underweight, cfg.uw_trigger,
+                   symmetrize)
+
+
+def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bool = True):
+    """:func:`ekf_update` for any state size n >= 3 (H = [I3 0])."""
     rd = R.diagonal()
     r0, r1, r2 = rd.tolist()
     (a, d, e), (_, b, f), (_, _, c) = P[:NZ, :NZ].tolist()
@@ -406,16 +302,16 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None,
            + y1 * (si[1][0] * y0 + si[1][1] * y1 + si[1][2] * y2)
            + y2 * (si[2][0] * y0 + si[2][1] * y1 + si[2][2] * y2))
     triggered = False
-    if cfg.underweight > 0.0:
+    if underweight > 0.0:
         w0, w1, w2 = 1.0 / math.sqrt(r0), 1.0 / math.sqrt(r1), 1.0 / math.sqrt(r2)
         if _max_eig_sym3(a * w0 * w0, b * w1 * w1, c * w2 * w2, d * w0 * w1, e * w0 * w2,
-                         f * w1 * w2) > cfg.uw_trigger:
+                         f * w1 * w2) > uw_trigger:
             triggered = True
-            g = 1.0 + cfg.underweight
+            g = 1.0 + underweight
             si = _inv_sym3(g * a + r0, g * b + r1, g * c + r2, g * d, g * e, g * f)
     K = _dot(P[:, :NZ], np.array(si))
     z = z + _dot(K, np.array([y0, y1, y2]))
-    A = _I8 - _dot(K, _H)
+    A = _eye(len(z)) - _dot(K, _h(len(z)))
     P = _dot(_dot(A, P), A.T) + _dot(K * rd, K.T)
     if symmetrize:
         P += P.T
@@ -519,8 +415,6 @@ class Schedule:
 
 def make_schedule(pose_t, cmd_t, thrust_n, arm_m: float = ARM_M) -> Schedule:
     """Split the pose intervals at command switches (thrust zero before the first command)."""
-    from estimator.propagate import segment_thrust
-
     pose_t = np.asarray(pose_t, dtype=float)
     events, cmd_idx, node_pos = zoh_segments(cmd_t, pose_t)
     w = wrench(segment_thrust(thrust_n, cmd_idx), arm_m).tolist()
@@ -556,23 +450,75 @@ def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=N
         keep_cov: also return every covariance.
         progress: optional callable(k) called every 1000 poses.
     """
-    pose = np.asarray(pose, dtype=float)
     sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
-    n = len(sched.pose_t)
-    use = np.ones(n, bool) if use is None else np.asarray(use, bool)
     x, P = _initial(cfg, x0, P0)
-    R = cfg.R
-    xs = np.empty((n, NX))
-    sig = np.empty((n, NX))
+    h = run_filter(sched, pose, cfg.plant, x, P, cfg.R, cfg._q_nz, cfg.max_step_s,
+                   cfg.underweight, cfg.uw_trigger, use, keep_cov, progress)
+    return EkfResult(sched.pose_t.copy(), h.x, h.sigma, h.P, h.updated, h.triggered, h.nis,
+                     h.cov)
+
+
+@dataclass
+class FilterHistory:
+    """What :func:`run_filter` returns: means, sigmas, NIS and flags at every pose."""
+
+    x: np.ndarray
+    sigma: np.ndarray
+    P: np.ndarray
+    updated: np.ndarray
+    triggered: np.ndarray
+    nis: np.ndarray
+    cov: np.ndarray | None
+
+
+def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
+               max_step_s: float = 0.01, underweight: float = 0.0, uw_trigger: float = 1.0,
+               use=None, keep_cov: bool = False, progress=None, *, q_per_step: bool = False,
+               stop_on_blowup: bool = False) -> FilterHistory:
+    """The EKF loop for any model (the one filter behind :func:`run_ekf` and the extended
+    filter of :mod:`estimator.ekf_ext`).
+
+    Args:
+        sched: hold segments between the poses (:func:`make_schedule`).
+        pose: (N, 3) x, y (m), yaw (rad). plant: the model (:class:`AugmentedPlant`).
+        x, P: (n,), (n, n) initial mean and covariance at the first pose.
+        R: (3, 3) diagonal pose covariance. q_nz: non-zero process-noise densities as
+            ``(state index, units^2/s)``. max_step_s: longest RK4 step.
+        underweight, uw_trigger: the underweighted update (alpha 0 = off).
+        use: optional (N,) bool, poses to update with (others: predict only).
+        keep_cov: keep every covariance. progress: callable(k) every 1000 poses.
+        q_per_step: add the process noise after every RK4 step (else once per interval).
+        stop_on_blowup: a prediction that overflows ends the filter: NaN from there on.
+    """
+    pose = np.asarray(pose, dtype=float)
+    n = len(sched.pose_t)
+    nx = plant.n
+    use = np.ones(n, bool) if use is None else np.asarray(use, bool)
+    xs = np.empty((n, nx))
+    sig = np.empty((n, nx))
     nis = np.full(n, np.nan)
     trig = np.zeros(n, bool)
-    covs = np.empty((n, NX, NX)) if keep_cov else None
+    covs = np.empty((n, nx, nx)) if keep_cov else None
     meas = pose.tolist()
     for k in range(n):
         if k:
-            x, P, _ = ekf_predict(x, P, sched.seg_dt[k], sched.seg_w[k], cfg)
+            if stop_on_blowup:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    x, P, _ = _predict(x, P, sched.seg_dt[k], sched.seg_w[k], plant, q_nz,
+                                       max_step_s, q_per_step)
+                if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+                    xs[k:] = np.nan
+                    sig[k:] = np.nan
+                    P = np.full((nx, nx), np.nan)
+                    if keep_cov:
+                        covs[k:] = np.nan
+                    break
+            else:
+                x, P, _ = _predict(x, P, sched.seg_dt[k], sched.seg_w[k], plant, q_nz,
+                                   max_step_s, q_per_step)
         if use[k]:
-            x, P, (nis[k], trig[k]) = ekf_update(x, P, meas[k], cfg, R, (k & 15) == 0)
+            x, P, (nis[k], trig[k]) = _update(x, P, meas[k], R, underweight, uw_trigger,
+                                              (k & 15) == 0)
         xs[k] = x
         sig[k] = P.diagonal()
         if keep_cov:
@@ -580,7 +526,7 @@ def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=N
         if progress is not None and k % 1000 == 0:
             progress(k)
     np.sqrt(np.maximum(sig, 0.0), out=sig)
-    return EkfResult(sched.pose_t.copy(), xs, sig, P, use.copy(), trig, nis, covs)
+    return FilterHistory(xs, sig, P, use.copy(), trig, nis, covs)
 
 
 # --------------------------------------------------------------------------------------
@@ -619,7 +565,7 @@ class TpodsEKF(ExtendedKalmanFilter):
 
     def predict_x(self, u=0):
         seg_dt, seg_w = u
-        z, phi = propagate(self.x.ravel(), seg_dt, seg_w, self.cfg.known, self.cfg.max_step_s)
+        z, phi = propagate_stm(self.x.ravel(), seg_dt, seg_w, self.cfg.plant, self.cfg.max_step_s)
         self.x = z.reshape(NX, 1)
         self.F = phi
         self.Q = np.diag(np.asarray(self.cfg.q_psd) * float(sum(seg_dt)))

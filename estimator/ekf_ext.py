@@ -2,19 +2,16 @@
 
 The state is ``z = (x, y, psi, u, v, r, theta)`` with ``theta`` the parameters in
 ``names`` (any subset of ``model.PARAM_NAMES`` holding mass and izz, e.g. the
-``friction`` model's mass, izz, ct, cr, kb); the others are fixed. It is the same filter
-as :mod:`estimator.ekf` (which is specialised and fused for the 8-state case), made
-generic in the parameters:
+``friction`` model's mass, izz, ct, cr, kb); the others are fixed. It is the filter of
+:mod:`estimator.ekf` (:func:`estimator.ekf.run_filter`) with the parameter set as a model
+setting; this module holds its settings, defaults and result:
 
 - prediction over the zero-order-hold segments between poses (split at every command
-  switch and at most ``max_step_s`` apart, :func:`estimator.crlb.make_grid`), each by
-  :func:`estimator.propagate.rk4_stm` with the analytic Jacobians of
-  :mod:`estimator.model` (no physics here); ``P <- Phi P Phi^T + diag(q) dt``;
-- update with the pose ``(x, y, psi)``, ``H = [I3 0]``, yaw innovation wrapped to
-  (-pi, pi] (the state yaw stays continuous), Joseph form, symmetrised.
-
-The 8-state update of :mod:`estimator.ekf` is hard-wired to 8 states, so the (short)
-generic Joseph update is written here.
+  switch and at most ``max_step_s`` apart), RK4 with the analytic Jacobians of
+  :mod:`estimator.model`; ``P <- Phi P Phi^T + diag(q) dt`` after every RK4 step;
+- update with the pose ``(x, y, psi)``, ``H = [I3 0]``, yaw innovation wrapped (the state
+  yaw stays continuous), Joseph form;
+- a prediction that overflows ends the filter (NaN from there on, ``diverged``).
 """
 
 from __future__ import annotations
@@ -26,9 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from estimator.crlb import make_grid
+from estimator.ekf import _update, filter_plant, make_schedule, run_filter
 from estimator.model import ARM_M, PARAM_NAMES, STATE_NAMES
-from estimator.propagate import rk4_stm
 
 SIGMA0 = {"x": 0.1, "y": 0.1, "psi": math.radians(5.0), "u": 0.1, "v": 0.1,
           "r": math.radians(2.0), "mass": 1.0, "izz": 2e-3, "ct": 0.3, "cr": 2e-3,
@@ -166,16 +162,8 @@ class ExtEkfResult:
 
 def joseph_update(z: np.ndarray, P: np.ndarray, meas, R: np.ndarray):
     """Pose update of an (n,) state with ``H = [I3 0]``; returns ``(z, P, nis)``."""
-    y = np.asarray(meas, float) - z[:3]
-    y[2] = math.remainder(y[2], 2 * math.pi)
-    S = P[:3, :3] + R
-    Si = np.linalg.inv(S)
-    K = P[:, :3] @ Si
-    z = z + K @ y
-    A = np.eye(len(z))
-    A[:, :3] -= K
-    P = A @ P @ A.T + K @ R @ K.T
-    return z, 0.5 * (P + P.T), float(y @ Si @ y)
+    z, P, (nis, _) = _update(np.asarray(z, float), np.asarray(P, float), meas, R, 0.0, 1.0, True)
+    return z, P, float(nis)
 
 
 def run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, x0=None, P0=None,
@@ -198,43 +186,14 @@ def run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, x0=None, P0=No
     P = cfg.default_P0() if P0 is None else np.array(P0, float)
     if z.shape != (n,) or P.shape != (n, n):
         raise ValueError(f"x0 must be ({n},) and P0 ({n}, {n})")
-    use = np.ones(len(pose_t), bool) if use is None else np.asarray(use, bool)
-    grid = make_grid(cmd_t, thrust_n, pose_t, cfg.max_step_s)
-    dts = np.diff(grid.events)
     base = cfg.base_params()
-    q = np.array([cfg.q_psd.get(lab, 0.0) for lab in cfg.labels])
-    R = cfg.R
-    N = len(pose_t)
-    xs = np.empty((N, n))
-    var = np.empty((N, n))
-    nis = np.full(N, np.nan)
-    for k in range(N):
-        if k:
-            a, b = int(grid.node_pos[k - 1]), int(grid.node_pos[k])
-            with np.errstate(over="ignore", invalid="ignore"):  # a diverging filter: below
-                for i in range(a, b):
-                    params = dict(base)
-                    params.update(zip(names, z[6:].tolist(), strict=True))
-                    s1, phi = rk4_stm(z[:6], grid.seg_thrust[i], float(dts[i]), params, names)
-                    z = np.concatenate([s1, z[6:]])
-                    P = phi @ P @ phi.T
-                    if q.any():
-                        P[np.diag_indices(n)] += q * dts[i]
-            if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
-                # blown up (the prediction overflowed): nothing after this is an estimate;
-                # NaN from here on, and ``diverged`` says so
-                xs[k:] = np.nan
-                var[k:] = np.nan
-                P = np.full((n, n), np.nan)
-                break
-        if use[k]:
-            z, P, nis[k] = joseph_update(z, P, pose[k], R)
-        xs[k] = z
-        var[k] = np.diag(P)
-        if progress is not None and k % 1000 == 0:
-            progress(k)
-    return ExtEkfResult(names, pose_t.copy(), xs, np.sqrt(np.maximum(var, 0.0)), P, use.copy(),
-                        nis)
+    plant = filter_plant(names, base)
+    sched = make_schedule(pose_t, cmd_t, thrust_n, base["arm"])
+    q_nz = tuple((i, float(cfg.q_psd[lab])) for i, lab in enumerate(cfg.labels)
+                 if cfg.q_psd.get(lab, 0.0))
+    h = run_filter(sched, pose, plant, z, P, cfg.R, q_nz, cfg.max_step_s, use=use,
+                   progress=progress, q_per_step=True, stop_on_blowup=True)
+    return ExtEkfResult(names, pose_t.copy(), h.x, h.sigma, h.P, h.updated, h.nis)
 
 
 def estimate_ext(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, method: str = "ekf",

@@ -3,13 +3,11 @@
 One numpy filter carries R runs at once: states (R, 8), covariances (R, 8, 8). All runs
 share one time grid and one thrust history (the Monte Carlo input); a run's dropped
 frames are a ``False`` in its measurement mask, so its update is skipped at that time.
-Propagation (:func:`propagate_batch`) is the RK4 state-and-transition-matrix step of
-:func:`estimator.propagate.rk4_stm` (tested equal to it), restructured for speed: the
-right-hand side and the non-zero Jacobian entries of each RK4 stage are computed in
-one fused pass over all runs, and the transition matrix is assembled from the four
-stage Jacobians with batched products (see :func:`estimator.ekf._stm_from_stages`);
-calling ``rk4_stm`` itself costs about three times more per step. The update is the
-same Joseph-form, optionally underweighted update as :func:`estimator.ekf.ekf_update`,
+Propagation is :func:`estimator.propagate.propagate_stm_batch`: the plant of
+:mod:`estimator.model` compiled for arrays (the right-hand side and the Jacobian entries
+of each RK4 stage for all runs in one pass) and the transition matrix assembled from the
+four stage Jacobians, the same RK4 as :func:`estimator.propagate.rk4_stm`. The update is
+the same Joseph-form, optionally underweighted update as :func:`estimator.ekf.ekf_update`,
 written on batched matrices.
 """
 
@@ -20,12 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.ekf import _JAC_FLAT, _NW, NX, NZ, PAPER, EkfConfig
-from estimator.model import wrench
-from estimator.propagate import segment_thrust, zoh_segments
-
-_COEF_POW = np.array([1, 1, 1, 1, 2, 2, 2, 3, 3, 4])
-_COEF = np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6, 1 / 12, 1 / 12, 1 / 24])
+from estimator.ekf import NX, NZ, PAPER, EkfConfig, filter_plant
+from estimator.model import ALL_EFFECTS, PARAM_NAMES, array_function, jacobian_pattern, wrench
+from estimator.propagate import propagate_stm_batch, segment_thrust, zoh_segments
 
 
 def inv_sym3(S: np.ndarray) -> np.ndarray:
@@ -46,92 +41,40 @@ def inv_sym3(S: np.ndarray) -> np.ndarray:
     return out
 
 
+def _known_plant(known, arm_m=None):
+    fixed = dict(zip(PARAM_NAMES[2:], known, strict=True))
+    if arm_m is not None:
+        fixed["arm"] = arm_m
+    return filter_plant(("mass", "izz"), fixed)
+
+
 def rhs_batch(s, w, m, izz, known):
-    """Fused plant right-hand side (R, 6) for many states, shared wrench w (3,); as model.dynamics."""
+    """Plant right-hand side (R, 6) for many states, shared wrench w (3,); as model.dynamics."""
     return rhs_jac_batch(s, w, m, izz, known, with_jac=False)[0]
 
 
-def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True, out64=None):
-    """Fused plant right-hand side and augmented-Jacobian entries for many states.
+def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
+    """Plant right-hand side and 8-state Jacobian entries for many states.
 
     Args:
         s: (R, 6) states. w: (3,) body wrench (Fx, Fy, Mz) shared by all. m, izz: (R,).
         known: (ct, cr, kb, ax, ay).
-        out64: optional (R, 64) array (zero outside the Jacobian pattern) that receives the
-            flattened 8x8 Jacobians in place; then ``jac`` is that array.
     Returns:
-        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf._JAC_POS``; the same
-        expressions as :func:`estimator.model.dynamics`, ``jac_state`` and ``jac_params``.
+        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf._JAC_POS`` (every
+        effect of :mod:`estimator.model` compiled in), or None without ``with_jac``.
     """
-    ct, cr, kb, ax, ay = known
-    fx, fy, mz = w
-    psi, u, v, r = s[:, 2], s[:, 3], s[:, 4], s[:, 5]
-    c, sn = np.cos(psi), np.sin(psi)
-    R = len(s)
-    out = np.empty((R, 6))
-    uc, vs, us, vc = u * c, v * sn, u * sn, v * c
-    out[:, 0] = uc - vs
-    out[:, 1] = us + vc
-    out[:, 2] = r
-    inv_m = 1.0 / m
-    inv_i = 1.0 / izz
-    fxn = fx - ct * u
-    fyn = fy - ct * v
-    out[:, 3] = fxn * inv_m + r * v + ax * c + ay * sn
-    out[:, 4] = fyn * inv_m - r * u - ax * sn + ay * c
+    f = array_function(ALL_EFFECTS, ("mass", "izz") if with_jac else None)
+    out = f(s[:, 2], s[:, 3], s[:, 4], s[:, 5], w[0], w[1], w[2], m, izz, *known)
+    rates, vals = out if with_jac else (out, None)
+    sd = np.empty((len(s), 6))
+    for i, v in enumerate(rates):
+        sd[:, i] = v
     if not with_jac:
-        mzn = mz - cr * r + (kb * np.hypot(u, v) if kb else 0.0)
-        out[:, 5] = mzn * inv_i
-        return out, None
-    J = np.zeros((R, NX * NX)) if out64 is None else out64
-    if kb:
-        sp = np.hypot(u, v)
-        safe = np.where(sp > 0, sp, 1.0)
-        mzn = mz - cr * r + kb * sp
-        J[:, 43] = np.where(sp > 0, kb * u / safe, 0.0) * inv_i
-        J[:, 44] = np.where(sp > 0, kb * v / safe, 0.0) * inv_i
-    else:
-        mzn = mz - cr * r
-        J[:, 43] = 0.0
-        J[:, 44] = 0.0
-    out[:, 5] = mzn * inv_i
-    J[:, 2] = -us - vc
-    J[:, 3] = c
-    J[:, 4] = -sn
-    J[:, 10] = uc - vs
-    J[:, 11] = sn
-    J[:, 12] = c
-    J[:, 21] = 1.0
-    J[:, 26] = -ax * sn + ay * c
-    J[:, 27] = -ct * inv_m
-    J[:, 28] = r
-    J[:, 29] = v
-    J[:, 30] = -fxn * inv_m * inv_m
-    J[:, 34] = -ax * c - ay * sn
-    J[:, 35] = -r
-    J[:, 36] = J[:, 27]
-    J[:, 37] = -u
-    J[:, 38] = -fyn * inv_m * inv_m
-    J[:, 45] = -cr * inv_i
-    J[:, 47] = -mzn * inv_i * inv_i
-    return out, (J if out64 is not None else J[:, _JAC_FLAT])
-
-
-def _rk4_stm_step(s, h, w, m, izz, known, W):
-    """One RK4 step of states (R, 6) and transition matrices, using workspace W (10, R, 64)."""
-    k1, _ = rhs_jac_batch(s, w, m, izz, known, out64=W[0])
-    k2, _ = rhs_jac_batch(s + 0.5 * h * k1, w, m, izz, known, out64=W[1])
-    k3, _ = rhs_jac_batch(s + 0.5 * h * k2, w, m, izz, known, out64=W[2])
-    k4, _ = rhs_jac_batch(s + h * k3, w, m, izz, known, out64=W[3])
-    s = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    R = len(s)
-    A = W.reshape(_NW, R, NX, NX)
-    np.matmul(A[1:4], A[0:3], out=A[4:7])
-    np.matmul(A[2:4], A[4:6], out=A[7:9])
-    np.matmul(A[3], A[7], out=A[9])
-    phi = ((_COEF * h**_COEF_POW) @ W.reshape(_NW, R * NX * NX)).reshape(R, NX * NX)
-    phi[:, ::NX + 1] += 1.0
-    return s, phi.reshape(R, NX, NX)
+        return sd, None
+    jac = np.empty((len(s), len(jacobian_pattern(ALL_EFFECTS, ("mass", "izz")))))
+    for q, v in enumerate(vals):
+        jac[:, q] = v
+    return sd, jac
 
 
 def propagate_batch(x, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_s: float = 0.01):
@@ -139,27 +82,7 @@ def propagate_batch(x, seg_dt, seg_w, known=(0.0, 0.0, 0.0, 0.0, 0.0), max_step_
 
     Returns ``(x_end (R, 8), Phi (R, 8, 8))``.
     """
-    x = np.asarray(x, dtype=float)
-    R = len(x)
-    s = x[:, :6]
-    m, izz = x[:, 6], x[:, 7]
-    phi = None
-    W = None
-    for dt, w in zip(seg_dt, seg_w, strict=True):
-        if dt <= 0.0:
-            continue
-        n = max(1, math.ceil(dt / max_step_s - 1e-9))
-        h = dt / n
-        for _ in range(n):
-            if W is None:
-                W = np.zeros((_NW, R, NX * NX))
-            s, p = _rk4_stm_step(s, h, w, m, izz, known, W)
-            phi = p if phi is None else p @ phi
-    out = x.copy()
-    out[:, :6] = s
-    if phi is None:
-        phi = np.broadcast_to(np.eye(NX), (R, NX, NX)).copy()
-    return out, phi
+    return propagate_stm_batch(x, seg_dt, seg_w, _known_plant(known), max_step_s)
 
 
 class VecEKF:
@@ -200,7 +123,7 @@ class VecEKF:
         total = float(sum(seg_dt))
         if total <= 0.0:
             return
-        self.x, phi = propagate_batch(self.x, seg_dt, seg_w, cfg.known, cfg.max_step_s)
+        self.x, phi = propagate_stm_batch(self.x, seg_dt, seg_w, cfg.plant, cfg.max_step_s)
         P = phi @ self.P @ np.swapaxes(phi, -1, -2)
         for i, q in enumerate(cfg.q_psd):
             if q:

@@ -4,7 +4,7 @@ Each run draws m and Izz uniformly within +/- ``spread`` of the nominal values, 
 from a kinematic state drawn from the filter's initial distribution, is simulated
 under the shared input with 1 cm / 1 deg pose noise (and optional dropped frames),
 and is filtered. Everything runs vectorised across runs and streams along time: the
-truth is integrated for all runs at once (RK4 on :func:`estimator.model.dynamics`,
+truth is integrated for all runs at once (:func:`estimator.propagate.rk4_states`,
 split at every pose time and command switch like :func:`estimator.model.integrate_zoh`),
 the poses are drawn, and one :class:`estimator.ekf_vec.VecEKF` filters every run;
 only per-time statistics are kept, so memory does not grow with runs x time.
@@ -38,8 +38,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from estimator.ekf import NX, PAPER, EkfConfig
-from estimator.ekf_vec import VecEKF, rhs_batch, shared_schedule
-from estimator.model import wrench
+from estimator.ekf_vec import VecEKF, shared_schedule
+from estimator.model import PARAM_NAMES, wrench
+from estimator.propagate import rk4_states
 from estimator.sim import pose_times
 
 NOMINAL_MASS_KG = 2.268
@@ -236,16 +237,6 @@ def initial_filter(cfg: McConfig) -> tuple[np.ndarray, np.ndarray]:
     return x0, np.diag(sig**2)
 
 
-def _rk4_batch(s, w, h, n, mass, izz, known):
-    for _ in range(n):
-        k1 = rhs_batch(s, w, mass, izz, known)
-        k2 = rhs_batch(s + 0.5 * h * k1, w, mass, izz, known)
-        k3 = rhs_batch(s + 0.5 * h * k2, w, mass, izz, known)
-        k4 = rhs_batch(s + h * k3, w, mass, izz, known)
-        s = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return s
-
-
 class TruthStream:
     """Simulated runs advanced in lockstep along the common pose grid.
 
@@ -259,7 +250,8 @@ class TruthStream:
         self.seg_dt, self.seg_thr = shared_schedule(t, cmd_t, thrust_n)
         self.mass, self.izz = truth[:, 0], truth[:, 1]
         f = cfg.filter
-        self.known = f.known
+        self.params = {"mass": self.mass, "izz": self.izz,
+                       **dict(zip(PARAM_NAMES[2:], f.known, strict=True))}
         self.seg_w = [[wrench(thr, f.arm_m) for thr in seg] for seg in self.seg_thr]
         self.s = np.array(s0, float)
         self.rng = rng
@@ -271,7 +263,7 @@ class TruthStream:
             for dt, w in zip(self.seg_dt[k], self.seg_w[k], strict=True):
                 if dt > 0:
                     n = max(1, math.ceil(dt / self.cfg.truth_max_step_s - 1e-9))
-                    self.s = _rk4_batch(self.s, w, dt / n, n, self.mass, self.izz, self.known)
+                    self.s = rk4_states(self.s, w, dt / n, n, self.params)
         cfg = self.cfg
         noise = self.rng.standard_normal((self.runs, 3)) * self._noise_scale
         pose = self.s[:, :3] + noise
