@@ -30,8 +30,6 @@ The pure parts (``plan_steps``, ``summarize_steps``) work on plain arrays and fr
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
-import json
 import math
 import signal
 import sys
@@ -47,6 +45,7 @@ import pandas as pd
 from bench.ohaus import OhausScout, Reading
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
+from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.thrust_table import GF_TO_N
 
 RAW_COLUMNS = ["t_s", "window", "phase", "step", "n_open", "duty_pct", "reading_gf", "stable"]
@@ -224,12 +223,13 @@ class SessionResult:
 
 
 class _Recorder:
-    """Appends readings to raw.csv, flushing every line."""
+    """Appends readings to raw.csv (a :class:`common.runwriter.CsvLog`), flushing every line."""
+
+    # t_s to 0.1 ms, duty as %g, the reading in grams at full precision (shortest repr)
+    FORMATS = ("%.4f", str, str, str, str, "%g", repr, str)
 
     def __init__(self, path: Path, t0: float) -> None:
-        self.fh = path.open("w", buffering=1)
-        self.fh.write(",".join(RAW_COLUMNS) + "\n")
-        self.fh.flush()
+        self.log = CsvLog(path, RAW_COLUMNS, self.FORMATS)
         self.t0 = t0
         self.rows: list[tuple] = []
         self.n_other_unit = 0
@@ -241,20 +241,13 @@ class _Recorder:
             return
         row = (r.t - self.t0, window, phase, step, n_open, duty, gf, int(r.stable))
         self.rows.append(row)
-        self.fh.write(f"{row[0]:.4f},{window},{phase},{step},{n_open},{duty:g},{gf!r},{row[7]}\n")
-        self.fh.flush()
+        self.log.write(*row)
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.rows, columns=RAW_COLUMNS)
 
     def close(self) -> None:
-        self.fh.close()
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    tmp.replace(path)
+        self.log.close()
 
 
 def run_session(valves: ValveController, scale: OhausScout, config: SessionConfig,
@@ -268,21 +261,12 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     """
     from tqdm import tqdm
 
-    import common
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()
-    meta: dict[str, Any] = {
-        "kind": "thrust-characterisation",
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "software": f"tpods {common.__version__}",
-        "status": "running",
-        "t0_unix": time.time(),
-        "config": asdict(config),
-        "devices": {},
-    }
-    _write_json(out / "run.json", meta)
+    meta: dict[str, Any] = run_header("thrust-characterisation", status="running",
+                                      t0_unix=time.time(), config=asdict(config), devices={})
+    write_json_atomic(out / "run.json", meta)
 
     rec = _Recorder(out / "raw.csv", t_start)
     status, error = "failed", None
@@ -306,7 +290,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
         meta["devices"]["scale"] = {"url": str(scale.url), "version": scale.version(),
                                     "unit": check.unit, "unit_verified": scale.verified_unit,
                                     "legend": check.legend, "settings": scale.settings}
-        _write_json(out / "run.json", meta)
+        write_json_atomic(out / "run.json", meta)
         rec.add(check, -1, "check", -1, 0, 0.0)
         bar = tqdm(total=round(config.planned_s, 1), unit="s", desc="characterise", file=sys.stderr,
                    disable=not progress,
@@ -316,7 +300,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
             valves.set_freq(config.pwm_hz)
             scale.start_continuous()
             meta["devices"]["scale"]["acquisition"] = scale.acquisition_info()
-            _write_json(out / "run.json", meta)
+            write_json_atomic(out / "run.json", meta)
             if scale.fallback_message:
                 tqdm.write(scale.fallback_message, file=sys.stderr)
             t_loop = time.monotonic()
@@ -400,7 +384,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                        "steps_done": len(table),
                        "watchdog_feeds": guard.feeds if guard is not None else 0},
         })
-        _write_json(out / "run.json", meta)
+        write_json_atomic(out / "run.json", meta)
     return SessionResult(status, out, config.planned_s, t_end - t_start, len(rec.rows),
                          scale.n_garbage, error, table)
 

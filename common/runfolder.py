@@ -10,7 +10,8 @@ A run is a folder holding (see docs/run-format.md):
 - ``run.json``      optional metadata (truth for simulated runs).
 
 Readers validate and refuse bad input with one :class:`UserError` line naming the
-file and the row.
+file and the row. Writers (:func:`write_run` here, the recorders) write through
+``common.runwriter`` (CSV logs flushed per row, atomic JSON, one JSON policy).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from common.errors import UserError
+from common.runwriter import CsvLog, json_default, write_json_atomic
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -214,13 +216,14 @@ def read_run(path: str | Path) -> Run:
 
 def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.ndarray) -> None:
     data = np.column_stack([np.asarray(t, float), np.asarray(values, float)])
-    header = ",".join(columns)
-    np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.12g")
+    with CsvLog(path, columns, "%.12g", flush_every_s=None) as log:
+        log.write_many(data)
 
 
 def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thrust_t=None,
               thrust_n=None, meta: dict[str, Any] | None = None) -> Path:
-    """Write a run folder (creating it). Returns the folder path."""
+    """Write a run folder (creating it): CSVs with 12 significant digits, run.json
+    atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     if duty_pct is not None:
@@ -229,15 +232,8 @@ def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thru
         _write_csv(path / "thrusts.csv", THRUST_COLUMNS, thrust_t, thrust_n)
     _write_csv(path / "poses.csv", POSE_COLUMNS, pose_t, pose)
     if meta is not None:
-        (path / "run.json").write_text(json.dumps(meta, indent=2, default=_json_default) + "\n")
+        write_json_atomic(path / "run.json", meta)
     return path
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+_json_default = json_default  # the old name (estimator.cli_batch, through tpods.runfolder)

@@ -9,21 +9,21 @@ Layout of ``OUT``::
 poses.csv times are the sample's ``t_src`` when the source has its own timeline
 (replay, sim), otherwise ``t - t0`` with ``t0`` the capture time of the first sample
 received (or the ``t0`` given). Values are written with 12 significant digits, like
-``common.runfolder.write_run``; samples.csv keeps full precision (shortest repr).
+``common.runfolder.write_run``; samples.csv keeps full precision (shortest repr). Both
+are ``common.runwriter.CsvLog`` files (flushed per row unless ``flush=False``);
+recording.json is replaced atomically.
 """
 
 from __future__ import annotations
 
-import csv
-import datetime as _dt
-import json
 import threading
 import time
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-import common
 from common.errors import UserError
+from common.runfolder import POSE_COLUMNS
+from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.wire import decode_pose, sanitize_chunk
 from mocap_bridge.sources.replay import SAMPLE_COLUMNS
 
@@ -32,23 +32,30 @@ def _f(v: float | None) -> str:
     return "" if v is None else repr(float(v))
 
 
+def _bool(v: bool) -> str:
+    return "true" if v else "false"
+
+
+# samples.csv: body, frame, the times and pose values (shortest repr, empty for None),
+# occluded, t_rx
+_SAMPLE_FORMATS = (str, str, *([_f] * 11), _bool, _f)
+
+
 class _BodyFiles:
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, flush: bool) -> None:
         folder.mkdir(parents=True, exist_ok=True)
-        self.poses: IO[str] = open(folder / "poses.csv", "w", newline="")
-        self.poses.write("t,x,y,psi\n")
-        self.samples_f: IO[str] = open(folder / "samples.csv", "w", newline="")
-        self.samples = csv.writer(self.samples_f, lineterminator="\n")
-        self.samples.writerow(SAMPLE_COLUMNS)
-        self.poses.flush()
-        self.samples_f.flush()
+        every = 0.0 if flush else None
+        # same %-formatting as write_run (12 significant digits)
+        self.poses = CsvLog(folder / "poses.csv", POSE_COLUMNS, "%.12g", flush_every_s=every)
+        self.samples = CsvLog(folder / "samples.csv", SAMPLE_COLUMNS, _SAMPLE_FORMATS,
+                              flush_every_s=every)
         self.last_t: float | None = None
         self.uses_t_src: bool | None = None
         self.rows = 0
 
     def close(self) -> None:
         self.poses.close()
-        self.samples_f.close()
+        self.samples.close()
 
 
 class Recorder:
@@ -80,15 +87,9 @@ class Recorder:
         self._write_meta()
 
     def _write_meta(self) -> None:
-        meta = {
-            "kind": "mocap-recording", "software": f"tpods {common.__version__}",
-            "created": _dt.datetime.fromtimestamp(self.started, _dt.UTC).isoformat(timespec="seconds"),
-            "key": self.key, "t0_host_s": self.t0, "bodies": dict(self._names),
-            "counters": dict(self.counters),
-        }
-        tmp = self.out / "recording.json.tmp"
-        tmp.write_text(json.dumps(meta, indent=2) + "\n")
-        tmp.replace(self.out / "recording.json")
+        write_json_atomic(self.out / "recording.json", run_header(
+            "mocap-recording", created=self.started, key=self.key, t0_host_s=self.t0,
+            bodies=dict(self._names), counters=dict(self.counters)))
 
     def _files_for(self, body: str) -> _BodyFiles:
         bf = self._files.get(body)
@@ -97,7 +98,7 @@ class Recorder:
             while name in self._names.values():  # two raw names, one sanitised name
                 name += "_"
             self._names[body] = name
-            bf = self._files[body] = _BodyFiles(self.out / name)
+            bf = self._files[body] = _BodyFiles(self.out / name, self.flush)
             self._write_meta()
         return bf
 
@@ -112,9 +113,9 @@ class Recorder:
             if d is None:
                 return None
             bf = self._files_for(d["body"])
-            bf.samples.writerow([d["body"], d["frame"], _f(d["t"]), _f(d["t_recv"]), _f(d["t_src"]),
-                                 *(_f(d[k]) for k in ("x", "y", "z", "qx", "qy", "qz", "qw", "yaw")),
-                                 "true" if d["occluded"] else "false", _f(t_rx)])
+            bf.samples.write(d["body"], d["frame"], d["t"], d["t_recv"], d["t_src"],
+                             *(d[k] for k in ("x", "y", "z", "qx", "qy", "qz", "qw", "yaw")),
+                             d["occluded"], t_rx)
             if self.t0 is None:
                 self.t0 = d["t"]
                 self._write_meta()
@@ -127,14 +128,10 @@ class Recorder:
                 if bf.last_t is not None and t <= bf.last_t:
                     self.counters["not_increasing"] += 1
                 else:
-                    # same %-formatting as np.savetxt(fmt="%.12g") in write_run
-                    bf.poses.write("%.12g,%.12g,%.12g,%.12g\n" % (t, d["x"], d["y"], d["yaw"]))  # noqa: UP031
+                    bf.poses.write(t, d["x"], d["y"], d["yaw"])
                     bf.last_t = t
                     bf.rows += 1
                     self.counters["recorded"] += 1
-            if self.flush:
-                bf.samples_f.flush()
-                bf.poses.flush()
             return d
 
     def close(self) -> dict[str, int]:

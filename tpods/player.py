@@ -22,8 +22,6 @@ state, and the live estimator learns that nothing changed up to ``t``) or ``end`
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
-import json
 import math
 import sys
 import threading
@@ -36,6 +34,11 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.runwriter import (  # CommandLog: also tpods.player.CommandLog
+    CommandLog,
+    run_header,
+    write_json_atomic,
+)
 from common.wire import (  # noqa: F401  (re-exported: the player's command API)
     CMD_KINDS,
     CMD_SCHEMA,
@@ -45,40 +48,6 @@ from common.wire import (  # noqa: F401  (re-exported: the player's command API)
     encode_command,
 )
 from tpods.clock import LabClock
-
-
-class CommandLog:
-    """``commands.csv`` (``t,d1..dn``, run-folder format) appended and flushed per row."""
-
-    def __init__(self, path: Path, n_channels: int = 4) -> None:
-        self.path = path
-        self.fh = path.open("w", buffering=1)
-        self.fh.write("t," + ",".join(f"d{i + 1}" for i in range(n_channels)) + "\n")
-        self.fh.flush()
-        self.rows = 0
-        self.last_t = -math.inf
-        self.last_duty: tuple[float, ...] | None = None
-
-    def add(self, t: float, duty_pct) -> bool:
-        """Append a row; a time not after the previous row is skipped (returns False)."""
-        if not t > self.last_t:
-            return False
-        self.fh.write("%.9g," % t + ",".join("%.6g" % float(x) for x in duty_pct) + "\n")  # noqa: UP031
-        self.fh.flush()
-        self.rows += 1
-        self.last_t = t
-        self.last_duty = tuple(float(x) for x in duty_pct)
-        return True
-
-    def close(self) -> None:
-        if not self.fh.closed:
-            self.fh.close()
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    tmp.replace(path)
 
 
 @dataclass
@@ -137,7 +106,6 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     """
     from tqdm import tqdm
 
-    import tpods
     from bench.session import Terminated
 
     clock = clock or LabClock()
@@ -161,23 +129,20 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
             pub_errors += 1
 
     rec = None
-    meta_all: dict[str, Any] = {
-        "kind": "input-play", "software": f"tpods {tpods.__version__}",
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "status": "running", "body": body,
-        "valves": {"url": str(valves.url), "model": ident.model, "firmware": ident.firmware,
-                   "n_channels": n_ch},
-        "time_scale": clock.scale, "clock_origin": clock.origin,
-        "watchdog_ms": watchdog_ms, "pwm_hz": pwm_hz, "heartbeat_s": heartbeat_s,
-        "planned_s": float(cmd_t[-1] - cmd_t[0]),
-    }
+    meta_all: dict[str, Any] = run_header(
+        "input-play", status="running", body=body,
+        valves={"url": str(valves.url), "model": ident.model, "firmware": ident.firmware,
+                "n_channels": n_ch},
+        time_scale=clock.scale, clock_origin=clock.origin,
+        watchdog_ms=watchdog_ms, pwm_hz=pwm_hz, heartbeat_s=heartbeat_s,
+        planned_s=float(cmd_t[-1] - cmd_t[0]))
     meta_all.update(meta or {})
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         if (out / "commands.csv").exists():
             raise UserError(f"{out} already holds commands.csv; choose another --out")
         rec = CommandLog(out / "commands.csv", n_ch)
-        _write_json(out / "run.json", meta_all)
+        write_json_atomic(out / "run.json", meta_all)
 
     status, error = "failed", None
     guard = None
@@ -194,7 +159,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
             t_start = clock.now() + lead_s
             meta_all["t0_lab"] = t_start
             if out is not None:
-                _write_json(out / "run.json", meta_all)
+                write_json_atomic(out / "run.json", meta_all)
             last_msg = clock.now()
             announce(last_msg, current, "hold")
             bar = tqdm(total=round(float(cmd_t[-1] - cmd_t[0]), 1), unit="s", desc="play",
@@ -270,7 +235,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
         })
         if out is not None:
             with contextlib.suppress(OSError):
-                _write_json(out / "run.json", meta_all)
+                write_json_atomic(out / "run.json", meta_all)
     return PlayResult(status, len(sent), n_holds, t_start, t_end, max_late,
                       guard.final_state if guard else None, pub_errors, error, out, sent)
 
