@@ -18,10 +18,11 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
-from estimator.batch import batch_ls
-from estimator.inputs import phase_sine
-from estimator.model import PlantParams, wrap_angle
-from estimator.sim import SimConfig, simulate
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from estimator.batch.least_squares import batch_ls
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams, wrap_angle
+from estimator.plant.sim import SimConfig, simulate
 
 SQ = math.sqrt(0.5)
 
@@ -74,7 +75,7 @@ def _scipy_fit(z_init, sim, sig_pos, sig_yaw):
 
 def run() -> list[dict]:
     duration = 120.0
-    truth = PlantParams(2.268, 3.78e-3)
+    truth = PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2)
     cmd_t, duty = phase_sine(duration, 50.0)
     sim = simulate(cmd_t, duty, truth, config=SimConfig(seed=0))
     sp, sy = 0.01, math.radians(1.0)

@@ -9,11 +9,12 @@ import time
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimator.ekf import PAPER, make_schedule, run_ekf
-from estimator.model import PlantParams, integrate_zoh, wrap_angle
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from estimator.filters.ekf import PAPER, make_schedule, run_ekf
 from estimator.montecarlo import McConfig, run_montecarlo
-from estimator.report_ekf import first_pose_start, simulate_paper
-from estimator.sim import SimConfig, simulate
+from estimator.plant.model import PlantParams, integrate_zoh, wrap_angle
+from estimator.plant.sim import SimConfig, simulate
+from estimator.reports.ekf import first_pose_start, simulate_paper
 
 
 def _plain_filterpy(res, n_poses: int, cfg=PAPER) -> float:
@@ -85,10 +86,10 @@ def run() -> list[dict]:
                  "target": f">= 20000 /s; {ours_cpu:.3g} per CPU s, {_load()}; reference: "
                            "filterpy EKF, numerical Jacobian (600 poses); 50 Hz commands split "
                            "1/3 of the intervals"})
-    from estimator.inputs import phase_sine
+    from estimator.plant.inputs import phase_sine
 
     cmd_t, duty = phase_sine(20.0, 50.0)
-    fast = simulate(cmd_t, duty, PlantParams(2.268, 3.78e-3), config=SimConfig(pose_rate_hz=2000))
+    fast = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2), config=SimConfig(pose_rate_hz=2000))
     ours2, ours2_cpu = _single(fast)
     rows.append({"case": "ekf single 2 kHz", "metric": "pose updates per s (predict+update)",
                  "value": ours2, "reference": ref, "ratio": ours2 / ref, "ok": ours2 >= 20000,

@@ -55,9 +55,9 @@ def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out) -> None:
     import zenoh
 
     from common.zenoh_net import open_session
-    from estimator.inputs import phase_sine
-    from estimator.model import PlantParams
-    from estimator.sim import SimConfig, simulate
+    from estimator.plant.inputs import phase_sine
+    from estimator.plant.model import PlantParams
+    from estimator.plant.sim import SimConfig, simulate
     from mocap_bridge.pose import encode_pose, pose_key, yaw_quat
     from tpods.player import cmd_key, encode_command
 

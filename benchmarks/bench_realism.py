@@ -14,7 +14,7 @@ import numpy as np
 
 
 def run() -> list[dict]:
-    from estimator.report_realism import TRUTH, fit_row, monte_carlo, simulate_run
+    from estimator.reports.realism import TRUTH, fit_row, monte_carlo, simulate_run
 
     res, cmd_t, thrust = simulate_run(TRUTH, 7)
     t_ideal, t_ext = [], []

@@ -7,10 +7,11 @@ import time
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.thrust_table import ThrustTable
-from estimator.inputs import phase_sine
-from estimator.model import PlantParams, dynamics, integrate_zoh
-from estimator.sim import SimConfig, pose_times, simulate
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams, dynamics, integrate_zoh
+from estimator.plant.sim import SimConfig, pose_times, simulate
 
 
 def _ivp(cmd_t, thrust, t_out, p, rtol, atol):
@@ -30,7 +31,7 @@ def _ivp(cmd_t, thrust, t_out, p, rtol, atol):
 
 def run() -> list[dict]:
     duration = 120.0
-    p = PlantParams(2.268, 3.78e-3)
+    p = PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2)
     cmd_t, duty = phase_sine(duration, 50.0)
     thrust = ThrustTable.default().thrust_n(duty)
     t_out = pose_times(0.0, duration, 120.0)

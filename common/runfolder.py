@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from common.errors import UserError
-from common.runwriter import CsvLog, json_default, write_json_atomic
+from common.runwriter import CsvLog, write_json_atomic
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -236,4 +236,3 @@ def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thru
     return path
 
 
-_json_default = json_default  # the old name (estimator.cli_batch, through tpods.runfolder)

@@ -18,6 +18,10 @@ Pose, key ``<prefix>/<body>/pose`` (prefix ``tpods/mocap``), schema ``tpods.pose
 An occluded body has ``"occluded": true`` and ``null`` for x, y, z, qx, qy, qz, qw, yaw
 (never fake zeros).
 
+Estimate, key ``<prefix>/<body>/estimate`` (prefix ``tpods``), schema ``tpods.estimate/1``:
+documented with the live estimator (:mod:`estimator.live.runtime`), which fills
+:data:`EST_FMT` on its hot path.
+
 Command, key ``<prefix>/<body>/cmd`` (prefix ``tpods``), schema ``tpods.cmd/1``::
 
     {"schema": "tpods.cmd/1", "body": "tpods1", "seq": 12, "kind": "set",  # or hold, end
@@ -192,4 +196,36 @@ def decode_command(payload: bytes | bytearray | memoryview | str,
         return bad()
     d["t"] = float(t)
     d["duty"] = vals
+    return d
+
+
+# ------------------------------------------------------------------ estimates
+
+EST_SCHEMA = "tpods.estimate/1"
+
+
+def estimate_key(body: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """``<prefix>/<body>/estimate`` with the body name sanitised into one key chunk."""
+    return f"{prefix.strip('/')}/{sanitize_chunk(body)}/estimate"
+
+
+EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d,"t_pub":%r,'
+            '"method":"%s","phase":"%s","mass_kg":%r,"mass_sigma_kg":%r,"izz_kgm2":%r,'
+            '"izz_sigma_kgm2":%r,"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
+            '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
+            '"nis":%s,"diverged":%s,"inconsistent":%s}')
+
+
+def encode_estimate(d: dict[str, Any]) -> bytes:
+    return json.dumps(d, separators=(",", ":")).encode()
+
+
+def decode_estimate(payload: bytes | bytearray | memoryview | str) -> dict[str, Any] | None:
+    """Decode an estimate payload; None if it is not one."""
+    try:
+        d = json.loads(bytes(payload) if not isinstance(payload, str) else payload)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(d, dict) or d.get("schema") != EST_SCHEMA:
+        return None
     return d

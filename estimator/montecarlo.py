@@ -4,9 +4,9 @@ Each run draws m and Izz uniformly within +/- ``spread`` of the nominal values, 
 from a kinematic state drawn from the filter's initial distribution, is simulated
 under the shared input with 1 cm / 1 deg pose noise (and optional dropped frames),
 and is filtered. Everything runs vectorised across runs and streams along time: the
-truth is integrated for all runs at once (:func:`estimator.propagate.rk4_states`,
-split at every pose time and command switch like :func:`estimator.model.integrate_zoh`),
-the poses are drawn, and one :class:`estimator.ekf_vec.VecEKF` filters every run;
+truth is integrated for all runs at once (:func:`estimator.plant.propagate.rk4_states`,
+split at every pose time and command switch like :func:`estimator.plant.model.integrate_zoh`),
+the poses are drawn, and one :class:`estimator.filters.ekf_vec.VecEKF` filters every run;
 only per-time statistics are kept, so memory does not grow with runs x time.
 
 Filter initialisation (method ``ekf``): mean (0, 0, 0, 0, 0, 0, m_nom, Izz_nom) and
@@ -37,14 +37,15 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from estimator.ekf import NX, PAPER, EkfConfig
-from estimator.ekf_vec import VecEKF, shared_schedule
-from estimator.model import PARAM_NAMES, wrench
-from estimator.propagate import rk4_states
-from estimator.sim import pose_times
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from estimator.filters.ekf import NX, PAPER, EkfConfig
+from estimator.filters.ekf_vec import VecEKF, shared_schedule
+from estimator.plant.model import PARAM_NAMES, wrench
+from estimator.plant.propagate import rk4_states
+from estimator.plant.sim import pose_times
 
-NOMINAL_MASS_KG = 2.268
-NOMINAL_IZZ_KGM2 = 3.78e-3
+NOMINAL_MASS_KG = PAPER_MASS_KG
+NOMINAL_IZZ_KGM2 = PAPER_IZZ_KGM2
 METHODS = ("ekf", "ls-ekf")
 LS_STARTS = ("reuse", "handoff")
 """How ls-ekf starts the filter: ``reuse`` (the paper: at t0 from the LS mean and
@@ -63,7 +64,7 @@ class McConfig:
     """Monte Carlo settings (SI units).
 
     ``truth_max_step_s`` is the longest RK4 step of the simulated truth (1/120 s gives
-    < 1e-7 m against :func:`estimator.model.integrate_zoh` over 120 s, far below the
+    < 1e-7 m against :func:`estimator.plant.model.integrate_zoh` over 120 s, far below the
     1 cm noise); the full-state NEES (an 8x8 solve per run) is evaluated every
     ``nees_every`` poses (NaN in between), the parameter NEES at every pose.
     """
@@ -276,8 +277,8 @@ class TruthStream:
 
 def make_scenario(cfg: McConfig):
     """Common time grid (N,), command times (Nc,) and thrusts (Nc, 4) N of the Monte Carlo."""
-    from bench.thrust_table import load_thrust_table
-    from estimator.inputs import make_input
+    from common.thrust_table import load_thrust_table
+    from estimator.plant.inputs import make_input
 
     cmd_t, duty = make_input(cfg.input, cfg.duration_s, cfg.cmd_rate_hz, cfg.amplitude_pct,
                              cfg.omega_rad_s)
@@ -293,8 +294,8 @@ def ls_start(cfg: McConfig, t, cmd_t, thrust_n, truth, s0, seed_seq, progress=No
     the data are identical. Returns ``(x0 (R, 8), P0 (R, 8, 8), failed)``; a run whose
     fit fails or does not converge starts from the ``ekf`` initialisation instead.
     """
-    from estimator.batch import batch_ls
-    from tpods.errors import UserError
+    from common.errors import UserError
+    from estimator.batch.least_squares import batch_ls
 
     rng = np.random.default_rng(seed_seq)
     stream = TruthStream(cfg, t, cmd_t, thrust_n, truth, s0, rng)

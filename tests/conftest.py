@@ -12,6 +12,7 @@ import pytest
 from common.zenoh_net import open_session
 from tests.support.bench import Bench
 from tests.support.net import free_port, wait_for
+from tests.support.sim import sim_run
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -48,3 +49,10 @@ def bench():
     b = Bench()
     yield b
     b.stop()
+
+
+@pytest.fixture(scope="session")
+def runs_mixed():
+    """Three 10 s runs with different masses, seeds and 15 % dropped frames."""
+    return [sim_run(m, i, s, duration=10.0, drop=0.15)
+            for m, i, s in ((2.268, 3.78e-3, 0), (1.4, 2.2e-3, 1), (3.3, 5.9e-3, 2))]

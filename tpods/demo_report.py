@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from common.runfolder import read_run
-from estimator.plots_ekf import plot_error_bounds
+from estimator.reports.plots_ekf import plot_error_bounds
 
 
 def plot_run(out: Path, live: dict[str, Any], truth: tuple[float, float]) -> list[Path]:

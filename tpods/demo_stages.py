@@ -40,9 +40,9 @@ from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
 from common.zenoh_net import open_session
-from estimator.batch import estimate_run
-from estimator.model import PlantParams
-from estimator.plots_batch import plot_residuals
+from estimator.batch.least_squares import estimate_run
+from estimator.plant.model import PlantParams
+from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
 from tpods.plant_loop import MocapNoise, SimulatedModule
 

@@ -3,7 +3,7 @@
 :class:`PlantLoop` listens to the duty changes of a
 :class:`bench.emulators.valves.EmulatedValveController` (whoever drives it: the input
 player over a pty, a test), integrates the plant model exactly under the held
-thrusts (:func:`estimator.model.integrate_zoh`, split at every switch) with a chosen
+thrusts (:func:`estimator.plant.model.integrate_zoh`, split at every switch) with a chosen
 truth (mass, Izz, optional friction and tilt; thrust from a *truth* thrust table) and
 emits a pose every ``1 / pose_rate_hz`` lab seconds with mocap-like noise, on the lab
 clock (real time or faster, :class:`tpods.clock.LabClock`). Where the poses go is a
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.model import PlantParams, integrate_zoh
+from estimator.plant.model import PlantParams, integrate_zoh
 from tpods.clock import LabClock
 
 Sink = Callable[[int, float, float, float, float, bool], None]

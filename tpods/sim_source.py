@@ -13,9 +13,9 @@ import numpy as np
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.runfolder import read_run
-from estimator.inputs import phase_sine
-from estimator.model import PlantParams
-from estimator.sim import SimConfig, simulate
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams
+from estimator.plant.sim import SimConfig, simulate
 from mocap_bridge.sources.playback import Playback, frames_from_planar
 
 

@@ -20,9 +20,9 @@ import pytest
 
 from common.errors import UserError
 from common.runfolder import write_run
-from estimator.inputs import phase_sine
-from estimator.model import PlantParams, wrap_angle
-from estimator.sim import SimConfig, simulate, write_sim_run
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams, wrap_angle
+from estimator.plant.sim import SimConfig, simulate, write_sim_run
 from mocap_bridge.bridge import Bridge
 from mocap_bridge.pose import decode_pose, encode_pose, yaw_quat
 from mocap_bridge.recorder import Recorder, subscribe

@@ -1,7 +1,7 @@
 """The ``tpods`` command line: a thin shell over the packages.
 
 Each command group has a module here (``bench``, ``calibrate``, ``mocap``, ``run``; the
-estimator's in :mod:`estimator.cli` until it moves) with ``register(subparsers)``: it
+estimator's in :mod:`tpods.cli.estimate` until it moves) with ``register(subparsers)``: it
 parses arguments, calls the packages and prints. Handlers return an exit status. User errors
 (:class:`common.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
 """
@@ -24,9 +24,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from estimator.cli import register as register_estimator
     from tpods.cli.bench import register as register_bench
     from tpods.cli.calibrate import register as register_calibration
+    from tpods.cli.estimate import register as register_estimator
     from tpods.cli.mocap import register as register_mocap
     from tpods.cli.run import register as register_run
     from tpods.demo import register as register_demo

@@ -107,7 +107,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     from bench.session import Terminated, parse_duty_steps, sigterm_raises
     from bench.valves import ValveController
     from common.zenoh_net import open_session
-    from estimator.inputs import make_input
+    from estimator.plant.inputs import make_input
     from tpods.player import cmd_key, play
 
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
@@ -168,7 +168,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
 
     from bench.emulators import EmulatedValveController, serve_pty
     from common.thrust_table import load_thrust_table
-    from estimator.model import PlantParams
+    from estimator.plant.model import PlantParams
     from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
 
     clock = _clock(args)

@@ -7,9 +7,9 @@ import subprocess
 
 import pytest
 
-from estimator.inputs import phase_sine
-from estimator.model import PlantParams
-from estimator.sim import SimConfig, simulate, write_sim_run
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams
+from estimator.plant.sim import SimConfig, simulate, write_sim_run
 from mocap_bridge.sources.vicon_udp import build_datagram
 from tests.support.net import free_port, wait_for
 

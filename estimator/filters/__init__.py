@@ -1,0 +1,1 @@
+"""The EKF family: the general filter, its filterpy adapter and the vectorised Monte Carlo filter."""

@@ -1,0 +1,32 @@
+"""Background worker of the live ``ls-ekf``: the batch fit, in its own low-priority process.
+
+Kept free of heavy imports at module level: a spawned worker imports this module to find
+its initializer, lowers its priority first, and only then imports numpy/scipy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+
+
+def init() -> None:
+    """Yield the CPU to the live loop (lower priority), before any heavy import."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(10)
+
+
+def warm() -> None:
+    """Import the batch estimator now, not when the window is complete."""
+    import estimator.batch.least_squares  # noqa: F401
+
+
+def ls_job(pose_t, pose, cmd_t, thrust_n, kw):
+    """Batch LS on the first window. Returns ``(BatchResult, seconds)``."""
+    from estimator.batch.least_squares import batch_ls
+
+    t_a = time.perf_counter()
+    res = batch_ls(pose_t, pose, cmd_t, thrust_n, **kw)
+    res.fisher = None  # not needed by the live estimator
+    return res, time.perf_counter() - t_a

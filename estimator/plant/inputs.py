@@ -1,0 +1,92 @@
+"""Thruster input sequences (duty percent per valve) for simulation and play-back.
+
+Every generator returns ``(t, duty_pct)`` with ``t`` (N,) seconds and ``duty_pct``
+(N, 4) percent, sampled at ``cmd_rate_hz`` and held (zero-order hold). A final
+all-closed row at ``t = duration`` marks the end of the commanded span.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from common.errors import UserError
+
+INPUT_NAMES = ("phase-sine", "translate-rotate")
+
+
+def _grid(duration_s: float, cmd_rate_hz: float) -> np.ndarray:
+    if duration_s <= 0:
+        raise UserError(f"duration must be positive, got {duration_s:g} s")
+    if cmd_rate_hz <= 0:
+        raise UserError(f"command rate must be positive, got {cmd_rate_hz:g} Hz")
+    n = int(math.floor(duration_s * cmd_rate_hz + 1e-9))
+    t = np.arange(n + 1) / cmd_rate_hz
+    return t[t < duration_s - 1e-12]
+
+
+def _close(t: np.ndarray, duty: np.ndarray, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
+    return np.append(t, duration_s), np.vstack([duty, np.zeros((1, duty.shape[1]))])
+
+
+def phase_sine(duration_s: float, cmd_rate_hz: float = 50.0, amplitude_pct: float = 20.0,
+               omega_rad_s: float = 1.0, mean_pct: float = 50.0,
+               phases_rad: tuple[float, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's informed input: d_i(t) = mean + A sin(w t + phase_i), phase_i = (i-1) pi/4."""
+    t = _grid(duration_s, cmd_rate_hz)
+    ph = np.arange(4) * math.pi / 4 if phases_rad is None else np.asarray(phases_rad, float)
+    duty = mean_pct + amplitude_pct * np.sin(omega_rad_s * t[:, None] + ph[None, :])
+    return _close(t, duty, duration_s)
+
+
+def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct: float = 25.0,
+                     rotate_pct: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's experiment input, a 14 s cycle.
+
+    0-7 s: y-translation square wave of period 2 s (valves 1,2 then 3,4 at ``translate_pct``);
+    7-14 s: yaw square wave of period 1 s (valves 1,3 then 2,4 at ``rotate_pct``).
+    """
+    t = _grid(duration_s, cmd_rate_hz)
+    tc = np.mod(t + 1e-9, 14.0)
+    duty = np.zeros((len(t), 4))
+    trans = tc < 7.0
+    first_half = np.where(trans, np.mod(tc, 2.0) < 1.0, np.mod(tc - 7.0, 1.0) < 0.5)
+    # translation: +y with valves 1,2, -y with valves 3,4
+    duty[trans & first_half] = [translate_pct, translate_pct, 0, 0]
+    duty[trans & ~first_half] = [0, 0, translate_pct, translate_pct]
+    # rotation: +yaw with valves 1,3, -yaw with valves 2,4
+    duty[~trans & first_half] = [rotate_pct, 0, rotate_pct, 0]
+    duty[~trans & ~first_half] = [0, rotate_pct, 0, rotate_pct]
+    return _close(t, duty, duration_s)
+
+
+def from_commands_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a commands.csv (run-folder format) as an input sequence."""
+    from common.runfolder import COMMAND_COLUMNS, read_table
+
+    v = read_table(Path(path), COMMAND_COLUMNS)
+    return v[:, 0], v[:, 1:]
+
+
+def make_input(spec: str, duration_s: float, cmd_rate_hz: float = 50.0,
+               amplitude_pct: float = 20.0, omega_rad_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Build an input by name (``phase-sine``, ``translate-rotate``) or from a commands.csv path.
+
+    A file input is cut to ``duration_s`` (rows after it dropped, a closing row added).
+    """
+    if spec == "phase-sine":
+        return phase_sine(duration_s, cmd_rate_hz, amplitude_pct, omega_rad_s)
+    if spec == "translate-rotate":
+        return translate_rotate(duration_s, cmd_rate_hz)
+    p = Path(spec)
+    if p.is_dir():
+        p = p / "commands.csv"
+    if not p.exists():
+        raise UserError(f"unknown input {spec!r}: choose {', '.join(INPUT_NAMES)} or a commands.csv path")
+    t, d = from_commands_csv(p)
+    if t[-1] > duration_s:
+        keep = t < duration_s
+        t, d = _close(t[keep], d[keep], duration_s)
+    return t, d

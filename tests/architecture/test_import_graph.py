@@ -1,0 +1,86 @@
+"""The layout in floors: every package imports only from the floors below it.
+
+Floors (README "Layout", docs/architecture.md): ``common`` (ground) < ``bench``,
+``mocap_bridge`` (devices and data) < ``calibration`` (reads the balance through bench)
+< ``estimator`` < ``tpods`` (the application: CLI, demo, player, plant-in-the-loop).
+Inside ``estimator/`` the subpackages have floors of their own: ``plant`` < ``batch`` <
+``filters`` < ``live``, ``montecarlo`` < ``reports``. Packages on one floor do not import
+each other. Imports inside functions count too.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+FLOORS = {"common": 0, "bench": 1, "mocap_bridge": 1, "calibration": 2, "estimator": 3, "tpods": 4}
+ESTIMATOR_FLOORS = {"plant": 0, "batch": 1, "filters": 2, "live": 3, "montecarlo": 3, "reports": 4}
+
+
+def imports_of(path: Path) -> list[tuple[int, str]]:
+    """(line, imported module) of every absolute import in a file, nested ones included."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append((node.lineno, node.module))
+    return out
+
+
+def _unit(parts: tuple[str, ...] | list[str], floors: dict[str, int]) -> str | None:
+    return parts[0] if parts and parts[0] in floors else None
+
+
+def violations(root: Path = ROOT) -> list[str]:
+    """Every import that goes to the same or a higher floor of another package (or of
+    another estimator subpackage)."""
+    bad = []
+    for pkg, floor in FLOORS.items():
+        for f in sorted((root / pkg).rglob("*.py")):
+            rel = f.relative_to(root)
+            inner = _unit(rel.with_suffix("").parts[1:], ESTIMATOR_FLOORS) if pkg == "estimator" else None
+            for line, mod in imports_of(f):
+                parts = mod.split(".")
+                top = parts[0]
+                if top in FLOORS and top != pkg and FLOORS[top] >= floor:
+                    bad.append(f"{rel}:{line} imports {mod} (floor {FLOORS[top]} from floor {floor})")
+                elif top == pkg == "estimator" and inner is not None:
+                    target = _unit(parts[1:], ESTIMATOR_FLOORS)
+                    if target and target != inner and ESTIMATOR_FLOORS[target] >= ESTIMATOR_FLOORS[inner]:
+                        bad.append(f"{rel}:{line} imports {mod} (estimator/{target} is not below "
+                                   f"estimator/{inner})")
+    return bad
+
+
+def test_no_upward_sideways_or_circular_import():
+    assert violations() == []
+
+
+def test_the_checker_catches_upward_sideways_and_inner_imports(tmp_path):
+    for pkg in FLOORS:
+        (tmp_path / pkg).mkdir()
+    (tmp_path / "common" / "x.py").write_text("def f():\n    from estimator.plant import model\n")
+    (tmp_path / "bench" / "y.py").write_text("import mocap_bridge.pose\n")
+    (tmp_path / "estimator" / "plant").mkdir()
+    (tmp_path / "estimator" / "plant" / "z.py").write_text("from estimator.filters.ekf import run_ekf\n")
+    (tmp_path / "tpods" / "ok.py").write_text("from estimator.plant.model import PlantParams\n")
+    assert violations(tmp_path) == [
+        "common/x.py:2 imports estimator.plant (floor 3 from floor 0)",
+        "bench/y.py:1 imports mocap_bridge.pose (floor 1 from floor 1)",
+        "estimator/plant/z.py:1 imports estimator.filters.ekf (estimator/filters is not below "
+        "estimator/plant)",
+    ]
+
+
+@pytest.mark.parametrize("pkg", sorted(FLOORS))
+def test_every_floor_exists(pkg):
+    assert (ROOT / pkg / "__init__.py").exists()
+
+
+@pytest.mark.parametrize("sub", sorted(ESTIMATOR_FLOORS))
+def test_every_estimator_floor_exists(sub):
+    assert (ROOT / "estimator" / sub / "__init__.py").exists() or (ROOT / "estimator" / f"{sub}.py").exists()

@@ -1,0 +1,464 @@
+"""CLI of the batch least-squares estimator, the CRLB, input design and the Table 3 report.
+
+``register`` adds ``tpods estimate batch`` (all methods: ``ls`` here,
+``ekf``/``ls-ekf`` delegated to :mod:`tpods.cli.estimate_ekf`), ``tpods estimate crlb``,
+``tpods design`` and ``tpods report table3``. Handlers are thin: parse, load, call the
+pure functions, print or write.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.argtypes import float_list, nonneg_float, positive_float
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.errors import UserError
+
+_INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
+                 "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
+                 "r": "r", "arm": "arm"}
+
+
+def key_values(text: str) -> dict[str, float]:
+    """``"m=1,izz=0.005"`` -> {"mass": 1.0, "izz": 0.005} (argparse type)."""
+    out: dict[str, float] = {}
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        if "=" not in item:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE items, got {item!r}")
+        k, v = (s.strip() for s in item.split("=", 1))
+        if k.lower() not in _INITIAL_KEYS:
+            raise argparse.ArgumentTypeError(
+                f"unknown name {k!r}; use {', '.join(sorted(set(_INITIAL_KEYS)))}")
+        try:
+            val = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {v!r} (for {k})") from None
+        if not math.isfinite(val):
+            raise argparse.ArgumentTypeError(f"{k} must be finite")
+        out[_INITIAL_KEYS[k.lower()]] = val
+    return out
+
+
+def name_list(text: str) -> tuple[str, ...]:
+    from estimator.plant.model import PARAM_NAMES
+
+    names = tuple(_INITIAL_KEYS.get(n.strip().lower(), n.strip()) for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in PARAM_NAMES]
+    if bad or not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"expected distinct names from {', '.join(PARAM_NAMES)}, got {text!r}")
+    return names
+
+
+def register(sub, est, rep) -> None:
+    """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
+    from tpods.cli import estimate_ekf as cli_ekf
+    from tpods.cli import estimate_realism as cli_realism
+
+    p = est.add_parser(
+        "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
+        description="Estimate the initial state, mass and Izz of a run folder. --method ls is the "
+                    "paper's Algorithm 1 (batch nonlinear least squares); ekf and ls-ekf run the "
+                    "filters. Default initial guess: m = 1 kg, Izz = 0.005 kg m^2, pose from the "
+                    "first measurement, velocities zero; default prior diffuse.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run folder (commands.csv, poses.csv)")
+    p.add_argument("--method", choices=("ls", "ekf", "ls-ekf"), default="ls",
+                   help="estimator (default ls)")
+    _common_model_options(p)
+    p.add_argument("--window", default=None, metavar="T0:T1",
+                   help="use only poses with T0 <= t <= T1 (seconds; either side may be empty)")
+    p.add_argument("--initial", type=key_values, default={}, metavar="m=1,izz=0.005",
+                   help="initial guess (any of m, izz, ct, cr, kb, ax, ay, x, y, psi, u, v, r)")
+    p.add_argument("--estimate", type=name_list, default=("mass", "izz"), metavar="NAMES",
+                   help="parameters to estimate, comma-separated (default mass,izz)")
+    p.add_argument("--fixed", type=key_values, default={}, metavar="NAME=VALUE,...",
+                   help="values of parameters that are not estimated (arm, ct, cr, kb, ax, ay, "
+                        "or mass/izz when not estimated)")
+    p.add_argument("--tol", type=positive_float, default=1e-8,
+                   help="largest scaled correction at convergence (default 1e-8)")
+    p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write estimate.json, residuals.csv and residuals.png (Fig. 5) here")
+    cli_ekf.add_batch_options(p)
+    cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
+    p.set_defaults(func=cmd_batch)
+
+    c = est.add_parser(
+        "crlb", help="Cramér-Rao bound on mass and Izz for a recorded or planned command sequence",
+        description="Fisher information and Cramér-Rao bound of mass and Izz, the initial state "
+                    "marginalised (Schur complement). RUN_DIR is a run folder, or a folder or "
+                    "commands.csv holding only commands (poses are then planned at --pose-rate). "
+                    "The plant is the run's truth when run.json has one, else --mass/--izz "
+                    "(default the paper's 2.268 kg, 3.78e-3 kg m^2).")
+    c.add_argument("run_dir", metavar="RUN_DIR", help="run folder, or commands-only folder/CSV")
+    _common_model_options(c)
+    c.add_argument("--mass", type=positive_float, default=None, help="assumed mass, kg")
+    c.add_argument("--izz", type=positive_float, default=None, help="assumed Izz, kg m^2")
+    c.add_argument("--pose-rate", type=positive_float, default=120.0,
+                   help="pose rate for a planned sequence, Hz (default 120)")
+    c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
+    c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    c.add_argument("--out", default=None, metavar="DIR",
+                   help="write crlb.json and sensitivities.png (Fig. 6) here")
+    cli_realism.add_model_option(c, auto=False)  # issue 9
+    c.set_defaults(func=cmd_crlb)
+
+    d = sub.add_parser(
+        "design", help="D-optimal input design (phase-shifted sines) under a workspace bound",
+        description="Compare input sequences by the D-optimal criterion (log det of the Fisher "
+                    "information of mass and Izz, initial state marginalised) and search the "
+                    "phase-shifted-sine family (amplitude, frequency, phases; duties inside the "
+                    "table's valid range) for the best one whose predicted trajectory stays on the "
+                    "table. Writes the best sequence as commands.csv.")
+    d.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    d.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+    d.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+    d.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG, help="assumed mass, kg")
+    d.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
+    d.add_argument("--table-size", type=float_list(2), default=[2.0, 2.0], metavar="W,H",
+                   help="table size in metres, module starting at its centre (default 2,2)")
+    d.add_argument("--margin", type=nonneg_float, default=0.0,
+                   help="keep the module centre this far from the table edge, m (default 0)")
+    d.add_argument("--max-yaw-rate", type=positive_float, default=None, metavar="RAD_S",
+                   help="also require |r| <= this along the predicted trajectory (default: no limit)")
+    d.add_argument("--thrust-table", default=None, metavar="F",
+                   help="thrust table TOML (default: the paper's Table 2)")
+    d.add_argument("--noise-pos", type=positive_float, default=0.01, help="position sigma, m")
+    d.add_argument("--noise-yaw-deg", type=positive_float, default=1.0, help="yaw sigma, deg")
+    d.add_argument("--candidates", type=int, default=64, help="random candidates (default 64)")
+    d.add_argument("--refine", type=int, default=2, help="Nelder-Mead refinements (default 2)")
+    d.add_argument("--refine-evals", type=int, default=60,
+                   help="evaluations per refinement (default 60)")
+    d.add_argument("--omega-range", type=float_list(2), default=[0.2, 4.0], metavar="LO,HI",
+                   help="frequency search range, rad/s (default 0.2,4)")
+    d.add_argument("--compare", nargs="*", default=[], metavar="INPUT",
+                   help="also score these inputs: phase-sine, translate-rotate, or commands.csv paths")
+    d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    d.add_argument("--out", required=True, metavar="DIR",
+                   help="write commands.csv (the best input), design.json and figures here")
+    d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    d.set_defaults(func=cmd_design)
+
+    r = rep.add_parser(
+        "table3", help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)",
+        description="Simulate both input cases of the paper's Table 3, estimate mass and Izz by "
+                    "batch least squares from m = 1, Izz = 0.005, compute the CRLB of each case "
+                    "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
+                    "sensitivities) beside the paper's numbers.")
+    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
+    r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    r.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    r.add_argument("--thrust-table", default=None, metavar="F",
+                   help="thrust table TOML (default: the paper's Table 2)")
+    r.set_defaults(func=cmd_table3)
+
+
+def _common_model_options(p) -> None:
+    p.add_argument("--thrust-table", default=None, metavar="F",
+                   help="thrust table TOML (default: the paper's Table 2)")
+    p.add_argument("--clamp", action="store_true",
+                   help="clamp duties into the table's valid range instead of refusing")
+    p.add_argument("--sigma-pos", type=positive_float, default=0.01,
+                   help="position noise sigma, m (default 0.01)")
+    p.add_argument("--sigma-yaw-deg", type=positive_float, default=1.0,
+                   help="yaw noise sigma, deg (default 1)")
+
+
+def _print_json(obj: dict[str, Any]) -> None:
+    from common.runwriter import json_default as _json_default
+
+    sys.stdout.write(json.dumps(obj, default=_json_default) + "\n")
+
+
+def _truth_errors(out: dict[str, Any], truth: dict | None, mass: float, izz: float) -> None:
+    if not truth:
+        return
+    try:
+        tm, ti = float(truth["mass_kg"]), float(truth["izz_kgm2"])
+    except (KeyError, TypeError, ValueError):
+        return
+    out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
+                "mass_error_kg": mass - tm, "izz_error_kgm2": izz - ti,
+                "mass_rel_error": (mass - tm) / tm, "izz_rel_error": (izz - ti) / ti})
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from tpods.cli import estimate_realism as cli_realism
+
+    if (rc := cli_realism.before_batch(args)) is not None:  # issue 9: --model
+        return rc
+    if args.method != "ls":
+        from tpods.cli import estimate_ekf as cli_ekf
+
+        return cli_ekf.run_filter_method(args)
+    from common.runfolder import read_run
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.crlb import crlb
+    from estimator.batch.least_squares import estimate_run, parse_window
+
+    if args.max_iter < 1:
+        raise UserError("--max-iter must be at least 1")
+    run = read_run(args.run_dir)
+    table = load_thrust_table(args.thrust_table)
+    window = parse_window(args.window)
+    res = estimate_run(run, table, window, clamp=args.clamp, names=args.estimate,
+                       fixed=args.fixed, initial=args.initial, sigma_pos_m=args.sigma_pos,
+                       sigma_yaw_rad=math.radians(args.sigma_yaw_deg), tol=args.tol,
+                       max_iter=args.max_iter)
+    out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
+    out.update(res.to_dict())
+    cli_realism.annotate(out, args)
+    _truth_errors(out, run.truth, res.mass_kg, res.izz_kgm2)
+    truth = run.truth
+    if truth and "mass_kg" in truth and "izz_kgm2" in truth and {"mass", "izz"} <= set(res.names):
+        # the bound of this very run at the truth, for the efficiency check
+        wrun = run.window(*window) if window != (None, None) else run
+        cmd_t, thrust = wrun.thrust_profile(table, clamp=args.clamp)
+        s0 = truth.get("initial_state") if wrun.pose_t[0] == run.pose_t[0] else None
+        tp = {k: float(truth.get(k2, d)) for k, k2, d in (
+            ("mass", "mass_kg", 0), ("izz", "izz_kgm2", 0), ("arm", "arm_m", 0.05),
+            ("ct", "ct", 0), ("cr", "cr", 0), ("kb", "kb", 0), ("ax", "ax", 0), ("ay", "ay", 0))}
+        if s0 is None:
+            s0 = res.z0[:6]
+        try:
+            c = crlb(wrun.pose_t, cmd_t, thrust, tp, s0=s0, names=res.names,
+                     sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg))
+            out["crlb_mass_sigma_kg"] = c.mass_sigma_kg
+            out["crlb_izz_sigma_kgm2"] = c.izz_sigma_kgm2
+        except (UserError, ValueError, np.linalg.LinAlgError):
+            pass
+    if args.out:
+        from estimator.reports.plots_batch import plot_residuals
+
+        d = Path(args.out)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+        np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
+                   header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")
+        plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
+                       sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+                       title=f"Batch LS residuals: {run.path.name}")
+    if not res.converged:
+        print(f"tpods: warning: {res.message}; the estimate below is not a converged solution",
+              file=sys.stderr)
+    if args.json:
+        _print_json(out)
+        return 0
+    print(f"batch least squares on {run.path} ({len(res.t)} poses, "
+          f"t = {res.t[0]:.3f}..{res.t[-1]:.3f} s)")
+    print(f"  {res.message}; {res.iterations} iterations, horizons "
+          f"{', '.join(f'{h:.1f}' for h in res.stages)} s, {res.elapsed_s:.2f} s")
+    print(f"  mass  = {res.mass_kg:.6g} kg      +/- {res.mass_sigma_kg:.3g} (1 sigma)")
+    print(f"  Izz   = {res.izz_kgm2:.6g} kg m^2  +/- {res.izz_sigma_kgm2:.3g} (1 sigma)")
+    if not math.isnan(res.corr_mass_izz):
+        print(f"  corr(mass, Izz) = {res.corr_mass_izz:+.3f}")
+    for n in res.names:
+        if n not in ("mass", "izz"):
+            i = 6 + res.names.index(n)
+            print(f"  {n:<5} = {res.z0[i]:.6g} +/- {res.sigma[i]:.3g}")
+    rms = res.rms_residuals()
+    print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
+          f"yaw {math.degrees(rms[2]):.3f} deg")
+    if "truth_mass_kg" in out:
+        print(f"  truth: mass {out['truth_mass_kg']:.6g} kg (error {out['mass_rel_error'] * 100:+.3f} %), "
+              f"Izz {out['truth_izz_kgm2']:.6g} (error {out['izz_rel_error'] * 100:+.3f} %)")
+    if "crlb_mass_sigma_kg" in out:
+        print(f"  CRLB at truth: mass {out['crlb_mass_sigma_kg']:.3g} kg, "
+              f"Izz {out['crlb_izz_sigma_kgm2']:.3g} kg m^2")
+    if args.out:
+        print(f"  wrote {Path(args.out) / 'estimate.json'}, residuals.csv, residuals.png")
+    return 0
+
+
+def _load_sequence(path_text: str, table, clamp: bool, pose_rate: float):
+    """(pose_t, cmd_t, thrust, truth, s0, label) of a run folder or a commands-only sequence."""
+    from common.runfolder import read_run
+    from estimator.plant.inputs import from_commands_csv
+    from estimator.plant.sim import pose_times
+
+    p = Path(path_text)
+    if p.is_dir() and (p / "poses.csv").exists():
+        run = read_run(p)
+        cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
+        truth = run.truth
+        s0 = truth.get("initial_state") if truth else None
+        if s0 is None:
+            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
+        return run, cmd_t, thrust, truth, s0, "recorded"
+    csv = p / "commands.csv" if p.is_dir() else p
+    if not csv.exists():
+        raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
+    cmd_t, duty = from_commands_csv(csv)
+    if len(cmd_t) < 2:
+        raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
+    try:
+        thrust = table.thrust_n(duty, clamp=clamp)
+    except UserError as exc:
+        raise UserError(f"{csv}: {exc}") from None
+    return pose_times(cmd_t[0], cmd_t[-1], pose_rate), cmd_t, thrust, None, np.zeros(6), "planned"
+
+
+def cmd_crlb(args: argparse.Namespace) -> int:
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.crlb import crlb
+    from estimator.batch.least_squares import parse_window
+
+    table = load_thrust_table(args.thrust_table)
+    seq, cmd_t, thrust, truth, s0, kind = _load_sequence(args.run_dir, table, args.clamp,
+                                                         args.pose_rate)
+    t0, t1 = parse_window(args.window)
+    if kind == "recorded":
+        run = seq.window(t0, t1) if (t0, t1) != (None, None) else seq
+        pose_t = run.pose_t
+        if run.pose_t[0] != seq.pose_t[0]:
+            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
+    else:
+        pose_t = seq
+        keep = np.ones(len(pose_t), bool)
+        if t0 is not None:
+            keep &= pose_t >= t0
+        if t1 is not None:
+            keep &= pose_t <= t1
+        if keep.sum() < 3:
+            raise UserError(f"window {args.window} holds fewer than 3 planned poses")
+        pose_t = pose_t[keep]
+    truth = truth or {}
+    mass = args.mass or truth.get("mass_kg") or PAPER_MASS_KG
+    izz = args.izz or truth.get("izz_kgm2") or PAPER_IZZ_KGM2
+    source = "command line" if (args.mass or args.izz) else ("run truth" if truth else "paper nominal")
+    params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
+              **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
+    from tpods.cli import estimate_realism as cli_realism
+
+    c = crlb(pose_t, cmd_t, thrust, params, s0=s0, sigma_pos_m=args.sigma_pos,
+             sigma_yaw_rad=math.radians(args.sigma_yaw_deg), keep_sensitivities=bool(args.out),
+             names=cli_realism.crlb_names(args))
+    out = {"sequence": kind, "path": str(args.run_dir), "n_poses": c.n_poses,
+           "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,
+           "plant_source": source,
+           "crlb_mass_sigma_kg": c.mass_sigma_kg, "crlb_izz_sigma_kgm2": c.izz_sigma_kgm2,
+           "crlb_mass_rel": c.mass_sigma_kg / mass, "crlb_izz_rel": c.izz_sigma_kgm2 / izz,
+           "crlb_corr_mass_izz": float(c.cov[0, 1] / (c.sigma[0] * c.sigma[1])),
+           "logdet_info": c.logdet, "sigma_pos_m": args.sigma_pos,
+           "sigma_yaw_rad": math.radians(args.sigma_yaw_deg)}
+    out.update(cli_realism.crlb_extra(c, args))
+    if args.out:
+        from estimator.reports.plots_batch import plot_sensitivities
+
+        d = Path(args.out)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "crlb.json").write_text(json.dumps(out, indent=2) + "\n")
+        plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz], d / "sensitivities.png",
+                           title=f"Sensitivities of {Path(args.run_dir).name}")
+    if args.json:
+        _print_json(out)
+        return 0
+    print(f"Cramér-Rao bound of {args.run_dir} ({kind}, {c.n_poses} poses over "
+          f"{out['duration_s']:.1f} s; plant from {source}: m = {mass:g} kg, Izz = {izz:g} kg m^2)")
+    print(f"  mass  sigma >= {c.mass_sigma_kg:.4g} kg      ({out['crlb_mass_rel'] * 100:.4f} %)")
+    print(f"  Izz   sigma >= {c.izz_sigma_kgm2:.4g} kg m^2  ({out['crlb_izz_rel'] * 100:.4f} %)")
+    print(f"  correlation {out['crlb_corr_mass_izz']:+.3f}, log det(information) {c.logdet:.3f}")
+    for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
+        print(line)
+    if args.out:
+        print(f"  wrote {Path(args.out) / 'crlb.json'} and sensitivities.png")
+    return 0
+
+
+def cmd_design(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.design import DesignSettings, evaluate_commands, search
+    from estimator.plant.inputs import make_input
+    from estimator.plant.model import PlantParams
+    from estimator.reports.plots_batch import plot_sensitivities
+
+    if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
+        raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
+    if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
+        raise UserError("--omega-range must be LO,HI with 0 < LO < HI")
+    if min(args.table_size) <= 2 * args.margin:
+        raise UserError("--table-size must exceed twice the --margin")
+    table = load_thrust_table(args.thrust_table)
+    settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
+                              math.radians(args.noise_yaw_deg), PlantParams(args.mass, args.izz),
+                              tuple(args.table_size), args.margin, args.max_yaw_rate)
+    compared = []
+    for spec in args.compare:
+        cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
+        try:
+            compared.append(evaluate_commands(cmd_t, duty, table, settings, spec))
+        except UserError as exc:
+            raise UserError(f"{spec}: {exc}") from None
+    total = 1 + args.candidates + args.refine * args.refine_evals
+    with tqdm(total=total, desc="design", unit="eval", file=sys.stderr, leave=False,
+              disable=None) as bar:
+        res = search(table, settings, n_random=args.candidates, n_refine=args.refine,
+                     refine_evals=args.refine_evals, omega_range=tuple(args.omega_range),
+                     seed=args.seed, progress=bar.update)
+    d = Path(args.out)
+    d.mkdir(parents=True, exist_ok=True)
+    best = res.best
+    np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
+               header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
+
+    def row(e):
+        return {"label": e.label, "logdet_info": e.logdet, "feasible": e.feasible,
+                "max_yaw_rate_rad_s": float(np.abs(e.crlb.states[:, 5]).max()),
+                "excursion_x_m": e.excursion_m[0], "excursion_y_m": e.excursion_m[1],
+                "crlb_mass_sigma_kg": e.crlb.mass_sigma_kg,
+                "crlb_izz_sigma_kgm2": e.crlb.izz_sigma_kgm2,
+                **({"amplitude_pct": e.spec.amplitude_pct, "omega_rad_s": e.spec.omega_rad_s,
+                    "phases_rad": list(e.spec.phases_rad), "mean_pct": e.spec.mean_pct}
+                   if e.spec else {})}
+
+    out = {"best": row(best), "paper": row(res.paper), "compared": [row(e) for e in compared],
+           "evaluated": res.evaluated, "improvement_logdet": best.logdet - res.paper.logdet,
+           "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
+                        "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
+                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
+                        "mass_kg": args.mass, "izz_kgm2": args.izz},
+           "commands_csv": str(d / "commands.csv")}
+    (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
+    for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):
+        t = np.arange(len(e.crlb.sens_x)) / args.pose_rate
+        plot_sensitivities(t, e.crlb.sens_x, e.crlb.names, [args.mass, args.izz], d / name,
+                           title=e.label)
+    if args.json:
+        _print_json(out)
+        return 0
+    half = np.asarray(args.table_size) / 2 - args.margin
+    print(f"D-optimal design over {args.duration:g} s ({res.evaluated} sequences scored; "
+          f"workspace |x|,|y| <= {half[0]:g}, {half[1]:g} m from the start)")
+    print(f"  {'input':<44} {'log det':>9} {'sd(m) kg':>10} {'sd(Izz)':>10} {'excursion x,y m':>17}  fits")
+    for e in [res.paper, *compared, best]:
+        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
+        print(f"  {lab:<44} {e.logdet:9.3f} {e.crlb.mass_sigma_kg:10.3g} "
+              f"{e.crlb.izz_sigma_kgm2:10.3g} {e.excursion_m[0]:8.2f},{e.excursion_m[1]:7.2f}  "
+              f"{'yes' if e.feasible else 'NO'}")
+    print(f"  best: {best.spec.describe()}")
+    print(f"  log det gain over the paper's input: {best.logdet - res.paper.logdet:+.3f}")
+    print(f"  wrote {d / 'commands.csv'} (play it or simulate it with tpods sim --input), design.json")
+    return 0
+
+
+def cmd_table3(args: argparse.Namespace) -> int:
+    from common.thrust_table import load_thrust_table
+    from estimator.reports.table3 import write_table3
+
+    table = load_thrust_table(args.thrust_table)
+    path = write_table3(args.out, duration_s=args.duration, seed=args.seed, table=table,
+                        table_name=args.thrust_table or "built-in Table 2", log=print)
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,354 @@
+"""CLI of the EKF, LS-initialised EKF and Monte Carlo.
+
+``register`` adds ``tpods estimate montecarlo`` and ``tpods report ekf``;
+``add_batch_options(parser)`` adds the filter options to ``tpods estimate batch`` and
+``run_filter_method(args)`` runs ``--method ekf|ls-ekf`` for it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
+from common.errors import UserError
+
+
+def _state_values(what: str):
+    def parse(text: str) -> dict[int, float]:
+        from estimator.filters.ekf import parse_state_values
+
+        try:
+            vals = parse_state_values(text, what)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        if any(v < 0 for v in vals.values()):
+            raise argparse.ArgumentTypeError(f"{what} values must be non-negative")
+        return vals
+
+    return parse
+
+
+def _filter_options(p, preset_default: str) -> None:
+    from estimator.filters.ekf import PRESETS
+
+    g = p.add_argument_group("filter (ekf, ls-ekf)")
+    g.add_argument("--preset", choices=sorted(PRESETS), default=preset_default,
+                   help=f"filter setting (default {preset_default}; paper: 1e-4 kg^2/Hz on mass, "
+                        "initial std 0.1 m, 0.1 m, 5 deg, 0.1 m/s, 0.1 m/s, 2 deg/s, 1 kg, "
+                        "2e-3 kg m^2)")
+    g.add_argument("--process-noise", type=_state_values("Q"), default={}, metavar="NAME=Q,...",
+                   help="process-noise spectral density per state, SI units^2/s "
+                        "(e.g. mass=1e-4,izz=1e-10); overrides the preset")
+    g.add_argument("--sigma0", type=_state_values("sigma"), default={}, metavar="NAME=S,...",
+                   help="initial standard deviations, SI units (psi, r in rad, rad/s)")
+    g.add_argument("--underweight", type=nonneg_float, default=0.0, metavar="ALPHA",
+                   help="underweighting alpha: S = (1+alpha) HPH^T + R while triggered "
+                        "(default 0: off)")
+    g.add_argument("--uw-trigger", type=positive_float, default=1.0, metavar="K",
+                   help="underweight while the largest eigenvalue of R^-1/2 HPH^T R^-1/2 exceeds "
+                        "K (default 1: predicted pose uncertainty dominates R)")
+    g.add_argument("--ls-window", type=positive_float, default=20.0, metavar="SECONDS",
+                   help="ls-ekf: batch LS on the first SECONDS of the run (default 20)")
+    g.add_argument("--ls-start", choices=("reuse", "handoff"), default="reuse",
+                   help="ls-ekf: reuse = filter the whole run from the LS start (the paper; "
+                        "uses the window's poses twice); handoff = propagate the LS fit to "
+                        "the end of the window and filter only the later poses")
+
+
+def _filter_config(args, base=None, sigma_pos: float | None = None,
+                   sigma_yaw_rad: float | None = None, fixed: dict | None = None):
+    from estimator.filters.ekf import PRESETS
+
+    cfg = base if base is not None else PRESETS[args.preset]
+    q = list(cfg.q_psd)
+    for i, v in args.process_noise.items():
+        q[i] = v
+    s0 = list(cfg.sigma0)
+    for i, v in args.sigma0.items():
+        s0[i] = v
+    meas = list(cfg.sigma_meas)
+    if sigma_pos is not None:
+        meas[0] = meas[1] = sigma_pos
+    if sigma_yaw_rad is not None:
+        meas[2] = sigma_yaw_rad
+    kw: dict[str, Any] = {}
+    for k, v in (fixed or {}).items():
+        if k == "arm":
+            kw["arm_m"] = v
+        elif k in ("ct", "cr", "kb", "ax", "ay"):
+            kw[k] = v
+        else:
+            raise UserError(f"--fixed {k}: the filters estimate mass and izz; fix only arm, ct, "
+                            "cr, kb, ax, ay")
+    return cfg.with_(q_psd=tuple(q), sigma0=tuple(s0), sigma_meas=tuple(meas),
+                     underweight=args.underweight, uw_trigger=args.uw_trigger, **kw)
+
+
+# --------------------------------------------------------------------------------------
+# estimate batch --method ekf|ls-ekf
+
+
+def add_batch_options(parser) -> None:
+    """Add the filter options (``--ls-window``, ``--underweight``, ...) to ``estimate batch``."""
+    _filter_options(parser, "paper")
+
+
+def run_filter_method(args) -> int:
+    """Run ``tpods estimate batch --method ekf|ls-ekf``."""
+    from common.runfolder import read_run
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.least_squares import parse_window
+    from estimator.filters.ekf import STATE_NAMES, estimate_filter, initial_rates
+
+    if tuple(getattr(args, "estimate", ("mass", "izz"))) != ("mass", "izz"):
+        raise UserError("the filters estimate exactly mass and izz (drop --estimate or use "
+                        "--method ls)")
+    run = read_run(args.run_dir)
+    window = parse_window(getattr(args, "window", None))
+    if window != (None, None):
+        run = run.window(*window)
+    table = load_thrust_table(getattr(args, "thrust_table", None))
+    cmd_t, thrust = run.thrust_profile(table, clamp=getattr(args, "clamp", False))
+    cfg = _filter_config(args, sigma_pos=getattr(args, "sigma_pos", None),
+                         sigma_yaw_rad=math.radians(args.sigma_yaw_deg)
+                         if getattr(args, "sigma_yaw_deg", None) else None,
+                         fixed=getattr(args, "fixed", {}))
+    initial = dict(getattr(args, "initial", {}) or {})
+    bad = [k for k in initial if k not in STATE_NAMES]
+    if bad:
+        raise UserError(f"--initial {', '.join(bad)}: the filters start only x, y, psi, u, v, r, "
+                        "m, izz (give known friction/tilt with --fixed)")
+    x0 = np.array(cfg.x0, dtype=float)
+    # start at the first pose, with velocities from a line fit of the first 0.25 s (the
+    # run or window need not begin at rest), unless --initial says otherwise
+    x0[:3] = run.pose[0]
+    if args.method == "ekf" and not {"u", "v", "r"} & set(initial):
+        rates, rsig = initial_rates(run.pose_t, run.pose)
+        if np.all(np.isfinite(rsig)):
+            x0[3:6] = rates
+            s0 = np.array(cfg.sigma0)
+            s0[3:6] = np.maximum(s0[3:6], 3 * rsig)
+            cfg = cfg.with_(sigma0=tuple(s0.tolist()))
+    for k, v in initial.items():
+        x0[STATE_NAMES.index(k)] = v
+    if x0[6] <= 0 or x0[7] <= 0:
+        raise UserError("initial mass and izz must be positive")
+    ls_kwargs = {}
+    if args.method == "ls-ekf":
+        ls_kwargs = {"tol": getattr(args, "tol", 1e-8), "max_iter": getattr(args, "max_iter", 50)}
+        if initial:
+            ls_kwargs["initial"] = initial
+    try:
+        fe = estimate_filter(run.pose_t, run.pose, cmd_t, thrust, args.method, cfg,
+                             x0=x0 if args.method == "ekf" else None, ls_window_s=args.ls_window,
+                             ls_start=args.ls_start, ls_kwargs=ls_kwargs)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    r = fe.result
+    out: dict[str, Any] = {"run": str(run.path)}
+    out.update(fe.to_dict())
+    out["settings"] = {"preset": args.preset, "q_psd": list(cfg.q_psd),
+                       "sigma0": list(cfg.sigma0), "x0": x0.tolist(),
+                       "sigma_meas": list(cfg.sigma_meas), "underweight": cfg.underweight,
+                       "uw_trigger": cfg.uw_trigger}
+    truth = run.truth or {}
+    has_truth = "mass_kg" in truth and "izz_kgm2" in truth
+    if has_truth:
+        tm, ti = float(truth["mass_kg"]), float(truth["izz_kgm2"])
+        rm, ri = r.rmse(tm, ti)
+        out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
+                    "mass_error_kg": r.mass_kg - tm, "izz_error_kgm2": r.izz_kgm2 - ti,
+                    "mass_rel_error": (r.mass_kg - tm) / tm,
+                    "izz_rel_error": (r.izz_kgm2 - ti) / ti,
+                    "rmse_mass_kg": rm, "rmse_izz_kgm2": ri,
+                    "rmse_definition": "over every pose time from the first"})
+    if args.out:
+        from estimator.reports.plots_ekf import plot_error_bounds
+
+        d = Path(args.out)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+        cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
+                                                                                   "underweighted"]
+        np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis,
+                                                       r.triggered]),
+                   delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+        plot_error_bounds(r.t, r.x[:, 6:8], r.sigma[:, 6:8], d / "errors.png",
+                          (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
+                          title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
+                                f"{run.path.name}")
+    if r.diverged:
+        print("tpods: warning: the filter diverged (non-physical parameters or innovations far "
+              "larger than their covariance); try --method ls-ekf", file=sys.stderr)
+    elif r.inconsistent:
+        print(f"tpods: warning: the filter is inconsistent (mean NIS {r.nis_tail_mean:.3g} over the "
+              "last 10 % of updates, 3 expected): its sigma understates the error; try --method "
+              "ls-ekf", file=sys.stderr)
+    if args.json:
+        sys.stdout.write(json.dumps(out, default=str) + "\n")
+        return 0
+    label = args.method + (f" ({fe.ls_start}, LS window {fe.ls_window_s:g} s)" if fe.ls else "")
+    print(f"{label} on {run.path} ({len(r.t)} poses, t = {r.t[0]:.3f}..{r.t[-1]:.3f} s)")
+    if fe.ls is not None:
+        print(f"  LS start: mass {fe.ls.mass_kg:.6g} +/- {fe.ls.mass_sigma_kg:.3g} kg, "
+              f"Izz {fe.ls.izz_kgm2:.6g} +/- {fe.ls.izz_sigma_kgm2:.3g} kg m^2")
+    print(f"  mass  = {r.mass_kg:.6g} kg      +/- {out['mass_sigma_kg']:.3g} (1 sigma)")
+    print(f"  Izz   = {r.izz_kgm2:.6g} kg m^2  +/- {out['izz_sigma_kgm2']:.3g} (1 sigma)")
+    print(f"  mean NIS {out['nis_mean']:.3g} (3 expected), "
+          f"{out['underweighted_updates']} underweighted updates")
+    if has_truth:
+        print(f"  truth: mass {out['truth_mass_kg']:.6g} kg (error {out['mass_rel_error'] * 100:+.3f} %), "
+              f"Izz {out['truth_izz_kgm2']:.6g} (error {out['izz_rel_error'] * 100:+.3f} %)")
+        print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
+              f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")
+    if args.out:
+        print(f"  wrote {Path(args.out) / 'estimate.json'}, history.csv, errors.png")
+    return 0
+
+
+# --------------------------------------------------------------------------------------
+# estimate montecarlo, report ekf
+
+
+def register(sub, est, rep) -> None:
+    """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
+    p = est.add_parser(
+        "montecarlo", help="Monte Carlo consistency of the EKF (Figs. 9, 10)",
+        description="Draw m and Izz uniformly within +/- SPREAD of 2.268 kg and 3.78e-3 kg m^2, "
+                    "simulate each run with 1 cm / 1 deg pose noise and filter it; all runs are "
+                    "vectorised. Reports bias, sample std against filter sigma, average NEES "
+                    "with its 95 % chi-square bounds and the fraction of final errors inside "
+                    "3 sigma. The default filter is the paper's without process noise (the "
+                    "simulated parameters are constant); the filter starts at the nominal "
+                    "values with the uniform draw's standard deviation.")
+    p.add_argument("--runs", type=int_at_least(2), default=500, help="number of runs (default 500)")
+    p.add_argument("--spread", type=fraction, default=0.5,
+                   help="relative half-width of the uniform m, Izz draw (default 0.5)")
+    p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    p.add_argument("--input", default="phase-sine",
+                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
+                   help="filter start (default ekf)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+    p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write montecarlo.json, history.csv, runs.csv and the figures here")
+    _filter_options(p, "no-process-noise")
+    p.set_defaults(func=cmd_montecarlo)
+
+    r = rep.add_parser(
+        "ekf", help="EKF and LS+EKF RMSE beside the paper's (120 s synthetic scenario)",
+        description="Simulate the paper's 120 s phase-sine scenario for several noise seeds, run "
+                    "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
+                    "ekf_report.json and Fig. 7/8-style plots.")
+    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
+    r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
+    r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
+    r.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    r.set_defaults(func=cmd_report_ekf)
+
+
+def cmd_montecarlo(args: argparse.Namespace) -> int:
+    from estimator.montecarlo import MC_FILTER, McConfig, config_dict, run_montecarlo
+    from estimator.reports.plots_ekf import plot_mc_averages, plot_mc_runs
+
+    base = MC_FILTER if args.preset == "no-process-noise" else None
+    cfg_f = _filter_config(args, base)
+    if args.method == "ls-ekf" and args.ls_window >= args.duration:
+        raise UserError("--ls-window must be shorter than --duration")
+    try:
+        cfg = McConfig(runs=args.runs, spread=args.spread, duration_s=args.duration,
+                       input=args.input, method=args.method, seed=args.seed,
+                       pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
+                       ls_window_s=args.ls_window, ls_start=args.ls_start, filter=cfg_f)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    d = None
+    if args.out:
+        d = Path(args.out)
+        d.mkdir(parents=True, exist_ok=True)
+    res = run_montecarlo(cfg, progress=True)
+    summ = res.summary()
+    if res.interrupted:
+        print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
+              file=sys.stderr)
+    if d is not None:
+        (d / "montecarlo.json").write_text(json.dumps(
+            {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
+        cols, data = res.history_table()
+        np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
+                   fmt="%.8g")
+        runs = np.column_stack([np.arange(cfg.runs), res.truth, res.final_err[:, 6:8],
+                                res.final_sigma[:, 6:8], res.rmse])
+        np.savetxt(d / "runs.csv", runs, delimiter=",", comments="", fmt="%.8g",
+                   header="run,mass_kg,izz_kgm2,final_err_mass_kg,final_err_izz_kgm2,"
+                          "final_sigma_mass_kg,final_sigma_izz_kgm2,rmse_mass_kg,rmse_izz_kgm2")
+        tag = f"{cfg.method}{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}"
+        plot_mc_runs(res.t, res.ex_err, res.ex_sigma, d / "mc_runs.png",
+                     title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
+        plot_mc_averages(res, d / "mc_averages.png",
+                         title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
+    code = 130 if res.interrupted else 0
+    if args.json:
+        sys.stdout.write(json.dumps(summ) + "\n")
+        return code
+    s = summ
+    b = s["nees_param_bounds"]
+    bf = s["nees_full_bounds"]
+    print(f"Monte Carlo: {cfg.runs} runs x {cfg.duration_s:g} s, {cfg.input}, method {cfg.method}"
+          f"{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}, spread +/-{cfg.spread:g}, "
+          f"{res.elapsed_s:.1f} s")
+    print(f"  final bias   mass {s['final_bias_mass_kg']:+.3g} kg, Izz {s['final_bias_izz_kgm2']:+.3g} kg m^2")
+    print(f"  final std    mass {s['final_std_mass_kg']:.3g} (filter sigma {s['final_sigma_mass_kg']:.3g}), "
+          f"Izz {s['final_std_izz_kgm2']:.3g} (filter sigma {s['final_sigma_izz_kgm2']:.3g})")
+    print(f"  avg NEES m,Izz  mean {s['nees_param_mean']:.3g}, bounds [{b[0]:.3g}, {b[1]:.3g}], "
+          f"inside {100 * s['nees_param_inside_frac']:.0f} % of times")
+    print(f"  avg NEES state  mean {s['nees_full_mean']:.3g}, bounds [{bf[0]:.3g}, {bf[1]:.3g}], "
+          f"inside {100 * s['nees_full_inside_frac']:.0f} % of times")
+    print(f"  final errors inside 3 sigma: mass {100 * s['within_3sigma_mass']:.1f} %, "
+          f"Izz {100 * s['within_3sigma_izz']:.1f} %; runs with final (m, Izz) NEES above the "
+          f"99.9 % chi-square point: {100 * s['final_outlier_frac']:.1f} %")
+    if cfg.filter.underweight > 0:
+        print(f"  underweighted updates: {100 * s['underweighted_frac']:.2f} %")
+    if s["ls_failed"]:
+        print(f"  {s['ls_failed']} runs whose LS fit failed started from the ekf initialisation")
+    if d is not None:
+        print(f"  wrote {d / 'montecarlo.json'}, history.csv, runs.csv, mc_runs.png, mc_averages.png")
+    return code
+
+
+def cmd_report_ekf(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from estimator.reports.ekf import build_report, summary_lines
+
+    if args.seeds < 1:
+        raise UserError("--seeds must be at least 1")
+    if args.ls_window >= args.duration:
+        raise UserError("--ls-window must be shorter than --duration")
+    bar = tqdm(total=args.seeds, desc="seeds", unit="seed")
+    try:
+        rep = build_report(args.duration, tuple(range(args.seeds)), ls_window_s=args.ls_window,
+                           out_dir=args.out, progress=lambda _s: bar.update(1))
+    finally:
+        bar.close()
+    if args.json:
+        slim = {k: {"summary": v["summary"], "paper": v["paper"]}
+                for k, v in rep["methods"].items()}
+        sys.stdout.write(json.dumps({"scenario": rep["scenario"], "methods": slim}) + "\n")
+        return 0
+    for line in summary_lines(rep):
+        print(line)
+    print(f"wrote {Path(args.out) / 'report.md'}, ekf_report.json and figures")
+    return 0

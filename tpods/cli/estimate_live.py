@@ -1,0 +1,146 @@
+"""``tpods estimate live``: a thin shell over :mod:`estimator.live.runtime`."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from common.argtypes import nonneg_float, positive_float
+from common.errors import UserError
+
+
+def register(est) -> None:
+    """Add ``live`` to the ``tpods estimate`` group."""
+    from common.zenoh_net import add_zenoh_options
+    from tpods.cli.estimate_ekf import add_batch_options
+
+    p = est.add_parser(
+        "live", help="estimate mass and Izz live from Zenoh poses and commands",
+        description="Subscribe to tpods/mocap/<body>/pose and tpods/<body>/cmd, align them (commands "
+                    "are a zero-order hold; a pose waits up to --max-wait-ms for a late command), "
+                    "run the EKF (or LS then EKF) pose by pose and publish tpods/<body>/estimate. "
+                    "With --out, what it saw is recorded as a run folder for `tpods estimate batch`.")
+    p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    p.add_argument("--thrust-table", default=None, metavar="F",
+                   help="thrust table TOML, e.g. from `tpods bench fit` (default the paper's Table 2)")
+    p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
+                   help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
+                        "then the filter restarts from it (default ekf)")
+    p.add_argument("--out", default=None, metavar="RUN_DIR", help="record a run folder here")
+    p.add_argument("--rate", type=nonneg_float, default=10.0, metavar="HZ",
+                   help="estimate publish rate, Hz; 0 = after every pose update (default 10)")
+    p.add_argument("--max-wait-ms", type=nonneg_float, default=2.0, metavar="MS",
+                   help="longest a pose waits for a late command, ms, counted from the earlier of "
+                        "its capture and arrival times (default 2)")
+    p.add_argument("--rewind-s", type=nonneg_float, default=2.0, metavar="S",
+                   help="a command that arrives after the poses it governs, but at most S lab "
+                        "seconds after its time, makes the filter re-run from before it "
+                        "(default 2; 0: such commands are counted as late and not used live)")
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="stop after S seconds (default: Ctrl-C / SIGTERM)")
+    p.add_argument("--exit-on-end", action="store_true",
+                   help="stop shortly after the player announces the end of its input")
+    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
+    p.add_argument("--mocap-prefix", default="tpods/mocap", help="pose key prefix (default tpods/mocap)")
+    p.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no live console line")
+    add_batch_options(p)
+    add_zenoh_options(p)
+    p.set_defaults(func=cmd_live)
+
+
+def cmd_live(args: argparse.Namespace) -> int:
+    import tpods
+    from common.console import Console as _Console
+    from common.thrust_table import load_thrust_table
+    from common.zenoh_net import open_session
+    from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
+    from tpods.cli.estimate_ekf import _filter_config
+
+    table = load_thrust_table(args.thrust_table)
+    cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
+                     ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
+                     publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
+    k = keys(args.body, args.mocap_prefix, args.prefix)
+    rec = None
+    if args.out:
+        rec = LiveRecorder(args.out, {
+            "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
+            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            "body": args.body, "keys": k, "method": args.method,
+            "thrust_table": args.thrust_table or "built-in Table 2",
+            "settings": {"max_wait_s": cfg.max_wait_s, "rewind_s": cfg.rewind_s,
+                         "publish_rate_hz": cfg.publish_rate_hz,
+                         "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
+                         "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
+                         "sigma_meas": list(cfg.ekf.sigma_meas),
+                         "underweight": cfg.ekf.underweight}})
+    est = LiveEstimator(table, cfg, args.body, recorder=rec)
+    console = _Console(args.quiet)
+    stop = threading.Event()
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        old[sig] = signal.signal(sig, lambda *_a: stop.set())
+    status = "failed"
+    res = None
+    try:
+        session = open_session(args)
+        try:
+            print(f"live: {k['pose']} + {k['cmd']} -> {k['estimate']} ({args.method}, "
+                  f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
+            res = run_live(session, est, stop=stop, duration_s=args.duration,
+                           exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
+                           prefix=args.prefix, on_console=console.show)
+            status = res.status
+        finally:
+            session.close()
+    finally:
+        console.end()
+        for sig, h in old.items():
+            signal.signal(sig, h)
+        summary = est.summary()
+        if rec is not None:
+            rec.close(status, {"final": summary})
+            (Path(args.out) / "estimate.json").write_text(
+                json.dumps(summary, indent=2, default=str) + "\n")
+    c = summary["counters"]
+    if summary.get("diverged"):
+        print("tpods: warning: the live filter diverged (non-physical mass or Izz, or innovations "
+              "far larger than their covariance); do not use this estimate. Late commands: "
+              f"{c['align_cmds_late']} not used, {c['align_cmds_rewound']} re-filtered; "
+              "post-process the run with `tpods estimate batch`", file=sys.stderr)
+    elif summary.get("inconsistent"):
+        print("tpods: warning: the live filter's recent innovations are larger than its covariance "
+              "allows (mean NIS above the chi-square bound): its sigma understates the error",
+              file=sys.stderr)
+    if args.json:
+        sys.stdout.write(json.dumps(summary, default=str) + "\n")
+        return 0
+    if summary.get("mass_kg") is None:
+        print(f"live: no estimate ({c['poses_rx']} poses and {c['cmds_rx']} commands received)")
+        return 0
+    print(f"live {status} ({summary['phase']}, {summary['n_updates']} updates)")
+    print(f"  mass = {summary['mass_kg']:.6g} kg      +/- {summary['mass_sigma_kg']:.3g} (1 sigma)")
+    print(f"  Izz  = {summary['izz_kgm2']:.6g} kg m^2  +/- {summary['izz_sigma_kgm2']:.3g} (1 sigma)")
+    if "ls" in summary:
+        ls = summary["ls"]
+        print(f"  LS start on the first {ls['window_s']:g} s: mass {ls['mass_kg']:.6g} kg, "
+              f"Izz {ls['izz_kgm2']:.6g} kg m^2 ({ls['elapsed_s']:.2f} s in the background)")
+    if "ls_error" in summary:
+        print(f"  LS start failed: {summary['ls_error']}")
+    print(f"  poses {c['poses_rx']} received, {c['updates']} used; occluded {c['align_occluded']}, "
+          f"duplicates {c['align_duplicates']}, too old {c['align_too_old']}, malformed "
+          f"{c['malformed']}; commands {c['cmds_rx']}, late {c['align_cmds_late']} (re-filtered "
+          f"{c['align_cmds_rewound']}); released by "
+          f"timeout {c['align_released_by_timeout']}; largest backlog {c['max_backlog']}")
+    if args.out:
+        print(f"  wrote {args.out} (commands.csv, poses.csv, estimates.csv, run.json, estimate.json)")
+    if not math.isfinite(summary["mass_kg"]):
+        raise UserError("the filter diverged (non-finite estimate)")
+    return 0
