@@ -1,0 +1,435 @@
+"""The live estimator core: align, filter and publish, without any network code.
+
+:class:`LiveEstimator`: feed it decoded pose and command messages
+(:meth:`~LiveEstimator.pose`, :meth:`~LiveEstimator.command`) and call
+:meth:`~LiveEstimator.process` with the host time; it aligns them
+(:class:`estimator.live.align.LiveAligner`: commands are a zero-order hold, a pose
+waits up to ``max_wait_s`` for a late command, occluded / non-finite / repeated /
+too-old samples are counted and skipped), runs the lean EKF
+(:func:`estimator.filters.ekf.ekf_predict`, :func:`estimator.filters.ekf.ekf_update`) pose by pose,
+re-filters from a checkpoint when a command arrives after poses it governs (``rewind_s``),
+and hands estimate messages to ``publish`` at ``publish_rate_hz`` (0: after every
+update). The ``ls-ekf`` start and catch-up live in :mod:`estimator.live.restart`.
+"""
+
+from __future__ import annotations
+
+import bisect
+import collections
+import functools
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from common.errors import UserError
+from common.wire import EST_FMT as _EST_FMT
+from common.wire import EST_SCHEMA
+from estimator.filters.ekf import PAPER, STATE_NAMES, EkfConfig, ekf_predict, ekf_update
+from estimator.live.align import LiveAligner
+from estimator.live.restart import LsEkfRestart
+from estimator.plant.model import wrench
+
+if TYPE_CHECKING:
+    from estimator.live.recorder import LiveRecorder
+
+LIVE_METHODS = ("ekf", "ls-ekf")
+_ZERO_W = (0.0, 0.0, 0.0)
+DEFAULT_MAX_WAIT_S = 0.002
+"""Default bound on how long a pose waits for a late command (host seconds, counted from
+the earlier of its capture and arrival times). Commands cross Zenoh in 0.1-1 ms on one
+host or a LAN; a real mocap's own latency (3+ ms for VICON) means its poses are usually
+released on arrival. Keeps pose-to-estimate latency within a few milliseconds."""
+DEFAULT_REWIND_S = 2.0
+"""How far back (lab seconds) a command arriving after the poses it governs still
+corrects the live filter: it restores the state saved before the command and re-filters
+the poses since (``LiveConfig.rewind_s``; 0 turns this off)."""
+DIVERGED_NIS = 10.0
+"""A mean normalised innovation squared above this over the last ``NIS_WINDOW``
+updates (3 expected) flags the filter as diverged, as the batch EKF does."""
+NIS_WINDOW = 200
+
+
+@functools.cache
+def _nis_limits() -> np.ndarray:
+    """``max(4, chi2_0.999(3n) / n)`` for n = 0 .. NIS_WINDOW (index n)."""
+    n = np.arange(1, NIS_WINDOW + 1)
+    return np.concatenate([[np.inf], np.maximum(4.0, chi2.ppf(0.999, 3 * n) / n)])
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Settings of the live estimator (SI units; host seconds for waits and rates)."""
+
+    method: str = "ekf"
+    ekf: EkfConfig = PAPER
+    ls_window_s: float = 20.0
+    ls_start: str = "reuse"
+    max_wait_s: float = DEFAULT_MAX_WAIT_S
+    publish_rate_hz: float = 10.0
+    catchup_budget_s: float = 0.0005
+    ls_in_process: bool = False
+    n_channels: int = 4
+    rewind_s: float = DEFAULT_REWIND_S
+
+    def __post_init__(self) -> None:
+        if self.method not in LIVE_METHODS:
+            raise UserError(f"method must be one of {', '.join(LIVE_METHODS)}")
+        if self.ls_start not in ("reuse", "handoff"):
+            raise UserError("ls_start must be reuse or handoff")
+        if not (self.max_wait_s >= 0 and math.isfinite(self.max_wait_s)):
+            raise UserError("the alignment wait must be a non-negative number of seconds")
+        if not (self.publish_rate_hz >= 0 and math.isfinite(self.publish_rate_hz)):
+            raise UserError("the publish rate must be >= 0 Hz (0: every update)")
+        if self.ls_window_s <= 0:
+            raise UserError("the LS window must be positive")
+        if not (self.rewind_s >= 0 and math.isfinite(self.rewind_s)):
+            raise UserError("the rewind horizon must be a non-negative number of seconds")
+
+
+
+
+@dataclass
+class LiveCounters:
+    poses_rx: int = 0
+    cmds_rx: int = 0
+    malformed: int = 0
+    other_body: int = 0
+    updates: int = 0
+    estimates_published: int = 0
+    publish_errors: int = 0
+    catchup_updates: int = 0
+    max_backlog: int = 0
+    max_queue: int = 0
+    rewinds: int = 0
+    rewind_updates: int = 0
+
+
+class LiveEstimator(LsEkfRestart):
+    """Align, filter and publish (no network code; see the module docstring).
+
+    Args:
+        table: thrust table used by the estimator (duty percent to newtons).
+        config: :class:`LiveConfig`.
+        body: the body name (estimate messages, sanity check of incoming messages).
+        publish: called with each estimate message (a dict).
+        recorder: optional :class:`LiveRecorder`.
+    """
+
+    def __init__(self, table, config: LiveConfig | None = None, body: str = "tpods1",
+                 publish: Callable[[dict[str, Any]], None] | None = None,
+                 recorder: LiveRecorder | None = None) -> None:
+        self.table = table
+        self.config = config or LiveConfig()
+        self.body = body
+        self.publish = publish
+        self._body_json = json.dumps(body)
+        self.recorder = recorder
+        self._R = self.config.ekf.R
+        self.publish_bytes: Callable[[bytes], None] | None = None
+        """Alternative to ``publish``: called with the encoded payload (the fast path)."""
+        self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s,
+                                   n_channels=self.config.n_channels)
+        self.counters = LiveCounters()
+        self._wrench: dict[float, tuple[float, float, float]] = {}
+        self.z: np.ndarray | None = None
+        self.P: np.ndarray | None = None
+        self.t_last: float | None = None
+        self.frame_last = -1
+        self.last_nis = math.nan
+        self.phase = "ekf"
+        self.hist_t: list[float] = []
+        self.hist_pose: list[tuple[float, float, float]] = []
+        self._init_ls()
+        self.restart_t: float | None = None
+        self.end_seen_t: float | None = None
+        self._last_pub = -math.inf
+        self._seq = 0
+        self.history: list[tuple[float, float, float, float, float]] = []
+        """(t, mass, mass sigma, izz, izz sigma) after every update (for plots)."""
+        self._ck: list[tuple[float, int, np.ndarray, np.ndarray]] = []
+        """Checkpoints of the live filter within ``rewind_s``: (pose t, index in hist, z, P)."""
+        self._rewind_t: float | None = None
+        self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
+        _nis_limits()  # scipy.stats now, not in the middle of a stream
+
+    # ------------------------------------------------------------------ input
+    def command(self, d: dict[str, Any]) -> bool:
+        """A decoded ``tpods.cmd/1`` message. Returns whether it was accepted."""
+        self.counters.cmds_rx += 1
+        if d.get("body") not in (None, self.body):
+            self.counters.other_body += 1
+            return False
+        t, duty = d["t"], d["duty"]
+        late_before = self.aligner.stats.cmds_late
+        self.aligner.rewind_floor = self._ck[0][0] if self._ck else math.inf
+        if not self.aligner.push_command(t, duty):
+            if self.aligner.stats.cmds_late > late_before:
+                # too late for the live filter (it cannot rewrite the past), but the run
+                # folder keeps it for post-processing
+                if self.recorder is not None:
+                    self.recorder.command(t, duty)
+                if d.get("kind") == "end":
+                    self.end_seen_t = t
+            return False
+        try:
+            thrust = self.table.thrust_n(np.asarray([duty], float), clamp=True)[0]
+        except Exception:  # a duty the table cannot map (outside 0..100 never gets here)
+            thrust = np.zeros(self.config.n_channels)
+        w = wrench(thrust, self.config.ekf.arm_m)
+        self._wrench[float(t)] = (float(w[0]), float(w[1]), float(w[2]))
+        if d.get("kind") == "end":
+            self.end_seen_t = t
+        if self.recorder is not None:
+            self.recorder.command(t, duty)
+        if self.t_last is not None and t <= self.t_last:
+            # the filter already went past it: re-filter from before it (in process())
+            self._rewind_t = t if self._rewind_t is None else min(self._rewind_t, t)
+        cu = self._cu
+        if cu is not None and cu["t"] is not None and t <= cu["t"]:  # the catch-up too
+            cu["rewind"] = t if cu["rewind"] is None else min(cu["rewind"], t)
+        return True
+
+    def pose(self, d: dict[str, Any], arrival: float) -> bool:
+        """A decoded ``tpods.pose/1`` message received at host time ``arrival``."""
+        self.counters.poses_rx += 1
+        if d.get("body") not in (None, self.body):
+            self.counters.other_body += 1
+            return False
+        t = d["t"]
+        return self.aligner.push_pose(d["frame"], t, d["x"] if d["x"] is not None else math.nan,
+                                      d["y"] if d["y"] is not None else math.nan,
+                                      d["yaw"] if d["yaw"] is not None else math.nan,
+                                      occluded=bool(d["occluded"]), arrival=min(t, arrival))
+
+    def next_deadline(self) -> float | None:
+        """Host time by which :meth:`process` must run again (a pose's wait ends)."""
+        return self.aligner.next_deadline()
+
+    # ------------------------------------------------------------- filtering
+    def _segments(self, t0: float, t1: float):
+        """Hold segments (durations s, body wrenches) from ``t0`` to ``t1``."""
+        ct, _ = self.aligner.commands_between(t0, t1)
+        ts = ct.tolist()
+        w = self._wrench
+        cmd_all = self.aligner._cmd_t
+        seg_w = []
+        for tc in ts:
+            wi = w.get(tc)
+            if wi is None:  # the command in force at t0, restamped to t0
+                j = bisect.bisect_right(cmd_all, tc) - 1
+                wi = w[cmd_all[j]] if j >= 0 else _ZERO_W
+            seg_w.append(wi)
+        if not ts or ts[0] > t0:  # nothing commanded yet at t0
+            ts.insert(0, t0)
+            seg_w.insert(0, _ZERO_W)
+        ts.append(t1)
+        seg_dt = [ts[i + 1] - ts[i] for i in range(len(ts) - 1)]
+        return seg_dt, seg_w
+
+    def _step(self, z, P, t_prev: float | None, t: float, meas, use: bool = True):
+        cfg = self.config.ekf
+        if t_prev is not None and t > t_prev:
+            seg_dt, seg_w = self._segments(t_prev, t)
+            z, P, _ = ekf_predict(z, P, seg_dt, seg_w, cfg)
+        nis = math.nan
+        if use:
+            z, P, (nis, _) = ekf_update(z, P, meas, cfg, self._R)
+        return z, P, nis
+
+    def _start_filter(self, meas) -> None:
+        z = np.array(self.config.ekf.x0, dtype=float)
+        z[:3] = meas
+        self.z, self.P = z, self.config.ekf.P0.copy()
+
+    def process(self, now: float) -> int:
+        """Release the aligned poses, filter them, advance a catch-up, publish. Returns updates."""
+        if self._rewind_t is not None:
+            self._rewind()
+        ready = self.aligner.pop_ready(now)
+        self.counters.max_backlog = max(self.counters.max_backlog, self.aligner.pending)
+        n = 0
+        for p in ready:
+            meas = (p.x, p.y, p.yaw)
+            if self.z is None:
+                self._start_filter(meas)
+                self.z, self.P, self.last_nis = self._step(self.z, self.P, None, p.t, meas)
+            else:
+                self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, p.t, meas)
+            self.t_last = p.t
+            self.frame_last = p.frame
+            self.hist_t.append(p.t)
+            self.hist_pose.append(meas)
+            self.counters.updates += 1
+            n += 1
+            self._after_update(p.t, len(self.hist_t) - 1)
+            if self.recorder is not None:
+                self.recorder.pose(p.t, p.x, p.y, p.yaw)
+                self.recorder.estimate(p.t, p.frame, self.phase, self.z,
+                                       np.sqrt(np.maximum(self.P.diagonal(), 0.0)))
+            if self.config.publish_rate_hz == 0:
+                self._publish(now)
+        if self.config.method == "ls-ekf":
+            self._ls_tick()
+        if n and self.config.publish_rate_hz > 0 and now - self._last_pub >= 1.0 / self.config.publish_rate_hz:
+            self._publish(now)
+        return n
+
+    def _after_update(self, t: float, idx: int) -> None:
+        """Bookkeeping after the live filter's update with pose ``hist_t[idx]``: history,
+        NIS, checkpoint."""
+        z, P = self.z, self.P
+        self.history.append((t, float(z[6]), math.sqrt(max(P[6, 6], 0.0)),
+                             float(z[7]), math.sqrt(max(P[7, 7], 0.0))))
+        if not math.isnan(self.last_nis):
+            self._nis_recent.append(self.last_nis)
+        horizon = self.config.rewind_s
+        if horizon > 0:
+            ck = self._ck
+            ck.append((t, idx, z.copy(), P.copy()))
+            if len(ck) > 256 and ck[255][0] < t - horizon:  # drop the old ones in blocks
+                cut = bisect.bisect_left([c[0] for c in ck], t - horizon)
+                del ck[:cut]
+
+    def _rewind(self) -> None:
+        """A command arrived after poses it governs: restore the checkpoint at or before
+        it and re-filter the poses since with the commands now known."""
+        t_c, self._rewind_t = self._rewind_t, None
+        ck = self._ck
+        j = bisect.bisect_right([c[0] for c in ck], t_c) - 1
+        if j < 0:  # older than every checkpoint (the aligner refuses those): nothing to do
+            return
+        t_prev, idx, z, P = ck[j]
+        del ck[j + 1:]
+        del self.history[len(self.history) - (len(self.hist_t) - 1 - idx):]
+        self.z, self.P, self.t_last = z.copy(), P.copy(), t_prev
+        n = 0
+        for i in range(idx + 1, len(self.hist_t)):
+            t = self.hist_t[i]
+            self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, t,
+                                                       self.hist_pose[i])
+            self.t_last = t
+            self._after_update(t, i)
+            n += 1
+        self.counters.rewinds += 1
+        self.counters.rewind_updates += n
+
+    @property
+    def diverged(self) -> bool:
+        """Non-physical or non-finite mass or Izz, a covariance that broke down, or a mean
+        NIS over the last updates above :data:`DIVERGED_NIS` (the batch EKF's test)."""
+        if self.z is None:
+            return False
+        z, P = self.z, self.P
+        if not (z[6] > 0 and z[7] > 0 and np.all(np.isfinite(z))):
+            return True
+        if not (P[6, 6] > 0 and P[7, 7] > 0 and np.all(np.isfinite(P))):
+            return True
+        return self._nis_recent_mean() > DIVERGED_NIS
+
+    def _nis_recent_mean(self) -> float:
+        nis = self._nis_recent
+        return sum(nis) / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
+
+    @property
+    def inconsistent(self) -> bool:
+        """The recent innovations are larger than the covariance allows (mean NIS over the
+        last updates above ``max(4, chi2_0.999(3n) / n)``, the batch EKF's test): the
+        reported sigma is not to be trusted, though the filter has not diverged."""
+        mean = self._nis_recent_mean()
+        if not math.isfinite(mean):
+            return False
+        return bool(mean > _nis_limits()[len(self._nis_recent)])
+
+    # ---------------------------------------------------------------- output
+    def estimate(self, now: float | None = None) -> dict[str, Any] | None:
+        """The current estimate message (None before the first update)."""
+        if self.z is None:
+            return None
+        z = self.z
+        sig = np.sqrt(np.maximum(self.P.diagonal(), 0.0))
+        return {
+            "schema": EST_SCHEMA, "body": self.body, "seq": self._seq,
+            "t": self.t_last, "frame": self.frame_last,
+            "t_pub": time.time() if now is None else now,
+            "method": self.config.method, "phase": self.phase,
+            "mass_kg": float(z[6]), "mass_sigma_kg": float(sig[6]),
+            "izz_kgm2": float(z[7]), "izz_sigma_kgm2": float(sig[7]),
+            "state": dict(zip(STATE_NAMES[:6], z[:6].tolist(), strict=True)),
+            "state_sigma": dict(zip(STATE_NAMES[:6], sig[:6].tolist(), strict=True)),
+            "n_updates": self.counters.updates,
+            "nis": None if math.isnan(self.last_nis) else float(self.last_nis),
+            "diverged": self.diverged,
+            "inconsistent": self.inconsistent,
+        }
+
+    def _publish(self, now: float) -> None:
+        self._last_pub = now
+        if self.z is None or (self.publish is None and self.publish_bytes is None):
+            return
+        self._seq += 1
+        try:
+            if self.publish_bytes is not None:
+                self.publish_bytes(self._encode())
+            else:
+                msg = self.estimate()
+                msg["seq"] = self._seq
+                self.publish(msg)
+            self.counters.estimates_published += 1
+        except Exception:
+            self.counters.publish_errors += 1
+
+    def _encode(self) -> bytes:
+        """The current estimate as a ``tpods.estimate/1`` payload (same keys as :meth:`estimate`)."""
+        z = self.z.tolist()
+        d = self.P.diagonal().tolist()
+        sg = [math.sqrt(v) if v > 0 else 0.0 for v in d]
+        nis = "null" if math.isnan(self.last_nis) else repr(float(self.last_nis))
+        return (_EST_FMT % (self._body_json, self._seq, self.t_last, self.frame_last, time.time(),
+                            self.config.method, self.phase, z[6], sg[6], z[7], sg[7],
+                            *z[:6], *sg[:6], self.counters.updates, nis,
+                            "true" if self.diverged else "false",
+                            "true" if self.inconsistent else "false")).encode()
+
+    def finish(self) -> dict[str, Any] | None:
+        """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
+        self.process(math.inf)
+        if self.config.method == "ls-ekf":
+            if self.phase == "ekf" and self.hist_t and \
+                    self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s:
+                self._start_ls()
+            self._ls_tick(block=True)
+            self.close_pool()
+        self._publish(time.time())
+        return self.estimate()
+
+    def stats(self) -> dict[str, Any]:
+        d = asdict(self.counters)
+        d.update({f"align_{k}": v for k, v in self.aligner.stats.as_dict().items()})
+        d["pending"] = self.aligner.pending
+        return d
+
+    def summary(self) -> dict[str, Any]:
+        """Final estimate, phase, LS details and counters (JSON-ready)."""
+        est = self.estimate() or {}
+        out = {k: est.get(k) for k in ("method", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2",
+                                       "izz_sigma_kgm2", "state", "state_sigma", "n_updates",
+                                       "diverged", "inconsistent")}
+        out["t_last_lab"] = self.t_last
+        out["restart_t_lab"] = self.restart_t
+        if self.ls_result is not None:
+            r = self.ls_result
+            out["ls"] = {"mass_kg": r.mass_kg, "mass_sigma_kg": r.mass_sigma_kg,
+                         "izz_kgm2": r.izz_kgm2, "izz_sigma_kgm2": r.izz_sigma_kgm2,
+                         "window_s": self.config.ls_window_s, "elapsed_s": self.ls_elapsed_s}
+        if self.ls_error:
+            out["ls_error"] = self.ls_error
+        out["counters"] = self.stats()
+        return out
+
+

@@ -1,0 +1,175 @@
+"""The live estimator on Zenoh: subscribe to a body's poses and commands, publish its estimates.
+
+:func:`run_live` wires a :class:`~estimator.live.core.LiveEstimator` to a session
+(``tpods/mocap/<body>/pose``, ``tpods/<body>/cmd`` in; ``tpods/<body>/estimate`` out, the
+keys of :func:`keys`) until stopped; :func:`console_line` is its one-line status.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from common.wire import ENCODING, cmd_key, decode_command, decode_pose, estimate_key, pose_key
+from estimator.live.core import LiveEstimator
+
+
+def keys(body: str, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods") -> dict[str, str]:
+    """The pose, command and estimate keys of a body."""
+    return {"pose": pose_key(mocap_prefix, body), "cmd": cmd_key(body, prefix),
+            "estimate": estimate_key(body, prefix)}
+
+
+@dataclass
+class LiveRun:
+    """Outcome of :func:`run_live`."""
+
+    status: str
+    summary: dict[str, Any]
+    elapsed_s: float
+    rates: dict[str, float] = field(default_factory=dict)
+
+
+def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None = None,
+             duration_s: float | None = None, exit_on_end: bool = False,
+             end_grace_s: float = 0.5, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
+             on_console: Callable[[str], None] | None = None, console_period_s: float = 1.0
+             ) -> LiveRun:
+    """Subscribe, estimate and publish until ``stop``, ``duration_s`` or (with
+    ``exit_on_end``) ``end_grace_s`` after the player's ``end`` command.
+
+    Zenoh callbacks only queue the payloads with their arrival time; this thread
+    decodes, aligns, filters and publishes, sleeping until the next message or the
+    next pose's wait deadline.
+    """
+    stop = stop or threading.Event()
+    k = keys(estimator.body, mocap_prefix, prefix)
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    now = time.time
+    bad: dict[str, int] = {}
+
+    def on_pose(sample) -> None:
+        q.put((0, sample.payload.to_bytes(), now()))
+
+    def on_cmd(sample) -> None:
+        q.put((1, sample.payload.to_bytes(), now()))
+
+    pub = session.declare_publisher(k["estimate"], encoding=zenoh.Encoding(ENCODING),
+                                    express=True)
+
+    estimator.publish_bytes = pub.put
+    subs = [session.declare_subscriber(k["pose"], on_pose),
+            session.declare_subscriber(k["cmd"], on_cmd)]
+    t_start = time.monotonic()
+    t_end = None if duration_s is None else t_start + duration_s
+    next_console = t_start + console_period_s
+    last_counts = (0, 0)
+    rates = {"poses_hz": 0.0, "cmds_hz": 0.0}
+    end_host: float | None = None
+    status = "success"
+    try:
+        while not stop.is_set():
+            mono = time.monotonic()
+            if t_end is not None and mono >= t_end:
+                break
+            if end_host is None and exit_on_end and estimator.end_seen_t is not None:
+                end_host = mono
+            if end_host is not None and mono - end_host >= end_grace_s and q.empty():
+                break
+            dl = estimator.next_deadline()
+            timeout = 0.05 if dl is None else min(0.05, max(0.0, dl - now()))
+            try:
+                item = q.get(timeout=timeout) if timeout > 0 else q.get_nowait()
+            except queue.Empty:
+                item = None
+            batch = 0
+            if item is not None:
+                qs = q.qsize() + 1
+                if qs > estimator.counters.max_queue:
+                    estimator.counters.max_queue = qs
+            while item is not None:
+                kind, payload, arr = item
+                if kind == 0:
+                    d = decode_pose(payload, bad)
+                    if d is None:
+                        estimator.counters.malformed += 1
+                    else:
+                        estimator.pose(d, arr)
+                else:
+                    c = decode_command(payload, bad, estimator.config.n_channels)
+                    if c is None:
+                        estimator.counters.malformed += 1
+                    else:
+                        estimator.command(c)
+                batch += 1
+                if batch >= 64:
+                    break
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    item = None
+            estimator.process(now())
+            if time.monotonic() >= next_console:
+                c = estimator.counters
+                el = time.monotonic() - next_console + console_period_s
+                rates = {"poses_hz": (c.poses_rx - last_counts[0]) / el,
+                         "cmds_hz": (c.cmds_rx - last_counts[1]) / el}
+                last_counts = (c.poses_rx, c.cmds_rx)
+                next_console = time.monotonic() + console_period_s
+                if on_console is not None:
+                    on_console(console_line(estimator, rates, q.qsize()))
+    except (KeyboardInterrupt, Exception):
+        status = "aborted"
+        raise
+    finally:
+        for s in subs:
+            with contextlib.suppress(Exception):
+                s.undeclare()
+        # what is still queued was received: use it
+        while True:
+            try:
+                kind, payload, arr = q.get_nowait()
+            except queue.Empty:
+                break
+            with contextlib.suppress(Exception):
+                d = decode_pose(payload, bad) if kind == 0 else decode_command(payload, bad)
+                if d is not None:
+                    (estimator.pose(d, arr) if kind == 0 else estimator.command(d))
+        if status == "success":
+            estimator.finish()
+        else:
+            with contextlib.suppress(Exception):
+                estimator.process(math.inf)
+        estimator.close_pool()
+        with contextlib.suppress(Exception):
+            pub.undeclare()
+        estimator.publish_bytes = None
+    if status == "success" and stop.is_set():
+        status = "stopped"
+    return LiveRun(status, estimator.summary(), time.monotonic() - t_start, rates)
+
+
+def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) -> str:
+    """One line of live status: estimates with sigma, input rates, counters."""
+    e = est.estimate()
+    a = est.aligner.stats
+    c = est.counters
+    if e is None:
+        head = "waiting for poses and commands"
+    else:
+        t_rel = (est.t_last - est.aligner.first_command_t) if est.aligner.first_command_t else 0.0
+        head = (f"t {t_rel:7.2f} s | m {e['mass_kg']:.4f} +/- {e['mass_sigma_kg']:.2g} kg | "
+                f"Izz {e['izz_kgm2']:.4e} +/- {e['izz_sigma_kgm2']:.1e} | {est.phase}"
+                + (" | DIVERGED" if e["diverged"] else " | INCONSISTENT" if e["inconsistent"] else ""))
+    return (f"live: {head} | in {rates.get('poses_hz', 0):.0f} poses/s "
+            f"{rates.get('cmds_hz', 0):.0f} cmds/s | used {c.updates} occl {a.occluded} "
+            f"dup {a.duplicates} old {a.too_old} late-cmd {a.cmds_late} rewound {a.cmds_rewound} "
+            f"timeout {a.released_by_timeout} bad {c.malformed} | backlog {backlog + est.aligner.pending}")
