@@ -1,18 +1,24 @@
-"""The live estimator's run folder: what it saw, written as it goes."""
+"""The live estimator's run folder: what it saw, written as it goes (:mod:`common.runwriter`)."""
 
 from __future__ import annotations
 
 import contextlib
-import json
 import math
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from common.errors import UserError
+from common.runwriter import CommandLog, CsvLog, write_json_atomic
 from estimator.filters.ekf import STATE_NAMES
+
+POSE_COLUMNS = ("t", "x", "y", "psi")
+POSE_FORMATS = ("%.9f", "%.12g", "%.12g", "%.12g")
+ESTIMATE_COLUMNS = ("t", "frame", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2",
+                    *STATE_NAMES[:6], *(f"sigma_{n}" for n in STATE_NAMES[:6]))
+ESTIMATE_FORMATS = ("%.9f", "%d", "%s", "%.10g", "%.6g", "%.10g", "%.6g",
+                    *["%.10g"] * 6, *["%.6g"] * 6)
 
 
 class LiveRecorder:
@@ -24,7 +30,8 @@ class LiveRecorder:
     - ``poses.csv``: the aligned poses the filter used, written as soon as a command
       row at or after them exists (so the folder is always a valid run: a kill loses
       at most the poses after the last command or hold message, 0.1 s by default).
-    - ``estimates.csv``: the filter's mean and sigma after every update.
+    - ``estimates.csv``: the filter's mean and sigma after every update (flushed at most
+      every ``flush_every_s``).
     - ``run.json``: settings, ``t0_lab``, status (``running`` until the end: left
       behind, it means the process died), counters and the final estimate.
     """
@@ -42,31 +49,21 @@ class LiveRecorder:
         self.meta.setdefault("status", "running")
         self.t0: float | None = None
         self.n_channels = n_channels
-        self._cmd = (self.out / "commands.csv").open("w", buffering=1)
-        self._cmd.write("t," + ",".join(f"d{i + 1}" for i in range(n_channels)) + "\n")
-        self._pose = (self.out / "poses.csv").open("w", buffering=1)
-        self._pose.write("t,x,y,psi\n")
-        self._est = (self.out / "estimates.csv").open("w")
-        self._est.write("t,frame,phase,mass_kg,mass_sigma_kg,izz_kgm2,izz_sigma_kgm2,"
-                        + ",".join(STATE_NAMES[:6]) + ","
-                        + ",".join(f"sigma_{n}" for n in STATE_NAMES[:6]) + "\n")
-        for fh in (self._cmd, self._pose, self._est):
-            fh.flush()
+        self._cmd = CommandLog(self.out / "commands.csv", n_channels, t_format="%.9f")
+        self._pose = CsvLog(self.out / "poses.csv", POSE_COLUMNS, POSE_FORMATS)
+        self._est = CsvLog(self.out / "estimates.csv", ESTIMATE_COLUMNS, ESTIMATE_FORMATS,
+                           flush_every_s=flush_every_s)
         self.last_cmd_t = -math.inf
         self.last_duty: tuple[float, ...] | None = None
         self.last_pose_t = -math.inf
         self._pending: list[tuple[float, float, float, float]] = []
         self.counts = {"commands": 0, "commands_unrecorded": 0, "poses": 0, "estimates": 0}
-        self._flush_every = flush_every_s
-        self._last_flush = time.monotonic()
         self.closed = False
         self.write_meta()
 
     def write_meta(self) -> None:
         self.meta["t0_lab"] = self.t0
-        tmp = self.out / "run.json.tmp"
-        tmp.write_text(json.dumps(self.meta, indent=2, default=_json_default) + "\n")
-        tmp.replace(self.out / "run.json")
+        write_json_atomic(self.out / "run.json", self.meta)
 
     def command(self, t: float, duty) -> None:
         if self.t0 is None:
@@ -75,8 +72,7 @@ class LiveRecorder:
         if not t > self.last_cmd_t:
             self.counts["commands_unrecorded"] += 1
             return
-        self._cmd.write("%.9f," % (t - self.t0) + ",".join("%.6g" % x for x in duty) + "\n")  # noqa: UP031
-        self._cmd.flush()
+        self._cmd.add(t - self.t0, duty)
         self.last_cmd_t = t
         self.last_duty = tuple(duty)
         self.counts["commands"] += 1
@@ -90,29 +86,23 @@ class LiveRecorder:
         if not self._pending or self.t0 is None:
             return
         n = 0
+        rows = []
         for p in self._pending:
             if p[0] > self.last_cmd_t:
                 break
             if p[0] > self.last_pose_t and p[0] >= self.t0:
-                self._pose.write("%.9f,%.12g,%.12g,%.12g\n" % (p[0] - self.t0, p[1], p[2], p[3]))  # noqa: UP031
+                rows.append((p[0] - self.t0, p[1], p[2], p[3]))
                 self.last_pose_t = p[0]
                 self.counts["poses"] += 1
             n += 1
         if n:
             del self._pending[:n]
-            self._pose.flush()
+            self._pose.write_many(rows)
 
     def estimate(self, t: float, frame: int, phase: str, z: np.ndarray, sig: np.ndarray) -> None:
         t0 = self.t0 if self.t0 is not None else t
-        self._est.write("%.9f,%d,%s," % (t - t0, frame, phase)  # noqa: UP031
-                        + "%.10g,%.6g,%.10g,%.6g," % (z[6], sig[6], z[7], sig[7])  # noqa: UP031
-                        + ",".join("%.10g" % v for v in z[:6]) + ","  # noqa: UP031
-                        + ",".join("%.6g" % v for v in sig[:6]) + "\n")  # noqa: UP031
+        self._est.write(t - t0, frame, phase, z[6], sig[6], z[7], sig[7], *z[:6], *sig[:6])
         self.counts["estimates"] += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self._flush_every:
-            self._est.flush()
-            self._last_flush = now
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
         """Close the files: a last hold row covers the poses still pending."""
@@ -123,20 +113,11 @@ class LiveRecorder:
             t_last = self._pending[-1][0]
             if t_last > self.last_cmd_t:
                 self.command(t_last, self.last_duty)
-        for fh in (self._cmd, self._pose, self._est):
+        for log in (self._cmd, self._pose, self._est):
             with contextlib.suppress(OSError):
-                fh.close()
+                log.close()
         self.meta["status"] = status
         self.meta["recorded"] = dict(self.counts)
         self.meta.update(extra or {})
         with contextlib.suppress(OSError):
             self.write_meta()
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
