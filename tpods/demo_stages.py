@@ -40,7 +40,7 @@ from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
 from common.zenoh_net import open_session
-from estimator.batch.least_squares import estimate_run
+from estimator.estimate import estimate_run
 from estimator.plant.model import PlantParams
 from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
@@ -240,7 +240,7 @@ def stage_batch(out: Path, table) -> dict[str, Any]:
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
-    res = estimate_run(run, table, clamp=True)
+    res = estimate_run(run, table, clamp=True).batch  # the use case of `tpods estimate batch`
     (d / "estimate.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
     fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
                          title="Batch LS on the recorded run: residuals")
@@ -248,7 +248,7 @@ def stage_batch(out: Path, table) -> dict[str, Any]:
           f"{res.mass_sigma_kg:.2g} kg, Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} "
           f"kg m^2 ({'converged' if res.converged else 'NOT converged'}, {res.elapsed_s:.1f} s)")
     # the same fit with the plant's true thrust table: what is left is not calibration
-    chk = estimate_run(run, ThrustTable.default(), clamp=True)
+    chk = estimate_run(run, ThrustTable.default(), clamp=True).batch
     print(f"   check with the TRUE thrust table (Table 2): m = {chk.mass_kg:.5f} +- "
           f"{chk.mass_sigma_kg:.2g} kg, Izz = {chk.izz_kgm2:.6g} +- {chk.izz_sigma_kgm2:.2g} kg m^2")
     return {"mass_kg": res.mass_kg, "mass_sigma_kg": res.mass_sigma_kg, "izz_kgm2": res.izz_kgm2,

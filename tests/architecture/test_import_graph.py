@@ -17,7 +17,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 FLOORS = {"common": 0, "bench": 1, "mocap_bridge": 1, "calibration": 2, "estimator": 3, "tpods": 4}
-ESTIMATOR_FLOORS = {"plant": 0, "batch": 1, "filters": 2, "live": 3, "montecarlo": 3, "reports": 4}
+ESTIMATOR_FLOORS = {"plant": 0, "batch": 1, "filters": 2, "live": 3, "montecarlo": 3, "estimate": 3,
+                    "reports": 4}
 
 
 def imports_of(path: Path) -> list[tuple[int, str]]:

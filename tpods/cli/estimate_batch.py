@@ -2,8 +2,9 @@
 
 ``register`` adds ``tpods estimate batch`` (all methods: ``ls`` here,
 ``ekf``/``ls-ekf`` delegated to :mod:`tpods.cli.estimate_ekf`), ``tpods estimate crlb``,
-``tpods design`` and ``tpods report table3``. Handlers are thin: parse, load, call the
-pure functions, print or write.
+``tpods design`` and ``tpods report table3``. Handlers are thin: parse, call the use case
+(:func:`estimator.estimate.estimate_run`, :func:`estimator.estimate.bound_sequence`), print
+or write.
 """
 
 from __future__ import annotations
@@ -180,63 +181,25 @@ def _print_json(obj: dict[str, Any]) -> None:
     sys.stdout.write(json.dumps(obj, default=_json_default) + "\n")
 
 
-def _truth_errors(out: dict[str, Any], truth: dict | None, mass: float, izz: float) -> None:
-    if not truth:
-        return
-    try:
-        tm, ti = float(truth["mass_kg"]), float(truth["izz_kgm2"])
-    except (KeyError, TypeError, ValueError):
-        return
-    out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
-                "mass_error_kg": mass - tm, "izz_error_kgm2": izz - ti,
-                "mass_rel_error": (mass - tm) / tm, "izz_rel_error": (izz - ti) / ti})
-
-
 def cmd_batch(args: argparse.Namespace) -> int:
+    from estimator.estimate import estimate_run
+    from tpods.cli import estimate_ekf as cli_ekf
     from tpods.cli import estimate_realism as cli_realism
 
-    if (rc := cli_realism.before_batch(args)) is not None:  # issue 9: --model
-        return rc
-    if args.method != "ls":
-        from tpods.cli import estimate_ekf as cli_ekf
-
-        return cli_ekf.run_filter_method(args)
-    from common.runfolder import read_run
-    from common.thrust_table import load_thrust_table
-    from estimator.batch.crlb import crlb
-    from estimator.batch.least_squares import estimate_run, parse_window
-
-    if args.max_iter < 1:
-        raise UserError("--max-iter must be at least 1")
-    run = read_run(args.run_dir)
-    table = load_thrust_table(args.thrust_table)
-    window = parse_window(args.window)
-    res = estimate_run(run, table, window, clamp=args.clamp, names=args.estimate,
-                       fixed=args.fixed, initial=args.initial, sigma_pos_m=args.sigma_pos,
-                       sigma_yaw_rad=math.radians(args.sigma_yaw_deg), tol=args.tol,
-                       max_iter=args.max_iter)
-    out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
-    out.update(res.to_dict())
-    cli_realism.annotate(out, args)
-    _truth_errors(out, run.truth, res.mass_kg, res.izz_kgm2)
-    truth = run.truth
-    if truth and "mass_kg" in truth and "izz_kgm2" in truth and {"mass", "izz"} <= set(res.names):
-        # the bound of this very run at the truth, for the efficiency check
-        wrun = run.window(*window) if window != (None, None) else run
-        cmd_t, thrust = wrun.thrust_profile(table, clamp=args.clamp)
-        s0 = truth.get("initial_state") if wrun.pose_t[0] == run.pose_t[0] else None
-        tp = {k: float(truth.get(k2, d)) for k, k2, d in (
-            ("mass", "mass_kg", 0), ("izz", "izz_kgm2", 0), ("arm", "arm_m", 0.05),
-            ("ct", "ct", 0), ("cr", "cr", 0), ("kb", "kb", 0), ("ax", "ax", 0), ("ay", "ay", 0))}
-        if s0 is None:
-            s0 = res.z0[:6]
-        try:
-            c = crlb(wrun.pose_t, cmd_t, thrust, tp, s0=s0, names=res.names,
-                     sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg))
-            out["crlb_mass_sigma_kg"] = c.mass_sigma_kg
-            out["crlb_izz_sigma_kgm2"] = c.izz_sigma_kgm2
-        except (UserError, ValueError, np.linalg.LinAlgError):
-            pass
+    # the run folder and the table are read by estimate_run once the options are checked
+    est = estimate_run(
+        args.run_dir, args.thrust_table, method=args.method, model=args.model, window=args.window,
+        clamp=args.clamp, estimate=args.estimate, fixed=args.fixed, initial=args.initial,
+        sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+        tol=args.tol, max_iter=args.max_iter, select_alpha=args.select_alpha,
+        filter_options=cli_ekf.filter_options(args), log=cli_realism.selection_log(args))
+    if est.ext is not None:
+        return cli_realism.report_ext(est, args)
+    if est.filter is not None:
+        return cli_ekf.report_filter(est, args)
+    res = est.batch
+    run = est.run
+    out = est.to_dict()
     if args.out:
         from estimator.reports.plots_batch import plot_residuals
 
@@ -280,78 +243,19 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_sequence(path_text: str, table, clamp: bool, pose_rate: float):
-    """(pose_t, cmd_t, thrust, truth, s0, label) of a run folder or a commands-only sequence."""
-    from common.runfolder import read_run
-    from estimator.plant.inputs import from_commands_csv
-    from estimator.plant.sim import pose_times
-
-    p = Path(path_text)
-    if p.is_dir() and (p / "poses.csv").exists():
-        run = read_run(p)
-        cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
-        truth = run.truth
-        s0 = truth.get("initial_state") if truth else None
-        if s0 is None:
-            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
-        return run, cmd_t, thrust, truth, s0, "recorded"
-    csv = p / "commands.csv" if p.is_dir() else p
-    if not csv.exists():
-        raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
-    cmd_t, duty = from_commands_csv(csv)
-    if len(cmd_t) < 2:
-        raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
-    try:
-        thrust = table.thrust_n(duty, clamp=clamp)
-    except UserError as exc:
-        raise UserError(f"{csv}: {exc}") from None
-    return pose_times(cmd_t[0], cmd_t[-1], pose_rate), cmd_t, thrust, None, np.zeros(6), "planned"
-
-
 def cmd_crlb(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
-    from estimator.batch.crlb import crlb
-    from estimator.batch.least_squares import parse_window
-
-    table = load_thrust_table(args.thrust_table)
-    seq, cmd_t, thrust, truth, s0, kind = _load_sequence(args.run_dir, table, args.clamp,
-                                                         args.pose_rate)
-    t0, t1 = parse_window(args.window)
-    if kind == "recorded":
-        run = seq.window(t0, t1) if (t0, t1) != (None, None) else seq
-        pose_t = run.pose_t
-        if run.pose_t[0] != seq.pose_t[0]:
-            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
-    else:
-        pose_t = seq
-        keep = np.ones(len(pose_t), bool)
-        if t0 is not None:
-            keep &= pose_t >= t0
-        if t1 is not None:
-            keep &= pose_t <= t1
-        if keep.sum() < 3:
-            raise UserError(f"window {args.window} holds fewer than 3 planned poses")
-        pose_t = pose_t[keep]
-    truth = truth or {}
-    mass = args.mass or truth.get("mass_kg") or PAPER_MASS_KG
-    izz = args.izz or truth.get("izz_kgm2") or PAPER_IZZ_KGM2
-    source = "command line" if (args.mass or args.izz) else ("run truth" if truth else "paper nominal")
-    params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
-              **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
+    from estimator.estimate import bound_sequence, load_sequence
     from tpods.cli import estimate_realism as cli_realism
 
-    c = crlb(pose_t, cmd_t, thrust, params, s0=s0, sigma_pos_m=args.sigma_pos,
-             sigma_yaw_rad=math.radians(args.sigma_yaw_deg), keep_sensitivities=bool(args.out),
-             names=cli_realism.crlb_names(args))
-    out = {"sequence": kind, "path": str(args.run_dir), "n_poses": c.n_poses,
-           "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,
-           "plant_source": source,
-           "crlb_mass_sigma_kg": c.mass_sigma_kg, "crlb_izz_sigma_kgm2": c.izz_sigma_kgm2,
-           "crlb_mass_rel": c.mass_sigma_kg / mass, "crlb_izz_rel": c.izz_sigma_kgm2 / izz,
-           "crlb_corr_mass_izz": float(c.cov[0, 1] / (c.sigma[0] * c.sigma[1])),
-           "logdet_info": c.logdet, "sigma_pos_m": args.sigma_pos,
-           "sigma_yaw_rad": math.radians(args.sigma_yaw_deg)}
-    out.update(cli_realism.crlb_extra(c, args))
+    table = load_thrust_table(args.thrust_table)
+    seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate)
+    b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
+                       izz_kgm2=args.izz, model=args.model, sigma_pos_m=args.sigma_pos,
+                       sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+                       keep_sensitivities=bool(args.out))
+    c, pose_t, mass, izz, kind, source = b.crlb, b.pose_t, b.mass_kg, b.izz_kgm2, b.kind, b.plant_source
+    out = b.to_dict()
     if args.out:
         from estimator.reports.plots_batch import plot_sensitivities
 

@@ -1,18 +1,18 @@
 """CLI of the EKF, LS-initialised EKF and Monte Carlo.
 
 ``register`` adds ``tpods estimate montecarlo`` and ``tpods report ekf``;
-``add_batch_options(parser)`` adds the filter options to ``tpods estimate batch`` and
-``run_filter_method(args)`` runs ``--method ekf|ls-ekf`` for it.
+``add_batch_options(parser)`` adds the filter options to ``tpods estimate batch``,
+``filter_options(args)`` reads them back and ``report_filter(estimate, args)`` writes and
+prints the result of ``--method ekf|ls-ekf`` (computed by
+:func:`estimator.estimate.estimate_run`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -62,33 +62,21 @@ def _filter_options(p, preset_default: str) -> None:
                         "the end of the window and filter only the later poses")
 
 
+def filter_options(args):
+    """The filter options of a parsed command line (see :func:`_filter_options`)."""
+    from estimator.estimate import FilterOptions
+
+    return FilterOptions(preset=args.preset, process_noise=args.process_noise, sigma0=args.sigma0,
+                         underweight=args.underweight, uw_trigger=args.uw_trigger,
+                         ls_window_s=args.ls_window, ls_start=args.ls_start)
+
+
 def _filter_config(args, base=None, sigma_pos: float | None = None,
                    sigma_yaw_rad: float | None = None, fixed: dict | None = None):
-    from estimator.filters.ekf import PRESETS
+    from estimator.estimate import filter_config
 
-    cfg = base if base is not None else PRESETS[args.preset]
-    q = list(cfg.q_psd)
-    for i, v in args.process_noise.items():
-        q[i] = v
-    s0 = list(cfg.sigma0)
-    for i, v in args.sigma0.items():
-        s0[i] = v
-    meas = list(cfg.sigma_meas)
-    if sigma_pos is not None:
-        meas[0] = meas[1] = sigma_pos
-    if sigma_yaw_rad is not None:
-        meas[2] = sigma_yaw_rad
-    kw: dict[str, Any] = {}
-    for k, v in (fixed or {}).items():
-        if k == "arm":
-            kw["arm_m"] = v
-        elif k in ("ct", "cr", "kb", "ax", "ay"):
-            kw[k] = v
-        else:
-            raise UserError(f"--fixed {k}: the filters estimate mass and izz; fix only arm, ct, "
-                            "cr, kb, ax, ay")
-    return cfg.with_(q_psd=tuple(q), sigma0=tuple(s0), sigma_meas=tuple(meas),
-                     underweight=args.underweight, uw_trigger=args.uw_trigger, **kw)
+    return filter_config(filter_options(args), base, sigma_pos_m=sigma_pos,
+                         sigma_yaw_rad=sigma_yaw_rad, fixed=fixed)
 
 
 # --------------------------------------------------------------------------------------
@@ -100,75 +88,12 @@ def add_batch_options(parser) -> None:
     _filter_options(parser, "paper")
 
 
-def run_filter_method(args) -> int:
-    """Run ``tpods estimate batch --method ekf|ls-ekf``."""
-    from common.runfolder import read_run
-    from common.thrust_table import load_thrust_table
-    from estimator.batch.least_squares import parse_window
-    from estimator.filters.ekf import STATE_NAMES, estimate_filter, initial_rates
+def report_filter(est, args) -> int:
+    """Write and print ``tpods estimate batch --method ekf|ls-ekf`` (the ideal model)."""
+    from estimator.filters.ekf import STATE_NAMES
 
-    if tuple(getattr(args, "estimate", ("mass", "izz"))) != ("mass", "izz"):
-        raise UserError("the filters estimate exactly mass and izz (drop --estimate or use "
-                        "--method ls)")
-    run = read_run(args.run_dir)
-    window = parse_window(getattr(args, "window", None))
-    if window != (None, None):
-        run = run.window(*window)
-    table = load_thrust_table(getattr(args, "thrust_table", None))
-    cmd_t, thrust = run.thrust_profile(table, clamp=getattr(args, "clamp", False))
-    cfg = _filter_config(args, sigma_pos=getattr(args, "sigma_pos", None),
-                         sigma_yaw_rad=math.radians(args.sigma_yaw_deg)
-                         if getattr(args, "sigma_yaw_deg", None) else None,
-                         fixed=getattr(args, "fixed", {}))
-    initial = dict(getattr(args, "initial", {}) or {})
-    bad = [k for k in initial if k not in STATE_NAMES]
-    if bad:
-        raise UserError(f"--initial {', '.join(bad)}: the filters start only x, y, psi, u, v, r, "
-                        "m, izz (give known friction/tilt with --fixed)")
-    x0 = np.array(cfg.x0, dtype=float)
-    # start at the first pose, with velocities from a line fit of the first 0.25 s (the
-    # run or window need not begin at rest), unless --initial says otherwise
-    x0[:3] = run.pose[0]
-    if args.method == "ekf" and not {"u", "v", "r"} & set(initial):
-        rates, rsig = initial_rates(run.pose_t, run.pose)
-        if np.all(np.isfinite(rsig)):
-            x0[3:6] = rates
-            s0 = np.array(cfg.sigma0)
-            s0[3:6] = np.maximum(s0[3:6], 3 * rsig)
-            cfg = cfg.with_(sigma0=tuple(s0.tolist()))
-    for k, v in initial.items():
-        x0[STATE_NAMES.index(k)] = v
-    if x0[6] <= 0 or x0[7] <= 0:
-        raise UserError("initial mass and izz must be positive")
-    ls_kwargs = {}
-    if args.method == "ls-ekf":
-        ls_kwargs = {"tol": getattr(args, "tol", 1e-8), "max_iter": getattr(args, "max_iter", 50)}
-        if initial:
-            ls_kwargs["initial"] = initial
-    try:
-        fe = estimate_filter(run.pose_t, run.pose, cmd_t, thrust, args.method, cfg,
-                             x0=x0 if args.method == "ekf" else None, ls_window_s=args.ls_window,
-                             ls_start=args.ls_start, ls_kwargs=ls_kwargs)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    fe, run, out, has_truth = est.filter, est.run, est.to_dict(), est.has_truth
     r = fe.result
-    out: dict[str, Any] = {"run": str(run.path)}
-    out.update(fe.to_dict())
-    out["settings"] = {"preset": args.preset, "q_psd": list(cfg.q_psd),
-                       "sigma0": list(cfg.sigma0), "x0": x0.tolist(),
-                       "sigma_meas": list(cfg.sigma_meas), "underweight": cfg.underweight,
-                       "uw_trigger": cfg.uw_trigger}
-    truth = run.truth or {}
-    has_truth = "mass_kg" in truth and "izz_kgm2" in truth
-    if has_truth:
-        tm, ti = float(truth["mass_kg"]), float(truth["izz_kgm2"])
-        rm, ri = r.rmse(tm, ti)
-        out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
-                    "mass_error_kg": r.mass_kg - tm, "izz_error_kgm2": r.izz_kgm2 - ti,
-                    "mass_rel_error": (r.mass_kg - tm) / tm,
-                    "izz_rel_error": (r.izz_kgm2 - ti) / ti,
-                    "rmse_mass_kg": rm, "rmse_izz_kgm2": ri,
-                    "rmse_definition": "over every pose time from the first"})
     if args.out:
         from estimator.reports.plots_ekf import plot_error_bounds
 

@@ -1,0 +1,541 @@
+"""The estimator's use cases, one function each: what ``tpods estimate batch`` and
+``tpods estimate crlb``, the demo, the reports and notebooks call.
+
+- :func:`estimate_run` estimates mass and Izz (and, by model, friction, yaw bias, tilt)
+  of a run by batch least squares (``ls``), the EKF (``ekf``) or the LS-started EKF
+  (``ls-ekf``), under a named model or the one a likelihood-ratio test picks
+  (``model="auto"``). Returns an :class:`Estimate`; ``to_dict()`` is the JSON object
+  ``tpods estimate batch --json`` prints.
+- :func:`bound_sequence` is the Cramér-Rao bound of a recorded run or of a planned
+  command sequence (:func:`load_sequence`). Returns a :class:`Bound`.
+- :func:`filter_config` builds the EKF setting from a preset and :class:`FilterOptions`
+  (the filter options of ``estimate batch``, ``estimate live`` and ``estimate montecarlo``).
+
+The functions print nothing and write no file: the command-line modules
+(``tpods/cli/estimate*.py``) parse arguments, read inputs, call them and print or write
+the results. Errors a user can fix raise :class:`common.errors.UserError` (their text
+names the command-line options, as the CLI shows it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.errors import UserError
+from common.runfolder import Run, read_run
+from common.thrust_table import ThrustTable, load_thrust_table
+from estimator.batch.crlb import CRLBResult, crlb
+from estimator.batch.least_squares import BatchResult, parse_window
+from estimator.batch.least_squares import estimate_run as least_squares_run
+from estimator.batch.model_select import ModelFit, ModelSelection, fit_models, select_model
+from estimator.filters.ekf import PRESETS, EkfConfig, FilterEstimate, estimate_filter, initial_rates
+from estimator.filters.ekf import STATE_NAMES as FILTER_STATE_NAMES
+from estimator.filters.ekf_ext import ExtEkfConfig, ExtEkfResult, estimate_ext
+from estimator.plant.inputs import from_commands_csv
+from estimator.plant.model import STATE_NAMES
+from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS, fixed_for, model_of, resolve_names
+from estimator.plant.sim import pose_times
+
+METHODS = ("ls", "ekf", "ls-ekf")
+Window = tuple[float | None, float | None]
+
+
+# --------------------------------------------------------------------------------------
+# filter settings
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """The filter options of ``estimate batch --method ekf|ls-ekf`` (and live, Monte Carlo).
+
+    ``process_noise`` and ``sigma0`` map a filter state index (``x, y, psi, u, v, r, mass,
+    izz``) to its process-noise spectral density or initial standard deviation (SI units);
+    they override the preset.
+    """
+
+    preset: str = "paper"
+    process_noise: Mapping[int, float] = field(default_factory=dict)
+    sigma0: Mapping[int, float] = field(default_factory=dict)
+    underweight: float = 0.0
+    uw_trigger: float = 1.0
+    ls_window_s: float = 20.0
+    ls_start: str = "reuse"
+
+
+def filter_config(opts: FilterOptions, base: EkfConfig | None = None, *,
+                  sigma_pos_m: float | None = None, sigma_yaw_rad: float | None = None,
+                  fixed: Mapping[str, float] | None = None) -> EkfConfig:
+    """The EKF setting: ``base`` (default the preset) with the options, the measurement
+    sigmas and the known parameters (``arm, ct, cr, kb, ax, ay``) applied."""
+    cfg = base if base is not None else PRESETS[opts.preset]
+    q = list(cfg.q_psd)
+    for i, v in opts.process_noise.items():
+        q[i] = v
+    s0 = list(cfg.sigma0)
+    for i, v in opts.sigma0.items():
+        s0[i] = v
+    meas = list(cfg.sigma_meas)
+    if sigma_pos_m is not None:
+        meas[0] = meas[1] = sigma_pos_m
+    if sigma_yaw_rad is not None:
+        meas[2] = sigma_yaw_rad
+    kw: dict[str, Any] = {}
+    for k, v in (fixed or {}).items():
+        if k == "arm":
+            kw["arm_m"] = v
+        elif k in ("ct", "cr", "kb", "ax", "ay"):
+            kw[k] = v
+        else:
+            raise UserError(f"--fixed {k}: the filters estimate mass and izz; fix only arm, ct, "
+                            "cr, kb, ax, ay")
+    return cfg.with_(q_psd=tuple(q), sigma0=tuple(s0), sigma_meas=tuple(meas),
+                     underweight=opts.underweight, uw_trigger=opts.uw_trigger, **kw)
+
+
+# --------------------------------------------------------------------------------------
+# estimate a run
+
+
+@dataclass
+class Estimate:
+    """Result of :func:`estimate_run`.
+
+    ``method`` and ``model`` as used (``model`` is the chosen one under ``auto``, or
+    ``"custom"`` for a parameter set no model names); ``run`` the run as estimated (the
+    window applied). Exactly one of ``batch`` (``ls``), ``filter`` (``ekf``/``ls-ekf``,
+    ideal model) and ``ext`` (``ekf``/``ls-ekf``, extended model; ``ext_ls`` its LS start)
+    is set. ``selection`` is the ``auto`` model selection, ``start_note`` how the LS fit
+    was started when a staged fit gave the start; ``config`` and ``x0`` the filter's setting
+    and start; ``crlb`` the bound at the truth (``ls`` on a simulated run).
+    """
+
+    method: str
+    model: str
+    run: Run
+    data: dict[str, Any]
+    batch: BatchResult | None = None
+    filter: FilterEstimate | None = None
+    ext: ExtEkfResult | None = None
+    ext_ls: BatchResult | None = None
+    selection: ModelSelection | None = None
+    start_note: str | None = None
+    config: EkfConfig | ExtEkfConfig | None = None
+    x0: np.ndarray | None = None
+    crlb: CRLBResult | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object of ``tpods estimate batch --json`` (same keys, same order)."""
+        return dict(self.data)
+
+    @property
+    def has_truth(self) -> bool:
+        return "truth_mass_kg" in self.data
+
+    @property
+    def converged(self) -> bool:
+        """False when the batch fit did not converge or a filter diverged."""
+        if self.batch is not None:
+            return bool(self.batch.converged)
+        r = self.filter.result if self.filter is not None else self.ext
+        return not r.diverged
+
+
+def as_window(window: Window | str | None) -> Window:
+    """``None``, ``"T0:T1"`` or ``(t0, t1)`` -> ``(t0, t1)`` (raises UserError when bad)."""
+    if window is None or isinstance(window, str):
+        return parse_window(window)
+    t0, t1 = window
+    if t0 is not None and t1 is not None and t1 <= t0:
+        raise UserError(f"window end must follow its start, got {t0}:{t1}")
+    return t0, t1
+
+
+def _windowed(run: Run, window: Window) -> Run:
+    return run.window(*window) if window != (None, None) else run
+
+
+def _truth(run: Run) -> tuple[float, float] | None:
+    """(mass, izz) of the run's truth (a simulated run), else None."""
+    truth = run.truth or {}
+    if "mass_kg" not in truth or "izz_kgm2" not in truth:
+        return None
+    return float(truth["mass_kg"]), float(truth["izz_kgm2"])
+
+
+def _start_at(fit: ModelFit, initial: dict[str, float], note: str | None
+              ) -> tuple[dict[str, float], str | None]:
+    """Start the batch fit at a staged fit's optimum (when it converged)."""
+    r = fit.result
+    if r.converged and np.all(np.isfinite(r.z0)):
+        return (dict(zip(STATE_NAMES + tuple(r.names), r.z0.tolist(), strict=True)),
+                f"started at the staged fit's optimum ({fit.start})")
+    return initial, note
+
+
+def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None = None, *, method: str = "ls",
+                 model: str | None = None, window: Window | str | None = None,
+                 clamp: bool = False, estimate: Sequence[str] = ("mass", "izz"),
+                 fixed: Mapping[str, float] | None = None,
+                 initial: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
+                 sigma_yaw_rad: float = math.radians(1.0), tol: float = 1e-8,
+                 max_iter: int = 50, select_alpha: float = 1e-3,
+                 filter_options: FilterOptions | None = None,
+                 log: Callable[[str], None] | None = None) -> Estimate:
+    """Estimate a run's parameters: the use case of ``tpods estimate batch``.
+
+    Args:
+        run: the run (:func:`common.runfolder.read_run`) or its folder (read after the
+            options are checked).
+        table: thrust table or its TOML file (default the paper's Table 2); ``clamp``
+            clamps duties into its valid range instead of refusing them.
+        method: ``ls`` (batch least squares, the paper's Algorithm 1), ``ekf`` or ``ls-ekf``.
+        model: ``ideal``, ``friction``, ``friction+tilt`` (sets ``estimate`` and ``fixed``),
+            ``auto`` (likelihood-ratio selection at level ``select_alpha``) or None (the
+            parameters ``estimate`` with ``fixed``).
+        window: poses with ``t0 <= t <= t1`` only, as ``(t0, t1)`` or ``"T0:T1"``.
+        initial: initial guess by name (``x, y, psi, u, v, r, mass, izz, ct, ...``).
+        sigma_pos_m, sigma_yaw_rad: measurement noise.
+        tol, max_iter: the batch fit's convergence threshold and iteration cap per stage.
+        filter_options: the filters' setting (default the paper's preset).
+        log: receives the model-selection table under ``model="auto"`` (default: dropped).
+
+    Raises UserError for a bad window, option or run.
+    """
+    if method not in METHODS:
+        raise UserError(f"method must be one of {', '.join(METHODS)}")
+    names = tuple(estimate)
+    fixed = dict(fixed or {})
+    initial = dict(initial or {})
+    opts = filter_options or FilterOptions()
+    if method == "ls" and max_iter < 1:
+        raise UserError("--max-iter must be at least 1")
+    source = [run, table]
+
+    def inputs() -> tuple[Run, ThrustTable]:
+        """The run and the table, read when first needed (after the option checks)."""
+        if not isinstance(source[0], Run):
+            source[0] = read_run(source[0])
+        if not isinstance(source[1], ThrustTable):
+            source[1] = load_thrust_table(source[1])
+        return source[0], source[1]
+
+    selection = None
+    note = None
+    if model is None:
+        model = model_of(names) or "custom"
+    else:
+        if model == "auto":
+            if not 0 < select_alpha < 1:
+                raise UserError("--select-alpha must lie in (0, 1)")
+            run, table = inputs()
+            wrun = _windowed(run, as_window(window))
+            cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+            selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=select_alpha,
+                                     fixed=dict(fixed), sigma_pos_m=sigma_pos_m,
+                                     sigma_yaw_rad=sigma_yaw_rad)
+            model = selection.chosen
+            if log is not None:
+                log(f"model selection on {wrun.path} (--model auto):")
+                for line in selection.table_lines():
+                    log(line)
+            initial, note = _start_at(selection.fits[model], initial, note)
+        names = resolve_names(model, names)
+        fixed = fixed_for(model, fixed)
+        if method != "ls" and model != DEFAULT_MODEL:
+            return _extended_filter(inputs, method=method, model=model, window=window,
+                                    clamp=clamp, names=names, fixed=fixed, initial=initial,
+                                    sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, tol=tol,
+                                    max_iter=max_iter, opts=opts, selection=selection)
+        if method == "ls" and model != DEFAULT_MODEL and selection is None:
+            # fit the nested smaller models first: the larger fit then starts at (and can only
+            # improve on) their optimum, which is more robust than the paper's start alone
+            run, table = inputs()
+            wrun = _windowed(run, as_window(window))
+            cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+            order = list(MODELS)
+            fits = fit_models(wrun.pose_t, wrun.pose, cmd_t, thrust, order[:order.index(model) + 1],
+                              fixed={k: v for k, v in fixed.items() if k not in names},
+                              initial=initial, sigma_pos_m=sigma_pos_m,
+                              sigma_yaw_rad=sigma_yaw_rad)
+            initial, note = _start_at(fits[model], initial, note)
+    if method != "ls":
+        return _ideal_filter(inputs, method=method, model=model, window=window, clamp=clamp,
+                             names=names, fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
+                             sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter, opts=opts,
+                             selection=selection, note=note)
+    return _least_squares(inputs, model=model, window=window, clamp=clamp, names=names,
+                          fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
+                          sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter,
+                          selection=selection, note=note)
+
+
+def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma_pos_m,
+                   sigma_yaw_rad, tol, max_iter, selection, note) -> Estimate:
+    run, table = inputs()
+    window = as_window(window)
+    res = least_squares_run(run, table, window, clamp=clamp, names=names, fixed=fixed,
+                            initial=initial, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
+                            tol=tol, max_iter=max_iter)
+    out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
+    out.update(res.to_dict())
+    out["model"] = model
+    if note:
+        out["start"] = note
+    if selection is not None:
+        out["model_selection"] = selection.to_dict()
+    wrun = _windowed(run, window)
+    est = Estimate("ls", model, wrun, out, batch=res, selection=selection, start_note=note)
+    try:
+        tm, ti = float(run.truth["mass_kg"]), float(run.truth["izz_kgm2"])
+    except (KeyError, TypeError, ValueError):
+        return est
+    out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
+                "mass_error_kg": res.mass_kg - tm, "izz_error_kgm2": res.izz_kgm2 - ti,
+                "mass_rel_error": (res.mass_kg - tm) / tm, "izz_rel_error": (res.izz_kgm2 - ti) / ti})
+    truth = run.truth
+    if {"mass", "izz"} <= set(res.names):
+        # the bound of this very run at the truth, for the efficiency check
+        cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+        s0 = truth.get("initial_state") if wrun.pose_t[0] == run.pose_t[0] else None
+        tp = {k: float(truth.get(k2, d)) for k, k2, d in (
+            ("mass", "mass_kg", 0), ("izz", "izz_kgm2", 0), ("arm", "arm_m", 0.05),
+            ("ct", "ct", 0), ("cr", "cr", 0), ("kb", "kb", 0), ("ax", "ax", 0), ("ay", "ay", 0))}
+        if s0 is None:
+            s0 = res.z0[:6]
+        try:
+            c = crlb(wrun.pose_t, cmd_t, thrust, tp, s0=s0, names=res.names,
+                     sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+            out["crlb_mass_sigma_kg"] = c.mass_sigma_kg
+            out["crlb_izz_sigma_kgm2"] = c.izz_sigma_kgm2
+            est.crlb = c
+        except (UserError, ValueError, np.linalg.LinAlgError):
+            pass
+    return est
+
+
+def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial,
+                  sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection, note) -> Estimate:
+    if names != ("mass", "izz"):
+        raise UserError("the filters estimate exactly mass and izz (drop --estimate or use "
+                        "--method ls)")
+    run, table = inputs()
+    run = _windowed(run, as_window(window))
+    cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
+    cfg = filter_config(opts, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, fixed=fixed)
+    bad = [k for k in initial if k not in FILTER_STATE_NAMES]
+    if bad:
+        raise UserError(f"--initial {', '.join(bad)}: the filters start only x, y, psi, u, v, r, "
+                        "m, izz (give known friction/tilt with --fixed)")
+    x0 = np.array(cfg.x0, dtype=float)
+    # start at the first pose, with velocities from a line fit of the first 0.25 s (the
+    # run or window need not begin at rest), unless the initial guess says otherwise
+    x0[:3] = run.pose[0]
+    if method == "ekf" and not {"u", "v", "r"} & set(initial):
+        rates, rsig = initial_rates(run.pose_t, run.pose)
+        if np.all(np.isfinite(rsig)):
+            x0[3:6] = rates
+            s0 = np.array(cfg.sigma0)
+            s0[3:6] = np.maximum(s0[3:6], 3 * rsig)
+            cfg = cfg.with_(sigma0=tuple(s0.tolist()))
+    for k, v in initial.items():
+        x0[FILTER_STATE_NAMES.index(k)] = v
+    if x0[6] <= 0 or x0[7] <= 0:
+        raise UserError("initial mass and izz must be positive")
+    ls_kwargs: dict[str, Any] = {}
+    if method == "ls-ekf":
+        ls_kwargs = {"tol": tol, "max_iter": max_iter}
+        if initial:
+            ls_kwargs["initial"] = initial
+    try:
+        fe = estimate_filter(run.pose_t, run.pose, cmd_t, thrust, method, cfg,
+                             x0=x0 if method == "ekf" else None, ls_window_s=opts.ls_window_s,
+                             ls_start=opts.ls_start, ls_kwargs=ls_kwargs)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    r = fe.result
+    out: dict[str, Any] = {"run": str(run.path)}
+    out.update(fe.to_dict())
+    out["settings"] = {"preset": opts.preset, "q_psd": list(cfg.q_psd),
+                       "sigma0": list(cfg.sigma0), "x0": x0.tolist(),
+                       "sigma_meas": list(cfg.sigma_meas), "underweight": cfg.underweight,
+                       "uw_trigger": cfg.uw_trigger}
+    if (truth := _truth(run)) is not None:
+        tm, ti = truth
+        rm, ri = r.rmse(tm, ti)
+        out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
+                    "mass_error_kg": r.mass_kg - tm, "izz_error_kgm2": r.izz_kgm2 - ti,
+                    "mass_rel_error": (r.mass_kg - tm) / tm,
+                    "izz_rel_error": (r.izz_kgm2 - ti) / ti,
+                    "rmse_mass_kg": rm, "rmse_izz_kgm2": ri,
+                    "rmse_definition": "over every pose time from the first"})
+    return Estimate(method, model, run, out, filter=fe, selection=selection, start_note=note,
+                    config=cfg, x0=x0)
+
+
+def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, initial,
+                     sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection) -> Estimate:
+    run, table = inputs()
+    run = _windowed(run, as_window(window))
+    cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
+    q = {FILTER_STATE_NAMES[i]: v for i, v in opts.process_noise.items() if v}
+    try:
+        cfg = ExtEkfConfig(names=tuple(names), fixed=dict(fixed),
+                           sigma_meas=(sigma_pos_m, sigma_pos_m, sigma_yaw_rad), q_psd=q)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    x0 = cfg.default_x0(run.pose[0])
+    for k, v in initial.items():
+        if k not in cfg.labels:
+            raise UserError(f"--initial {k}: not estimated by --model {model}")
+        x0[cfg.labels.index(k)] = v
+    P0 = cfg.default_P0()
+    for i, v in opts.sigma0.items():
+        P0[i, i] = v**2
+    ls_kwargs: dict[str, Any] = {"tol": tol, "max_iter": max_iter}
+    if initial:
+        ls_kwargs["initial"] = dict(initial)
+    r, ls = estimate_ext(run.pose_t, run.pose, cmd_t, thrust, cfg, method, x0=x0, P0=P0,
+                         ls_window_s=opts.ls_window_s, ls_start=opts.ls_start,
+                         ls_kwargs=ls_kwargs)
+    out: dict[str, Any] = {"method": method, "model": model, "run": str(run.path)}
+    out.update(r.to_dict())
+    if ls is not None:
+        out["ls"] = {"mass_kg": ls.mass_kg, "mass_sigma_kg": ls.mass_sigma_kg,
+                     "izz_kgm2": ls.izz_kgm2, "izz_sigma_kgm2": ls.izz_sigma_kgm2,
+                     "converged": ls.converged, "n_poses": int(len(ls.t)),
+                     "ls_window_s": opts.ls_window_s, "ls_start": opts.ls_start}
+    if selection is not None:
+        out["model_selection"] = selection.to_dict()
+    if (truth := _truth(run)) is not None:
+        tm, ti = truth
+        rm, ri = r.rmse(tm, ti)
+        out.update({"truth_mass_kg": tm, "truth_izz_kgm2": ti,
+                    "mass_error_kg": r.mass_kg - tm, "izz_error_kgm2": r.izz_kgm2 - ti,
+                    "rmse_mass_kg": rm, "rmse_izz_kgm2": ri})
+    return Estimate(method, model, run, out, ext=r, ext_ls=ls, selection=selection,
+                    config=cfg, x0=x0)
+
+
+# --------------------------------------------------------------------------------------
+# the Cramér-Rao bound of a run or a planned sequence
+
+
+@dataclass
+class CommandSequence:
+    """A recorded run or a planned command sequence (:func:`load_sequence`)."""
+
+    kind: str  # "recorded" or "planned"
+    cmd_t: np.ndarray
+    thrust_n: np.ndarray
+    pose_t: np.ndarray
+    s0: Any
+    run: Run | None = None
+    truth: dict | None = None
+
+
+def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = False,
+                  pose_rate_hz: float = 120.0) -> CommandSequence:
+    """A run folder (with poses.csv), or a folder or commands.csv holding only commands
+    (poses then planned at ``pose_rate_hz``, the module starting at rest at the origin)."""
+    p = Path(path)
+    if p.is_dir() and (p / "poses.csv").exists():
+        run = read_run(p)
+        cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
+        truth = run.truth
+        s0 = truth.get("initial_state") if truth else None
+        if s0 is None:
+            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
+        return CommandSequence("recorded", cmd_t, thrust, run.pose_t, s0, run, truth)
+    csv = p / "commands.csv" if p.is_dir() else p
+    if not csv.exists():
+        raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
+    cmd_t, duty = from_commands_csv(csv)
+    if len(cmd_t) < 2:
+        raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
+    if table is None:
+        table = ThrustTable.default()
+    try:
+        thrust = table.thrust_n(duty, clamp=clamp)
+    except UserError as exc:
+        raise UserError(f"{csv}: {exc}") from None
+    return CommandSequence("planned", cmd_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
+                     np.zeros(6))
+
+
+@dataclass
+class Bound:
+    """Result of :func:`bound_sequence`: the bound, the poses it covers and the plant."""
+
+    kind: str
+    crlb: CRLBResult
+    pose_t: np.ndarray
+    mass_kg: float
+    izz_kgm2: float
+    plant_source: str
+    data: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object of ``tpods estimate crlb --json``."""
+        return dict(self.data)
+
+
+def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str | None = None,
+                   mass_kg: float | None = None, izz_kgm2: float | None = None,
+                   model: str | None = None, sigma_pos_m: float = 0.01,
+                   sigma_yaw_rad: float = math.radians(1.0),
+                   keep_sensitivities: bool = False) -> Bound:
+    """Cramér-Rao bound of the model's parameters (initial state marginalised): the use
+    case of ``tpods estimate crlb``.
+
+    The plant is ``mass_kg``/``izz_kgm2`` when given, else the run's truth, else the
+    paper's module; ``path`` is recorded in the result as given.
+    """
+    t0, t1 = as_window(window)
+    s0 = seq.s0
+    if seq.kind == "recorded":
+        run = seq.run.window(t0, t1) if (t0, t1) != (None, None) else seq.run
+        pose_t = run.pose_t
+        if run.pose_t[0] != seq.run.pose_t[0]:
+            s0 = [*run.pose[0], 0.0, 0.0, 0.0]
+    else:
+        pose_t = seq.pose_t
+        keep = np.ones(len(pose_t), bool)
+        if t0 is not None:
+            keep &= pose_t >= t0
+        if t1 is not None:
+            keep &= pose_t <= t1
+        if keep.sum() < 3:
+            raise UserError(f"window {window} holds fewer than 3 planned poses")
+        pose_t = pose_t[keep]
+    truth = seq.truth or {}
+    mass = mass_kg or truth.get("mass_kg") or PAPER_MASS_KG
+    izz = izz_kgm2 or truth.get("izz_kgm2") or PAPER_IZZ_KGM2
+    source = "command line" if (mass_kg or izz_kgm2) else ("run truth" if truth else "paper nominal")
+    params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
+              **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
+    model = model or DEFAULT_MODEL
+    c = crlb(pose_t, seq.cmd_t, seq.thrust_n, params, s0=s0, sigma_pos_m=sigma_pos_m,
+             sigma_yaw_rad=sigma_yaw_rad, keep_sensitivities=keep_sensitivities,
+             names=MODELS[model])
+    out: dict[str, Any] = {
+        "sequence": seq.kind, "path": str(path), "n_poses": c.n_poses,
+        "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,
+        "plant_source": source,
+        "crlb_mass_sigma_kg": c.mass_sigma_kg, "crlb_izz_sigma_kgm2": c.izz_sigma_kgm2,
+        "crlb_mass_rel": c.mass_sigma_kg / mass, "crlb_izz_rel": c.izz_sigma_kgm2 / izz,
+        "crlb_corr_mass_izz": float(c.cov[0, 1] / (c.sigma[0] * c.sigma[1])),
+        "logdet_info": c.logdet, "sigma_pos_m": sigma_pos_m, "sigma_yaw_rad": sigma_yaw_rad,
+        "model": model, "estimated": list(c.names)}
+    for n, s in zip(c.names, c.sigma, strict=True):
+        if n not in ("mass", "izz"):
+            out[f"crlb_{n}_sigma"] = float(s)
+    sd = np.where(c.sigma > 0, c.sigma, 1.0)
+    out["crlb_correlation"] = (c.cov / np.outer(sd, sd)).tolist()
+    return Bound(seq.kind, c, pose_t, mass, izz, source, out)
