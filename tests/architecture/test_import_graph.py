@@ -4,7 +4,7 @@ Floors (README "Layout", docs/architecture.md): ``common`` (ground) < ``bench``,
 ``mocap_bridge`` (devices and data) < ``calibration`` (reads the balance through bench)
 < ``estimator`` < ``tpods`` (the application: CLI, demo, player, plant-in-the-loop).
 Inside ``estimator/`` the subpackages have floors of their own: ``plant`` < ``batch`` <
-``filters`` < ``live``, ``montecarlo`` < ``reports``. Packages on one floor do not import
+``filters`` < ``live``, ``montecarlo``, ``estimate`` < ``reports``. Packages on one floor do not import
 each other. Imports inside functions count too.
 """
 
