@@ -12,19 +12,14 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
 from bench.fit import ThrustFit
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+matplotlib.use("Agg")  # PNG files only, no window
 
 
 def plot_fit_orders(result: ThrustFit, path: str | Path, truth=None) -> Path:
@@ -32,7 +27,6 @@ def plot_fit_orders(result: ThrustFit, path: str | Path, truth=None) -> Path:
 
     ``truth``: optional ThrustTable drawn dashed for comparison.
     """
-    plt = _pyplot()
     ks = sorted(result.fits)
     ncol = 2 if len(ks) > 1 else 1
     nrow = math.ceil(len(ks) / ncol)
@@ -72,7 +66,6 @@ def plot_time_series(raw: pd.DataFrame, path: str | Path, steps: pd.DataFrame | 
     ``raw``: raw.csv frame; ``steps``: steps.csv frame (drift-corrected step means
     drawn as horizontal bars over each dwell).
     """
-    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(12, 4.5))
     r = raw[raw["phase"] != "check"]
     t = r["t_s"].to_numpy()

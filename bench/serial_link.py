@@ -13,6 +13,8 @@ import re
 import time
 from typing import Any
 
+import serial
+
 from common.errors import DeviceError
 
 _EOL = re.compile(rb"[\r\n]")
@@ -35,8 +37,6 @@ class SerialLink:
         self._timeout = poll_s
         self._buf = b""
         if isinstance(port, str):
-            import serial
-
             self.url = port
             try:
                 self.port = serial.serial_for_url(port, timeout=poll_s, write_timeout=2.0, **settings)

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from bench.ohaus import OhausScout, Reading
 from bench.valves import ValveController
@@ -259,8 +260,6 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     (including KeyboardInterrupt and :class:`Terminated`) propagate after the
     output is written with status ``failed`` / ``aborted``.
     """
-    from tqdm import tqdm
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()

@@ -30,6 +30,7 @@ import pandas as pd
 
 from common.errors import UserError
 from common.runwriter import CsvLog, write_json_atomic
+from common.thrust_table import load_thrust_table
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -73,8 +74,6 @@ class Run:
         """
         if self.thrust_n is not None:
             return self.thrust_t, self.thrust_n
-        from common.thrust_table import load_thrust_table
-
         table = table if table is not None else load_thrust_table(None)
         try:
             return self.cmd_t, table.thrust_n(self.duty_pct, clamp=clamp)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and callers use it here)
 from common.errors import UserError
@@ -145,8 +146,6 @@ class ThrustTable:
         return out
 
     def save(self, path: str | Path) -> None:
-        import tomli_w
-
         Path(path).write_text(tomli_w.dumps(self.to_dict()))
 
     # ---------------------------------------------------------- evaluation

@@ -95,7 +95,7 @@ def build_config(connect: list[str] | None = None, listen: list[str] | None = No
     ``batch_ms``: Zenoh's transmit batching time limit (integer ms); None means
     :data:`DEFAULT_BATCH_MS`, or the config file's own value when a file is given.
     """
-    import zenoh
+    import zenoh  # lazy: this module builds the CLI's options; tpods --help stays without zenoh
 
     if config_file is not None:
         path = Path(config_file)
@@ -151,7 +151,7 @@ def open_session(args: Any = None, /, **kwargs: Any):
     when the configuration is bad or the session cannot open.
     """
     os.environ.setdefault(RUNTIME_ENV, DEFAULT_RUNTIME)  # before zenoh starts its runtimes
-    import zenoh
+    import zenoh  # lazy: this module builds the CLI's options; tpods --help stays without zenoh
 
     def opt(name: str, default: Any = None) -> Any:
         return kwargs[name] if name in kwargs else _get(args, name, default)
