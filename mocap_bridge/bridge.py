@@ -13,6 +13,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import zenoh
+
 from common.wire import ENCODING, encode_pose, pose_key
 from mocap_bridge.pose import AxisMap, PoseSample
 from mocap_bridge.stats import BodyStats, BridgeStats, encode_stats
@@ -43,8 +45,6 @@ class Bridge:
                  congestion: str = "block", stats_period_s: float = 1.0,
                  on_stats: Callable[[dict[str, Any]], None] | None = None,
                  express: bool = False) -> None:
-        import zenoh
-
         self.session = session
         self.prefix = prefix.strip("/")
         if not self.prefix:

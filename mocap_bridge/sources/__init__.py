@@ -20,6 +20,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from common.errors import UserError
+from mocap_bridge.sources.replay import ReplaySource
+from mocap_bridge.sources.vicon_sdk import ViconSDKSource
+from mocap_bridge.sources.vicon_udp import DEFAULT_PORT, ViconUDPSource
 
 
 def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
@@ -31,8 +34,6 @@ def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
     """
     kind, _, arg = spec.partition(":")
     if kind == "vicon-udp":
-        from mocap_bridge.sources.vicon_udp import DEFAULT_PORT, ViconUDPSource
-
         try:
             port = int(arg) if arg else DEFAULT_PORT
         except ValueError:
@@ -41,14 +42,10 @@ def open_source(spec: str, *, rate_scale: float = 1.0, bind: str = "0.0.0.0",
             raise UserError(f"bad UDP port in --source {spec!r}")
         return ViconUDPSource(port=port, bind=bind, latency_s=latency_s)
     if kind == "vicon-sdk":
-        from mocap_bridge.sources.vicon_sdk import ViconSDKSource
-
         if not arg:
             raise UserError("--source vicon-sdk needs a host, e.g. vicon-sdk:192.168.1.5")
         return ViconSDKSource(arg)
     if kind == "replay":
-        from mocap_bridge.sources.replay import ReplaySource
-
         if not arg:
             raise UserError("--source replay needs a folder, e.g. replay:runs/sim-1")
         return ReplaySource(Path(arg), rate_scale=rate_scale, body=body)

@@ -180,12 +180,14 @@ class _PyVicon:
 
 
 def _import_dssdk():
+    # lazy: optional SDK binding, imported only when chosen
     from vicon_dssdk import ViconDataStream  # type: ignore[import-not-found]
 
     return ViconDataStream
 
 
 def _import_pyvicon():
+    # lazy: optional SDK binding (the vicon extra), imported only when chosen
     import pyvicon_datastream  # type: ignore[import-not-found]
 
     return pyvicon_datastream
