@@ -36,10 +36,15 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
+from tqdm import tqdm
 
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.errors import UserError
+from common.thrust_table import load_thrust_table
+from estimator.batch.least_squares import batch_ls
 from estimator.filters.ekf import NX, PAPER, EkfConfig
 from estimator.filters.ekf_vec import VecEKF, shared_schedule
+from estimator.plant.inputs import make_input
 from estimator.plant.model import PARAM_NAMES, wrench
 from estimator.plant.propagate import rk4_states
 from estimator.plant.sim import pose_times
@@ -277,9 +282,6 @@ class TruthStream:
 
 def make_scenario(cfg: McConfig):
     """Common time grid (N,), command times (Nc,) and thrusts (Nc, 4) N of the Monte Carlo."""
-    from common.thrust_table import load_thrust_table
-    from estimator.plant.inputs import make_input
-
     cmd_t, duty = make_input(cfg.input, cfg.duration_s, cfg.cmd_rate_hz, cfg.amplitude_pct,
                              cfg.omega_rad_s)
     thrust = load_thrust_table(None).thrust_n(duty)
@@ -294,9 +296,6 @@ def ls_start(cfg: McConfig, t, cmd_t, thrust_n, truth, s0, seed_seq, progress=No
     the data are identical. Returns ``(x0 (R, 8), P0 (R, 8, 8), failed)``; a run whose
     fit fails or does not converge starts from the ``ekf`` initialisation instead.
     """
-    from common.errors import UserError
-    from estimator.batch.least_squares import batch_ls
-
     rng = np.random.default_rng(seed_seq)
     stream = TruthStream(cfg, t, cmd_t, thrust_n, truth, s0, rng)
     nw = int(np.searchsorted(t, t[0] + cfg.ls_window_s, side="right"))
@@ -331,8 +330,6 @@ def ls_start(cfg: McConfig, t, cmd_t, thrust_n, truth, s0, seed_seq, progress=No
 def run_montecarlo(cfg: McConfig, progress: bool = False,
                    on_step: Callable[[int], None] | None = None) -> McResult:
     """Run the Monte Carlo (vectorised across runs). ``progress`` shows tqdm bars on stderr."""
-    from tqdm import tqdm
-
     t_start = time.perf_counter()
     t, cmd_t, thrust = make_scenario(cfg)
     ss = np.random.SeedSequence(cfg.seed)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -24,7 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.emulators import EmulatedValveController, serve_pty
 from estimator.plant.model import PlantParams, integrate_zoh
+from mocap_bridge.bridge import Bridge
+from mocap_bridge.sources.push import PushSource
+from mocap_bridge.sources.vicon_udp import build_datagram
 from tpods.clock import LabClock
 
 Sink = Callable[[int, float, float, float, float, bool], None]
@@ -46,8 +51,6 @@ def udp_sink(address: tuple[str, int], body: str = "tpods1",
     "Data Block Size" (256, 512 or 1024; None sends the bare items). The bridge stamps
     these with its receive time: use it at time scale 1 only.
     """
-    from mocap_bridge.sources.vicon_udp import build_datagram
-
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
     def sink(frame: int, t: float, x: float, y: float, psi: float, occluded: bool) -> None:
@@ -218,10 +221,6 @@ class SimulatedModule:
                  body: str = "tpods1", pose_rate_hz: float = 120.0, noise: MocapNoise | None = None,
                  seed: int | None = 0, prefix: str = "tpods/mocap", n_channels: int = 4,
                  switch_interval_s: float | None = 2e-4) -> None:
-        from bench.emulators import EmulatedValveController
-        from mocap_bridge.bridge import Bridge
-        from mocap_bridge.sources.push import PushSource
-
         self.valves = EmulatedValveController(n_channels)
         self.source = PushSource(f"plant:{body}")
         self.bridge = Bridge(session, prefix=prefix)
@@ -236,10 +235,6 @@ class SimulatedModule:
         self._old_switch = 0.005
 
     def start(self) -> SimulatedModule:
-        import sys
-
-        from bench.emulators import serve_pty
-
         # a short GIL switch interval: the emulated controller answers (and stamps) a command
         # within a fraction of a millisecond even while the plant and bridge threads compute
         # (with the default 5 ms, valve switches jitter by milliseconds: a bias on Izz)
@@ -261,8 +256,6 @@ class SimulatedModule:
         if self.server is not None:
             self.server.stop()
         if self.switch_interval_s is not None:
-            import sys
-
             sys.setswitchinterval(self._old_switch)
 
     def __enter__(self) -> SimulatedModule:

@@ -32,7 +32,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
+from bench.session import Terminated
 from common.errors import UserError
 from common.runwriter import (  # CommandLog: also tpods.player.CommandLog
     CommandLog,
@@ -104,10 +106,6 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     the files written. Publishing errors are counted, never allowed to stop the
     closing of the valves.
     """
-    from tqdm import tqdm
-
-    from bench.session import Terminated
-
     clock = clock or LabClock()
     cmd_t = np.asarray(cmd_t, float)
     duty_pct = np.asarray(duty_pct, float)

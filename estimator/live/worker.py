@@ -19,12 +19,12 @@ def init() -> None:
 
 def warm() -> None:
     """Import the batch estimator now, not when the window is complete."""
-    import estimator.batch.least_squares  # noqa: F401
+    import estimator.batch.least_squares  # noqa: F401  # lazy: after init() lowered the priority
 
 
 def ls_job(pose_t, pose, cmd_t, thrust_n, kw):
     """Batch LS on the first window. Returns ``(BatchResult, seconds)``."""
-    from estimator.batch.least_squares import batch_ls
+    from estimator.batch.least_squares import batch_ls  # lazy: after init() lowered the priority
 
     t_a = time.perf_counter()
     res = batch_ls(pose_t, pose, cmd_t, thrust_n, **kw)

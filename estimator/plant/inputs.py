@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import UserError
+from common.runfolder import COMMAND_COLUMNS, read_table
 
 INPUT_NAMES = ("phase-sine", "translate-rotate")
 
@@ -64,8 +65,6 @@ def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct
 
 def from_commands_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a commands.csv (run-folder format) as an input sequence."""
-    from common.runfolder import COMMAND_COLUMNS, read_table
-
     v = read_table(Path(path), COMMAND_COLUMNS)
     return v[:, 0], v[:, 1:]
 

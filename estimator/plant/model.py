@@ -384,6 +384,7 @@ def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: flo
     Returns:
         (N, 6) states at ``t_out``; psi is continuous (not wrapped).
     """
+    # lazy: propagate imports this module (a cycle at import time)
     from estimator.plant.propagate import segment_thrust, zoh_segments
 
     events, cmd_idx, out_pos = zoh_segments(cmd_t, t_out)

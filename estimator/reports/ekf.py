@@ -22,6 +22,10 @@ import numpy as np
 
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from estimator.filters.ekf import PAPER, EkfConfig, estimate_filter
+from estimator.plant.inputs import phase_sine
+from estimator.plant.model import PlantParams
+from estimator.plant.sim import SimConfig, simulate
+from estimator.reports.plots_ekf import plot_error_bounds
 
 PAPER_ROWS = {
     "ekf": {"rmse_mass_kg": 0.2267, "rmse_izz_kgm2": 2.85e-4, "final_rel_mass": None,
@@ -37,10 +41,6 @@ TRUE_IZZ_KGM2 = PAPER_IZZ_KGM2
 def simulate_paper(duration_s: float = 120.0, seed: int = 0, mass_kg: float = TRUE_MASS_KG,
                    izz_kgm2: float = TRUE_IZZ_KGM2):
     """The paper's synthetic run (see module docstring)."""
-    from estimator.plant.inputs import phase_sine
-    from estimator.plant.model import PlantParams
-    from estimator.plant.sim import SimConfig, simulate
-
     cmd_t, duty = phase_sine(duration_s, 50.0, 20.0, 1.0)
     return simulate(cmd_t, duty, PlantParams(mass_kg, izz_kgm2), config=SimConfig(seed=seed))
 
@@ -98,8 +98,6 @@ def build_report(duration_s: float = 120.0, seeds=(0, 1, 2, 3, 4), cfg: EkfConfi
     values); with ``out_dir`` writes report.md, ekf_report.json and the Fig. 7/8-style
     plots of the first seed.
     """
-    from estimator.reports.plots_ekf import plot_error_bounds
-
     per_seed: dict[str, list[dict]] = {}
     first = None
     for s in seeds:

@@ -5,26 +5,20 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+
+matplotlib.use("Agg")  # PNG files only, no window
 
 UNITS = {"mass": "kg", "izz": "kg m$^2$", "ct": "N s/m", "cr": "N m s", "kb": "N s",
          "ax": "m/s$^2$", "ay": "m/s$^2$"}
 STATE_LABELS = ("x [m]", "y [m]", r"$\psi$ [rad]", "u [m/s]", "v [m/s]", "r [rad/s]")
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_residuals(t: np.ndarray, residuals: np.ndarray, path: str | Path, *, title: str = "",
                    sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0)) -> Path:
     """Residuals of x, y (cm) and yaw (deg) against time with +/-3 sigma lines (Fig. 5)."""
-    plt = _plt()
     t = np.asarray(t) - t[0]
     fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     data = [(residuals[:, 0] * 100, sigma_pos_m * 100, "x residual [cm]"),
@@ -55,7 +49,6 @@ def plot_sensitivities(t: np.ndarray, sens_x: np.ndarray, names, theta, path: st
     change of the parameter), so mass and Izz columns compare directly. The first three
     rows are the outputs (x, y, psi), i.e. the output sensitivities S_y,theta.
     """
-    plt = _plt()
     t = np.asarray(t) - t[0]
     p = len(names)
     fig, axes = plt.subplots(6, p, figsize=(4.2 * p, 9), sharex=True, squeeze=False)

@@ -5,16 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+matplotlib.use("Agg")  # PNG files only, no window
 
 
 _LABELS = (("mass", "kg"), ("Izz", "kg m$^2$"))
@@ -27,7 +22,6 @@ def plot_error_bounds(t, est, sigma, path, truth=None, title: str = "") -> Path:
         t: (N,) s. est: (N, 2) estimates of m (kg) and Izz (kg m^2). sigma: (N, 2).
         truth: (m, Izz) or None (then the estimate is drawn with its 3-sigma band).
     """
-    plt = _plt()
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     for j, ax in enumerate(axes):
         name, unit = _LABELS[j]
@@ -64,7 +58,6 @@ def plot_mc_runs(t, ex_err, ex_sigma, path, title: str = "") -> Path:
 
     ex_err, ex_sigma: (K, N, 2) for m and Izz.
     """
-    plt = _plt()
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     for j, ax in enumerate(axes):
         name, unit = _LABELS[j]
@@ -91,7 +84,6 @@ def plot_mc_runs(t, ex_err, ex_sigma, path, title: str = "") -> Path:
 
 def plot_mc_averages(res, path, title: str = "") -> Path:
     """Fig. 10 style: bias, sample std and filter sigma of m and Izz, and the average NEES."""
-    plt = _plt()
     t = res.t
     fig, axes = plt.subplots(3, 1, figsize=(8, 8.5), sharex=True)
     for j, ax in enumerate(axes[:2]):

@@ -32,16 +32,29 @@ Pure computation in :func:`compare_models`, :func:`monte_carlo`, :func:`identifi
 
 from __future__ import annotations
 
+import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 from scipy import stats
+from tqdm import tqdm
 
-from estimator.plant.parameter_sets import MODELS, PARAM_UNITS
+from common.thrust_table import ThrustTable
+from estimator.batch.crlb import crlb, safe_inverse
+from estimator.batch.least_squares import batch_ls
+from estimator.batch.model_select import select_model
+from estimator.filters.ekf_ext import ExtEkfConfig, estimate_ext
+from estimator.plant.inputs import translate_rotate
+from estimator.plant.model import STATE_NAMES, PlantParams
+from estimator.plant.parameter_sets import MODELS, PARAM_UNITS, fixed_for
+from estimator.plant.sim import SimConfig, simulate
 
 MASS_KG = 0.72
 IZZ_KGM2 = MASS_KG * 0.10**2 / 6
@@ -69,11 +82,6 @@ ROWS = (("ideal", "ideal", None), ("ideal + hand-set friction", "ideal", HAND_SE
 def simulate_run(truth: Mapping[str, float], seed: int, mass_kg: float = MASS_KG,
                  izz_kgm2: float = IZZ_KGM2, duration_s: float = DURATION_S, drop: float = 0.0):
     """A simulated translate-rotate run; returns ``(SimResult, cmd_t, thrust_n)``."""
-    from common.thrust_table import ThrustTable
-    from estimator.plant.inputs import translate_rotate
-    from estimator.plant.model import PlantParams
-    from estimator.plant.sim import SimConfig, simulate
-
     table = ThrustTable.default()
     cmd_t, duty = translate_rotate(duration_s)
     thrust = table.thrust_n(duty)
@@ -92,17 +100,12 @@ def truth_params(truth: Mapping[str, float], mass_kg: float = MASS_KG,
 
 def fit_row(res, cmd_t, thrust, model: str, hand_set: Mapping[str, float] | None = None):
     """Batch LS of one comparison row (``hand_set``: fixed friction for the ideal model)."""
-    from estimator.batch.least_squares import batch_ls
-    from estimator.plant.parameter_sets import fixed_for
-
     fixed = fixed_for(model, hand_set)
     return batch_ls(res.pose_t, res.pose, cmd_t, thrust, names=MODELS[model], fixed=fixed)
 
 
 def extended_crlb(res, cmd_t, thrust, truth: Mapping[str, float], model: str):
     """CRLB of ``model`` for this run at the true plant (truth initial state: at rest)."""
-    from estimator.batch.crlb import crlb
-
     return crlb(res.pose_t, cmd_t, thrust, truth_params(truth), s0=res.states[0],
                 names=MODELS[model])
 
@@ -248,9 +251,6 @@ def monte_carlo(runs: int, seed: int = 0, model: str = "friction+tilt",
 
 def identifiability(truth: Mapping[str, float], seed: int = 0, model: str = "friction+tilt"):
     """Correlations of the extended model's bound: ``(labels, corr (13,13), marginal corr (p,p))``."""
-    from estimator.batch.crlb import safe_inverse
-    from estimator.plant.model import STATE_NAMES
-
     res, cmd_t, thrust = simulate_run(truth, seed)
     c = extended_crlb(res, cmd_t, thrust, truth, model)
     full = safe_inverse(c.fisher)
@@ -270,13 +270,6 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
                  duration_s: float = DURATION_S, with_ekf: bool = True,
                  log: Callable[[str], None] = print) -> Path:
     """Run the comparisons, model selection, identifiability and Monte Carlo; write the report."""
-    import json
-    import sys
-
-    from tqdm import tqdm
-
-    from estimator.batch.model_select import select_model
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     seed_list = [seed * 1000 + s + 1 for s in range(seeds)]
@@ -427,8 +420,6 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
            ""]
     # 5. extended-state LS+EKF (paper's procedure, for the RMSE-over-time comparison)
     if with_ekf:
-        from estimator.filters.ekf_ext import ExtEkfConfig, estimate_ext
-
         res, cmd_t, thrust = simulate_run(TRUTH, seed_list[0], duration_s=duration_s)
         win = min(10.0, 0.75 * duration_s)
         r, _ = estimate_ext(res.pose_t, res.pose, cmd_t, thrust,
@@ -462,11 +453,7 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
 
 
 def _figures(out: Path, first_sel: Mapping[str, Any], mc: MonteCarlo) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    matplotlib.use("Agg")  # PNG files only, no window
     key = [k for k in first_sel if k.startswith("B")]
     sel, res = first_sel[key[0]] if key else next(iter(first_sel.values()))
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)

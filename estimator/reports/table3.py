@@ -23,7 +23,8 @@ from estimator.batch.least_squares import BatchResult, batch_ls
 from estimator.plant.controller import run_orbit_follower
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams, wrench
-from estimator.plant.sim import SimConfig, SimResult, simulate
+from estimator.plant.sim import SimConfig, SimResult, simulate, write_sim_run
+from estimator.reports.plots_batch import plot_residuals, plot_sensitivities
 
 TRUE_PLANT = PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2)
 INITIAL = {"mass": 1.0, "izz": 0.005}
@@ -181,9 +182,6 @@ def write_table3(out_dir: str | Path, duration_s: float = 120.0, seed: int = 0,
                  table: ThrustTable | None = None, table_name: str = "built-in Table 2",
                  log: Callable[[str], None] | None = None) -> Path:
     """Compute both cases and write report.md, table3.json, run folders and figures."""
-    from estimator.plant.sim import write_sim_run
-    from estimator.reports.plots_batch import plot_residuals, plot_sensitivities
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cases = table3_cases(duration_s, seed, table, log)
