@@ -7,7 +7,10 @@ Two implementations of one filter:
   --method ekf|ls-ekf`` command (tens of thousands of pose updates per second);
 - :class:`TpodsEKF`, a filterpy ``ExtendedKalmanFilter`` whose ``predict_x`` runs the
   same nonlinear propagation and sets ``F`` to the analytic transition matrix, with an
-  angle-wrapping residual and filterpy's Joseph-form update (:func:`run_filterpy`).
+  angle-wrapping residual and filterpy's Joseph-form update (:func:`run_filterpy`): the
+  public, tested adapter and the tests' reference, in
+  :mod:`estimator.filters.filterpy_adapter` (imported from here on first use, so that the
+  lean path does not load filterpy and scipy).
 
 Physics: :mod:`estimator.plant.model` (compiled for the filter's parameter set by
 :class:`estimator.plant.propagate.AugmentedPlant`: one scalar stage function per RK4 stage giving
@@ -38,7 +41,6 @@ from dataclasses import dataclass, field, replace
 from functools import cache
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
 from estimator.plant.model import ALL_EFFECTS, ARM_M, jacobian_pattern, scalar_stage, wrench
 from estimator.plant.propagate import AugmentedPlant, propagate_stm, segment_thrust, zoh_segments
@@ -428,7 +430,8 @@ def make_schedule(pose_t, cmd_t, thrust_n, arm_m: float = ARM_M) -> Schedule:
     return Schedule(pose_t, seg_dt, seg_w)
 
 
-def _initial(cfg: EkfConfig, x0, P0):
+def initial_estimate(cfg: EkfConfig, x0, P0):
+    """The filter's start ``(x (8,), P (8, 8))``: the given values or the setting's."""
     x = np.array(cfg.x0 if x0 is None else x0, dtype=float)
     P = cfg.P0 if P0 is None else np.array(P0, dtype=float)
     if x.shape != (NX,) or P.shape != (NX, NX):
@@ -451,7 +454,7 @@ def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=N
         progress: optional callable(k) called every 1000 poses.
     """
     sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
-    x, P = _initial(cfg, x0, P0)
+    x, P = initial_estimate(cfg, x0, P0)
     h = run_filter(sched, pose, cfg.plant, x, P, cfg.R, cfg._q_nz, cfg.max_step_s,
                    cfg.underweight, cfg.uw_trigger, use, keep_cov, progress)
     return EkfResult(sched.pose_t.copy(), h.x, h.sigma, h.P, h.updated, h.triggered, h.nis,
@@ -527,91 +530,6 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
             progress(k)
     np.sqrt(np.maximum(sig, 0.0), out=sig)
     return FilterHistory(xs, sig, P, use.copy(), trig, nis, covs)
-
-
-# --------------------------------------------------------------------------------------
-# The filterpy-based filter
-
-
-def _hjac(_x):
-    H = np.zeros((NZ, NX))
-    H[0, 0] = H[1, 1] = H[2, 2] = 1.0
-    return H
-
-
-def _hx(x):
-    return x[:NZ].copy()
-
-
-class TpodsEKF(ExtendedKalmanFilter):
-    """filterpy ``ExtendedKalmanFilter`` for the augmented TPODS state.
-
-    ``predict(u=(seg_dt, seg_w))`` propagates through the hold segments of one pose
-    interval: the overridden ``predict_x`` integrates the nonlinear model, sets
-    ``F`` to the analytic transition matrix and ``Q`` to ``diag(q_psd) * dt``, then
-    filterpy forms ``F P F^T + Q``. :meth:`update_pose` takes a pose (3,), passes it
-    as a column vector with an angle-wrapping residual (Joseph-form update by
-    filterpy), or runs the underweighted update while it is triggered.
-    """
-
-    def __init__(self, cfg: EkfConfig = PAPER, x0=None, P0=None):
-        super().__init__(dim_x=NX, dim_z=NZ)
-        x, P = _initial(cfg, x0, P0)
-        self.cfg = cfg
-        self.x = x.reshape(NX, 1)
-        self.P = P.copy()
-        self.R = cfg.R
-        self.triggered = False
-
-    def predict_x(self, u=0):
-        seg_dt, seg_w = u
-        z, phi = propagate_stm(self.x.ravel(), seg_dt, seg_w, self.cfg.plant, self.cfg.max_step_s)
-        self.x = z.reshape(NX, 1)
-        self.F = phi
-        self.Q = np.diag(np.asarray(self.cfg.q_psd) * float(sum(seg_dt)))
-
-    def update_pose(self, pose) -> None:
-        zc = np.asarray(pose, dtype=float).reshape(NZ, 1)
-        cfg = self.cfg
-        self.triggered = cfg.underweight > 0.0 and uw_ratio(self.P, self.R) > cfg.uw_trigger
-        if not self.triggered:
-            self.update(zc, _hjac, _hx, R=self.R, residual=wrap_residual)
-        else:
-            H = _hjac(self.x)
-            PHT = self.P @ H.T
-            self.S = (1.0 + cfg.underweight) * (H @ PHT) + self.R
-            self.SI = np.linalg.inv(self.S)
-            self.K = PHT @ self.SI
-            self.y = wrap_residual(zc, _hx(self.x))
-            self.x = self.x + self.K @ self.y
-            I_KH = self._I - self.K @ H
-            self.P = I_KH @ self.P @ I_KH.T + self.K @ self.R @ self.K.T
-
-
-def run_filterpy(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=None,
-                 use=None) -> EkfResult:
-    """Same as :func:`run_ekf` with :class:`TpodsEKF` (slower; the reference implementation)."""
-    pose = np.asarray(pose, dtype=float)
-    sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
-    n = len(sched.pose_t)
-    use = np.ones(n, bool) if use is None else np.asarray(use, bool)
-    f = TpodsEKF(cfg, x0, P0)
-    xs = np.empty((n, NX))
-    sig = np.empty((n, NX))
-    nis = np.full(n, np.nan)
-    trig = np.zeros(n, bool)
-    for k in range(n):
-        if k:
-            f.predict(u=(sched.seg_dt[k], sched.seg_w[k]))
-        if use[k]:
-            Sp = f.P[:NZ, :NZ] + f.R
-            y = wrap_residual(pose[k], f.x.ravel()[:NZ])
-            nis[k] = float(y @ np.linalg.solve(Sp, y))
-            f.update_pose(pose[k])
-            trig[k] = f.triggered
-        xs[k] = f.x.ravel()
-        sig[k] = np.sqrt(np.diag(f.P))
-    return EkfResult(sched.pose_t.copy(), xs, sig, f.P.copy(), use.copy(), trig, nis)
 
 
 # --------------------------------------------------------------------------------------
@@ -742,3 +660,13 @@ def initial_rates(pose_t, pose, span_s: float = 0.25) -> tuple[np.ndarray, np.nd
     v = -xd * s + yd * c
     sig_uv = math.sqrt(max(var_slope[0], var_slope[1]))
     return np.array([u, v, r]), np.array([sig_uv, sig_uv, math.sqrt(var_slope[2])])
+
+
+def __getattr__(name: str):
+    """``TpodsEKF`` and ``run_filterpy`` from :mod:`estimator.filters.filterpy_adapter`."""
+    if name in ("TpodsEKF", "run_filterpy"):
+        # lazy: filterpy imports scipy (~0.6 s), which neither the lean filter nor `tpods --help` needs
+        from estimator.filters import filterpy_adapter
+
+        return getattr(filterpy_adapter, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
