@@ -7,11 +7,12 @@ import time
 import numpy as np
 
 from calibration.bifilar import Pendulum, fit_swing_trace, simulate_trace
+from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 
 # (label, mass kg, Izz kg m^2, D m, h m, c1 1/s, c2 1/rad)
 CASES = [
     ("module D/h 0.10", 0.72, 1.2e-3, 0.10, 1.00, 0.004, 0.010),
-    ("nominal D/h 0.13", 2.268, 3.78e-3, 0.08, 0.60, 0.003, 0.020),
+    ("nominal D/h 0.13", PAPER_MASS_KG, PAPER_IZZ_KGM2, 0.08, 0.60, 0.003, 0.020),
     ("truss D/h 0.20", 3.0, 0.05, 0.30, 1.50, 0.002, 0.010),
     ("module D/h 0.50", 0.72, 1.2e-3, 0.30, 0.60, 0.004, 0.010),
 ]

@@ -106,10 +106,11 @@ def run() -> list[dict]:
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
     for i in range(n_sub):
-        m, izz = 2.268 * (1 + rng.uniform(-0.5, 0.5)), 3.78e-3 * (1 + rng.uniform(-0.5, 0.5))
+        m = PAPER_MASS_KG * (1 + rng.uniform(-0.5, 0.5))
+        izz = PAPER_IZZ_KGM2 * (1 + rng.uniform(-0.5, 0.5))
         r = simulate_paper(120.0, i, m, izz)
         x0 = first_pose_start(PAPER, r.pose)
-        x0[6:8] = (2.268, 3.78e-3)
+        x0[6:8] = (PAPER_MASS_KG, PAPER_IZZ_KGM2)
         run_ekf(r.pose_t, r.pose, r.cmd_t, r.thrust_n, PAPER, x0)
     t_loop = (time.perf_counter() - t0) / n_sub * cfg.runs
     rows.append({"case": "ekf montecarlo 500x120s", "metric": "wall time, s",

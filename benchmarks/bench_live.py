@@ -54,6 +54,7 @@ def _batch_ms() -> int | None:
 def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out) -> None:
     import zenoh
 
+    from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
     from common.zenoh_net import open_session
     from estimator.plant.inputs import phase_sine
     from estimator.plant.model import PlantParams
@@ -62,7 +63,7 @@ def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out) -> None:
     from tpods.player import cmd_key, encode_command
 
     cmd_t, duty = phase_sine(seconds, 50.0)
-    res = simulate(cmd_t, duty, PlantParams(2.268, 3.78e-3),
+    res = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2),
                    config=SimConfig(pose_rate_hz=rate_hz, seed=7))
     session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     enc = zenoh.Encoding("application/json")
