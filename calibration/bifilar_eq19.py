@@ -44,6 +44,41 @@ def check_geometry(mass_kg: float, spacing_m: float, length_m: float, g: float =
             raise UserError(f"{name} must be a positive finite number, got {v!r}")
 
 
+SPACING_RANGE_M = (0.01, 1.5)
+LENGTH_RANGE_M = (0.05, 5.0)
+MASS_MAX_KG = 50.0
+GYRATION_RANGE = (0.2, 5.0)
+"""Plausible radius of gyration sqrt(Izz/m) relative to the half spacing D/2: the strings
+are attached to the body, so its mass lies at distances comparable to D/2."""
+
+
+def geometry_warnings(mass_kg: float, spacing_m: float, length_m: float, izz_kgm2: float
+                      ) -> list[str]:
+    """One line per implausible bifilar input: spacing D or length h out of a lab's range
+    (typed in cm or mm?), a mass in grams, or a period that does not fit the geometry
+    (the radius of gyration sqrt(Izz/m) far from D/2)."""
+    out = []
+    lo, hi = SPACING_RANGE_M
+    if not lo <= spacing_m <= hi:
+        out.append(f"string spacing D = {spacing_m:g} m is outside {lo:g}-{hi:g} m (--spacing is in "
+                   f"metres: typed in {'cm or mm' if spacing_m > hi else 'another unit'}?)")
+    lo, hi = LENGTH_RANGE_M
+    if not lo <= length_m <= hi:
+        out.append(f"string length h = {length_m:g} m is outside {lo:g}-{hi:g} m (--length is in "
+                   f"metres: typed in {'cm or mm' if length_m > hi else 'another unit'}?)")
+    if mass_kg > MASS_MAX_KG:
+        out.append(f"mass {mass_kg:g} kg is above {MASS_MAX_KG:g} kg (--mass is in kg: typed in g?)")
+    if izz_kgm2 > 0 and mass_kg > 0 and spacing_m > 0:
+        ratio = math.sqrt(izz_kgm2 / mass_kg) / (spacing_m / 2.0)
+        lo, hi = GYRATION_RANGE
+        if not lo <= ratio <= hi:
+            out.append(f"the period does not fit the geometry: radius of gyration sqrt(Izz/m) = "
+                       f"{math.sqrt(izz_kgm2 / mass_kg):.3g} m is {ratio:.3g}x the half spacing "
+                       f"D/2 = {spacing_m / 2:g} m (expected {lo:g}-{hi:g}x): check --spacing, "
+                       "--length (metres), --mass (kg) and the timed oscillation count")
+    return out
+
+
 def period_from_times(times_s: Sequence[float], cycles: int) -> tuple[float, float, float]:
     """Mean period and its Type-A standard uncertainty from stopwatch timings.
 
@@ -80,12 +115,16 @@ class IzzResult:
     contributions_kgm2: dict[str, float]
     inputs: dict[str, Any] = field(default_factory=dict)
     details: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    """Implausible inputs, one line each (:func:`geometry_warnings`); the CLI prints them."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (scalars only)."""
         d = {k: getattr(self, k) for k in ("izz_kgm2", "izz_sigma_kgm2", "method",
                                            "contributions_kgm2", "inputs", "details")}
         d["izz_rel_sigma"] = self.izz_sigma_kgm2 / abs(self.izz_kgm2) if self.izz_kgm2 else None
+        if self.warnings:
+            d["warnings"] = list(self.warnings)
         return d
 
 
@@ -145,4 +184,5 @@ def izz_from_times(times_s: Sequence[float], cycles: int, mass_kg: float, spacin
         details=dict(period_s=T, u_period_s=u_T, u_period_typeA_s=u_T_a, period_std_s=s_T,
                      n_trials=n, izz_gross_kgm2=izz,
                      worst_trial_dev=float(np.max(np.abs(per - np.median(per))) / np.median(per))),
+        warnings=geometry_warnings(mass_kg, spacing_m, length_m, izz),
     )

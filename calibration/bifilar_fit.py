@@ -16,7 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from calibration.bifilar_eq19 import G_STANDARD, IzzResult, check_geometry, izz_eq19
+from calibration.bifilar_eq19 import (
+    G_STANDARD,
+    IzzResult,
+    check_geometry,
+    geometry_warnings,
+    izz_eq19,
+)
 from calibration.bifilar_model import model_theta
 from common.errors import UserError
 
@@ -161,6 +167,16 @@ def _w2_guess(w2_seen: float, amp: float, spacing_m: float, length_m: float, g: 
     return w2_seen / ratio**2
 
 
+def _trace_warnings(details: dict) -> list[str]:
+    """A swing of more than 90 deg or residuals of tens of degrees: yaw not in radians?"""
+    amp = float(details.get("amplitude_start_deg", 0.0))
+    rms = float(details.get("residual_rms_deg", 0.0))
+    if amp > 90.0 or rms > 10.0:
+        return [f"the trace swings {amp:.3g} deg with residuals of {rms:.3g} deg rms: yaw in "
+                "degrees instead of radians? another body's poses?"]
+    return []
+
+
 def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: float, *,
                     u_mass_kg: float = 0.0, u_spacing_m: float = 0.0, u_length_m: float = 0.0,
                     tare_izz_kgm2: float = 0.0, u_tare_kgm2: float = 0.0,
@@ -269,4 +285,5 @@ def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: fl
                     u_mass_kg=u_mass_kg, u_spacing_m=u_spacing_m, u_length_m=u_length_m,
                     tare_izz_kgm2=tare_izz_kgm2, u_tare_kgm2=u_tare_kgm2),
         details=details, t=t, psi=psi, psi_fit=psi_fit, psi_small=lin(t),
+        warnings=geometry_warnings(mass_kg, spacing_m, length_m, izz) + _trace_warnings(details),
     )

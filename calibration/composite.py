@@ -25,6 +25,7 @@ PARTS.toml (see calibration/examples/truss_two_modules.toml):
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -140,22 +141,42 @@ def part_izz(tab: dict, mass_kg: float, where: str) -> float:
     raise UserError(f"{where}: give izz_kgm2 or shape = rod|box|disk|point (got shape {shape!r})")
 
 
+PART_KEYS = ("name", "mass_kg", "izz_kgm2", "shape", "length_m", "size_m", "radius_m",
+             "position_m", "mass_sigma_kg", "izz_sigma_kgm2", "position_sigma_m")
+TOP_KEYS = ("about", "part")
+
+
+def _check_keys(tab: dict, valid: tuple[str, ...], where: str) -> None:
+    """UserError for a key not in ``valid``, naming the nearest valid key."""
+    for key in tab:
+        if key not in valid:
+            near = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
+            hint = f" (did you mean {near[0]!r}?)" if near else f" (valid: {', '.join(valid)})"
+            raise UserError(f"{where}: unknown key {key!r}{hint}")
+
+
 def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]:
-    """Read PARTS.toml; returns the parts and the reference point."""
+    """Read PARTS.toml; returns the parts and the reference point.
+
+    An unknown key (a misspelled ``mass_sigma`` would otherwise be ignored and the
+    uncertainty taken as 0) is refused naming the nearest valid key; a UTF-8 BOM is skipped.
+    """
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found")
     try:
-        doc = tomllib.loads(path.read_text())
+        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: not valid TOML ({exc})") from None
     raw = doc.get("part")
     if not isinstance(raw, list) or not raw:
         raise UserError(f"{path}: no [[part]] tables")
+    _check_keys(doc, TOP_KEYS, str(path))
     parts = []
     for i, tab in enumerate(raw, start=1):
         name = str(tab.get("name", f"part {i}"))
         where = f"{path}: part {i} ({name})"
+        _check_keys(tab, PART_KEYS, where)
         m = _num(tab, "mass_kg", where, positive=True)
         x, y = _pair(tab, "position_m", where)
         parts.append(Part(name, m, part_izz(tab, m, where), x, y,

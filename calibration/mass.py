@@ -99,21 +99,32 @@ def mass_from_readings(readings_kg: Sequence[float], accuracy_kg: float, resolut
 _LINE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]*)\s*(\?)?\s*$")
 
 
+_DECIMAL_COMMA = re.compile(r"(\d+),(\d+)")
+
+
 def parse_readings_text(text: str, default_unit: str = "g", source: str = "readings"
                         ) -> tuple[list[float], int]:
     """Readings written by hand or logged from a balance, one per line, to kg.
 
     A line is a number, optionally a unit (g, kg, mg, lb, oz) and a trailing ``?``
     (OHAUS: unstable, skipped and counted); blank lines and ``#`` comments are
-    ignored; commas also separate readings. Returns (readings_kg, unstable_skipped).
-    Anything else is refused with the line number.
+    ignored; commas followed by a space (or at a line's end) also separate readings. A
+    comma directly between two digits (``720,1``: a decimal comma, or two readings?) is
+    refused as ambiguous; a UTF-8 byte order mark is skipped. Returns
+    (readings_kg, unstable_skipped). Anything else is refused with the line number.
     """
     vals: list[float] = []
     unstable = 0
+    text = text.removeprefix("\ufeff")
     for i, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
+        amb = _DECIMAL_COMMA.search(line)
+        if amb:
+            raise UserError(f"{source}: line {i}: {line!r}: a decimal comma? write "
+                            f"{amb.group(1)}.{amb.group(2)} (readings are separated by a comma "
+                            "and a space, or one per line)")
         for part in (p for p in line.split(",") if p.strip()):
             m = _LINE.match(part)
             if not m:

@@ -16,6 +16,7 @@ The TOML format (see docs/run-format.md) is::
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -30,6 +31,34 @@ from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and call
 from common.errors import UserError
 
 _UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
+
+KNOWN_KEYS = ("unit", "duty_range", "pressure_psi", "nozzles")
+"""The keys a thrust table is read by. Any other top-level key is kept in ``extra`` (fit
+statistics, ``source``, notes) unless it looks like a misspelling of one of these."""
+
+
+def _nearest(key: str, valid: tuple[str, ...], cutoff: float = 0.5) -> str:
+    """The closest valid key, or ''."""
+    near = difflib.get_close_matches(key, valid, n=1, cutoff=cutoff)
+    return near[0] if near else ""
+
+
+def _check_keys(data: Mapping[str, Any]) -> None:
+    """UserError (without the source) for a top-level key that looks like a misspelled
+    known key (``units``, ``duty-range``) and for any key in a [nozzles.k] but coefficients."""
+    for key in data:
+        near = "" if key in KNOWN_KEYS else _nearest(key.lower().replace("-", "_"), KNOWN_KEYS, 0.75)
+        if near:
+            raise UserError(f"unknown key {key!r} (did you mean {near!r}?)")
+    nozzles = data.get("nozzles")
+    if isinstance(nozzles, Mapping):
+        for k, v in nozzles.items():
+            if isinstance(v, Mapping):
+                for key in v:
+                    if key != "coefficients":
+                        hint = " (did you mean 'coefficients'?)" if _nearest(key, ("coefficients",)) else ""
+                        raise UserError(f"[nozzles.{k}]: unknown key {key!r}{hint}; it holds only "
+                                        "coefficients")
 
 
 @dataclass(frozen=True)
@@ -73,6 +102,11 @@ class ThrustTable:
         Integers and floats are both numbers (``duty_range = [10, 90]`` is fine); a
         boolean is not. ``unit`` is required: thrust in N read as gf is 100x off.
         """
+        try:
+            _check_keys(data)
+        except UserError as exc:
+            raise UserError(f"{source}: {exc}") from None
+
         def num(x: Any) -> float:
             if isinstance(x, bool):
                 raise TypeError(f"{x!r} is not a number")
@@ -97,7 +131,23 @@ class ThrustTable:
             raise UserError(f"{source}: {exc}") from None
         if "unit" not in data:
             raise UserError(f'{source}: no unit: add unit = "gf" (gram-force) or unit = "N"')
+        table.check_positive(source)
         return table
+
+    def check_positive(self, source: str = "thrust table") -> None:
+        """UserError naming the nozzle count and duty where a polynomial is negative inside
+        ``duty_range`` (a nozzle cannot pull: such a table is mistyped or badly fitted)."""
+        lo, hi = self.duty_range
+        d = np.linspace(lo, hi, 801)
+        for k in sorted(self.coefficients):
+            v = self.per_nozzle(d, k)
+            if np.any(v < 0):
+                i = int(np.argmin(v))
+                raise UserError(
+                    f"{source}: [nozzles.{k}] gives negative thrust {v[i]:.4g} {self.unit} at "
+                    f"duty {d[i]:.4g} % ({k} nozzle(s) open); thrust must be positive over "
+                    f"duty_range {lo:g}-{hi:g} % (check the coefficients' order and signs, or "
+                    "narrow duty_range)")
 
     @classmethod
     def load(cls, path: str | Path) -> ThrustTable:
@@ -173,8 +223,9 @@ class ThrustTable:
 
         Returns:
             Array of the same shape, newtons; closed channels give exactly 0.
-            A negative polynomial value (below the valve's opening threshold) is
-            returned as 0 N: a nozzle cannot pull.
+            A negative polynomial value (a table built in code; a file with one is
+            refused on loading, :meth:`check_positive`) is returned as 0 N: a nozzle
+            cannot pull.
         """
         d = np.asarray(duty_pct, dtype=float)
         if d.ndim == 0:

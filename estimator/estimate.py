@@ -204,7 +204,10 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
         sigma_pos_m, sigma_yaw_rad: measurement noise.
         tol, max_iter: the batch fit's convergence threshold and iteration cap per stage.
         filter_options: the filters' setting (default the paper's preset).
-        log: receives the model-selection table under ``model="auto"`` (default: dropped).
+        log: receives the model-selection table under ``model="auto"`` and, after a batch
+            fit, one ``tpods: warning: ...`` line per implausible residual (RMS far from the
+            stated noise: :func:`estimator.batch.least_squares.residual_warnings`; also in
+            the result's ``warnings``). Default: dropped.
 
     Raises UserError for a bad window, option or run.
     """
@@ -273,16 +276,19 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     return _least_squares(inputs, model=model, window=window, clamp=clamp, names=names,
                           fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
                           sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter,
-                          selection=selection, note=note)
+                          selection=selection, note=note, log=log)
 
 
 def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma_pos_m,
-                   sigma_yaw_rad, tol, max_iter, selection, note) -> Estimate:
+                   sigma_yaw_rad, tol, max_iter, selection, note, log=None) -> Estimate:
     run, table = inputs()
     window = as_window(window)
     res = least_squares_run(run, table, window, clamp=clamp, names=names, fixed=fixed,
                             initial=initial, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
                             tol=tol, max_iter=max_iter)
+    if log is not None:
+        for w in res.warnings:
+            log(f"tpods: warning: {w}")
     out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
     out.update(res.to_dict())
     out["model"] = model

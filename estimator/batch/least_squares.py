@@ -96,6 +96,7 @@ class BatchResult:
     stages: list[float] = field(default_factory=list)
     elapsed_s: float = 0.0
     fisher: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -126,7 +127,56 @@ class BatchResult:
             "final_cost": self.cost_history[-1] if self.cost_history else None,
             "cost_history": self.cost_history, "stages_s": self.stages,
             "message": self.message, "elapsed_s": self.elapsed_s,
+            **({"warnings": list(self.warnings)} if self.warnings else {}),
         }
+
+
+RESIDUAL_RATIO = 10.0
+"""A residual RMS more than this factor above (or below its inverse times) the stated
+measurement noise is reported by :func:`residual_warnings`."""
+
+
+def residual_warnings(rms: np.ndarray, sigma_pos_m: float, sigma_yaw_rad: float) -> list[str]:
+    """One line per residual (x, y, yaw) whose RMS is far from the stated noise, naming the
+    likely causes: poses in millimetres, yaw in degrees, a wrong thrust-table unit or body."""
+    out = []
+    pos = max(float(rms[0]), float(rms[1]))
+    yaw = float(rms[2])
+    if pos > RESIDUAL_RATIO * sigma_pos_m:
+        out.append(f"position residuals (rms x {rms[0]:.3g} m, y {rms[1]:.3g} m) are "
+                   f"{pos / sigma_pos_m:.3g}x the stated noise {sigma_pos_m:g} m (--sigma-pos): "
+                   "poses in millimetres instead of metres? a thrust table in the wrong unit "
+                   "(gf vs N)? another body's poses? the fit does not explain the data")
+    elif pos < sigma_pos_m / RESIDUAL_RATIO:
+        out.append(f"position residuals (rms {pos:.3g} m) are {sigma_pos_m / pos if pos else math.inf:.3g}x "
+                   f"below the stated noise {sigma_pos_m:g} m (--sigma-pos): the sigmas are too "
+                   "large (the stated uncertainty is too pessimistic) or poses are in km")
+    if yaw > RESIDUAL_RATIO * sigma_yaw_rad:
+        out.append(f"yaw residuals (rms {math.degrees(yaw):.3g} deg) are {yaw / sigma_yaw_rad:.3g}x "
+                   f"the stated noise {math.degrees(sigma_yaw_rad):g} deg (--sigma-yaw-deg): yaw in "
+                   "degrees instead of radians? a thrust table in the wrong unit? another body's "
+                   "poses? the fit does not explain the data")
+    elif yaw < sigma_yaw_rad / RESIDUAL_RATIO:
+        out.append(f"yaw residuals (rms {math.degrees(yaw):.3g} deg) are "
+                   f"{sigma_yaw_rad / yaw if yaw else math.inf:.3g}x below the stated noise "
+                   f"{math.degrees(sigma_yaw_rad):g} deg (--sigma-yaw-deg): the sigmas are too large")
+    return out
+
+
+def no_information(names: Sequence[str], sigma: np.ndarray, thrust_n: np.ndarray) -> str:
+    """'' when every estimated parameter has a finite sigma, else why not (naming them)."""
+    bad = [n for j, n in enumerate(names) if not math.isfinite(float(sigma[6 + j]))]
+    if not bad:
+        return ""
+    if not np.any(np.asarray(thrust_n) != 0):
+        why = ("no thrust: every valve is closed in every command (or the thrust table gives "
+               "0 N)")
+    else:
+        reasons = {"mass": "no net force (the thrusts cancel)",
+                   "izz": "no torque (the commands never turn the module)"}
+        why = "; ".join(f"{n}: {reasons.get(n, 'the run does not excite it')}" for n in bad)
+    return (f"{', '.join(bad)} {'has' if len(bad) == 1 else 'have'} no information in this run "
+            f"(infinite sigma): {why}")
 
 
 def _as_prior(prior, n: int):
@@ -411,6 +461,20 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
         horizon0_s: first horizon of the growing-horizon start (None: whole span at once).
         max_step: longest integration step, s.
     """
+    try:
+        return _batch_ls(pose_t, pose, cmd_t, thrust_n, names=names, fixed=fixed,
+                         initial=initial, prior=prior, sigma_pos_m=sigma_pos_m,
+                         sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter,
+                         horizon0_s=horizon0_s, max_step=max_step)
+    except np.linalg.LinAlgError:
+        raise UserError(
+            "the least-squares fit broke down (singular normal equations): the poses do not "
+            "fit the model at all; yaw in degrees instead of radians? poses in millimetres? a "
+            "thrust table in the wrong unit? another body's poses?") from None
+
+
+def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, sigma_pos_m,
+              sigma_yaw_rad, tol, max_iter, horizon0_s, max_step) -> BatchResult:
     t_start = time.perf_counter()
     names = tuple(names)
     bad = [n for n in names if n not in PARAM_NAMES]
@@ -499,9 +563,11 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
            f"not converged after {stats['iterations']} iterations ({stats['rejected']} rejected steps)")
     if failed:
         msg = "not converged: " + failed
+    rms = np.sqrt(np.mean(res**2, axis=0))
+    warnings = residual_warnings(rms, sigma_pos_m, sigma_yaw_rad)
     return BatchResult(z, cov, sigma, names, params, float(pose_t[0]), prob.pose_t, res,
                        stats["iterations"], bool(converged), history, m, izz, sm, si, corr, msg,
-                       horizons, time.perf_counter() - t_start, Lam)
+                       horizons, time.perf_counter() - t_start, Lam, warnings)
 
 
 def parse_window(text: str | None) -> tuple[float | None, float | None]:
@@ -525,6 +591,10 @@ def estimate_run(run, table=None, window: tuple[float | None, float | None] | st
                  *, clamp: bool = False, **kwargs) -> BatchResult:
     """:func:`batch_ls` on a :class:`common.runfolder.Run` (thrusts from the run's table).
 
+    A fit in which an estimated parameter has no information (infinite sigma: no thrust,
+    no torque) is not converged, its ``message`` naming the parameter and why
+    (:func:`no_information`).
+
     ``window`` is ``(t0, t1)`` or ``"T0:T1"`` in seconds; other keywords go to batch_ls.
     """
     if isinstance(window, str) or window is None:
@@ -532,4 +602,11 @@ def estimate_run(run, table=None, window: tuple[float | None, float | None] | st
     if window != (None, None):
         run = run.window(*window)
     cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
-    return batch_ls(run.pose_t, run.pose, cmd_t, thrust, **kwargs)
+    res = batch_ls(run.pose_t, run.pose, cmd_t, thrust, **kwargs)
+    empty = no_information(res.names, res.sigma, thrust)
+    if empty:
+        # an uninformative fit is not a result: it stays at the initial guess +/- inf
+        res.converged = False
+        res.message = "not converged: " + empty
+        res.warnings = []  # the residuals say nothing more than that
+    return res

@@ -71,3 +71,27 @@ def test_bad_parts_refused(tmp_path, body, msg):
     f.write_text(body)
     with pytest.raises(UserError, match=msg):
         load_parts(f)
+
+
+# issue 16: a misspelled key was ignored (its uncertainty taken as 0, printed as +/- 0)
+
+def test_misspelled_key_is_an_error_naming_the_nearest(tmp_path):
+    f = tmp_path / "parts.toml"
+    f.write_text('[[part]]\nname = "A"\nmass_kg = 0.72\nizz_kgm2 = 1.2e-3\nposition_m = [0, 0]\n'
+                 'mass_sigma = 0.001\n')
+    with pytest.raises(UserError, match=r"part 1 \(A\): unknown key 'mass_sigma' "
+                                        r"\(did you mean 'mass_sigma_kg'\?\)"):
+        load_parts(f)
+
+
+def test_misspelled_top_level_key(tmp_path):
+    f = tmp_path / "parts.toml"
+    f.write_text('abut = "com"\n[[part]]\nmass_kg = 1\nizz_kgm2 = 0.1\nposition_m = [0, 0]\n')
+    with pytest.raises(UserError, match=r"unknown key 'abut' \(did you mean 'about'\?\)"):
+        load_parts(f)
+
+
+def test_a_bom_is_accepted(tmp_path):
+    f = tmp_path / "parts.toml"
+    f.write_bytes(b"\xef\xbb\xbf" + EXAMPLE.read_bytes())
+    assert load_parts(f) == load_parts(EXAMPLE)

@@ -87,3 +87,31 @@ def test_tare_subtracted_and_budgeted():
 def test_bad_input_refused(times, cycles, m, D, h, msg):
     with pytest.raises(UserError, match=msg):
         izz_from_times(times, cycles, m, D, h)
+
+
+# issue 16: --spacing 10 (cm typed as m) gave 12 kg m^2 for a 0.72 kg module without a word
+
+def _times(izz=1.2e-3, m=0.72, D=0.10, h=1.0, cycles=10):
+    T = float(period_eq19(izz, m, D, h))
+    return [cycles * T * f for f in (0.999, 1.0, 1.001)], cycles
+
+
+def test_plausible_geometry_gives_no_warning():
+    times, cycles = _times()
+    assert izz_from_times(times, cycles, 0.72, 0.10, 1.0).warnings == []
+
+
+def test_spacing_typed_in_cm_warns_in_one_line():
+    times, cycles = _times()
+    res = izz_from_times(times, cycles, 0.72, 10.0, 1.0)
+    assert res.izz_kgm2 == pytest.approx(12.0, rel=0.01)
+    assert len(res.warnings) == 1 and "\n" not in res.warnings[0]
+    assert "string spacing D = 10 m" in res.warnings[0] and "cm or mm" in res.warnings[0]
+    assert res.to_dict()["warnings"] == res.warnings
+
+
+def test_length_in_cm_and_period_off_the_geometry_warn():
+    times, cycles = _times()
+    res = izz_from_times(times, cycles, 0.72, 0.10, 100.0)
+    assert any("string length h = 100 m" in w for w in res.warnings)
+    assert any("does not fit the geometry" in w for w in res.warnings)

@@ -73,3 +73,20 @@ def test_take_readings_skips_unstable_and_garbage():
         take_readings(readings_from_iterable([(720.0, "g", False)] * 10), 2)
     with pytest.raises(UserError, match="at least 2"):
         take_readings(read, 1)
+
+
+# issue 16: decimal commas read as two readings (720,1 -> 720 and 1), a BOM refused
+
+def test_decimal_comma_is_refused_clearly():
+    with pytest.raises(UserError, match=r"r.txt: line 1: '720,1': a decimal comma\? write 720.1"):
+        parse_readings_text("720,1\n720,3\n", "g", "r.txt")
+
+
+def test_comma_and_space_still_separate_readings():
+    vals, _ = parse_readings_text("720.1, 720.3\n720.2,\n", "g")
+    assert vals == pytest.approx([0.7201, 0.7203, 0.7202])
+
+
+def test_a_bom_is_accepted():
+    vals, _ = parse_readings_text("\ufeff720.1\n720.3 g\n", "g")
+    assert vals == pytest.approx([0.7201, 0.7203])

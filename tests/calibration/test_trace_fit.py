@@ -85,3 +85,12 @@ def test_refuses_traces_that_do_not_oscillate():
     with pytest.raises(UserError, match="spacing"):
         t3, psi3 = simulate_trace(p, seed=1)
         fit_swing_trace(t3, psi3, 0.72, -0.1, 1.0)
+
+
+def test_yaw_in_degrees_warns():
+    """issue 16: a trace in degrees gave a plausible-looking Izz without a word."""
+    p = Pendulum(0.72, 1.2e-3, 0.10, 1.0, c1=0.004, c2=0.01)
+    t, psi = simulate_trace(p, seed=1, wrap=False)
+    assert fit_swing_trace(t, psi, 0.72, 0.10, 1.0).warnings == []
+    res = fit_swing_trace(t, np.degrees(psi), 0.72, 0.10, 1.0)
+    assert any("yaw in degrees instead of radians?" in w for w in res.warnings)

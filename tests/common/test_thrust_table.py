@@ -67,3 +67,59 @@ def test_bad_tables_are_refused(tmp_path, text, match):
 def test_missing_table(tmp_path):
     with pytest.raises(UserError, match="not found"):
         ThrustTable.load(tmp_path / "nope.toml")
+
+
+# issue 16: plausibility of thrust tables
+
+_NEG = """unit = "gf"
+duty_range = [5.0, 90.0]
+[nozzles.1]
+coefficients = [-9.0692, 1.0439, -0.0128, 7.88e-5]
+"""
+
+
+def test_negative_thrust_over_the_duty_range_is_refused(tmp_path):
+    # Table 2's nozzles.1 is negative below ~9.8 %: a duty_range from 5 % gave 0 N silently
+    p = tmp_path / "neg.toml"
+    p.write_text(_NEG)
+    with pytest.raises(UserError, match=r"neg.toml: \[nozzles.1\] gives negative thrust .* "
+                                        r"at duty 5 % \(1 nozzle\(s\) open\)"):
+        ThrustTable.load(p)
+
+
+def test_sign_flipped_coefficients_are_refused(tmp_path):
+    p = tmp_path / "flip.toml"
+    p.write_text('unit = "gf"\n[nozzles.1]\ncoefficients = [1.0, 0.5]\n'
+                 '[nozzles.2]\ncoefficients = [-1.0, -0.5]\n')
+    with pytest.raises(UserError, match=r"\[nozzles.2\] gives negative thrust"):
+        ThrustTable.load(p)
+
+
+@pytest.mark.parametrize("text,match", [
+    ('units = "gf"\nunit = "gf"\n[nozzles.1]\ncoefficients=[1.0]',
+     "unknown key 'units' \\(did you mean 'unit'\\?\\)"),
+    ('unit = "gf"\nduty-range = [10, 90]\n[nozzles.1]\ncoefficients=[1.0]',
+     "unknown key 'duty-range' \\(did you mean 'duty_range'\\?\\)"),
+    ('unit = "gf"\npressure = 60\n[nozzles.1]\ncoefficients=[1.0]',
+     "did you mean 'pressure_psi'"),
+    ('unit = "gf"\n[nozzles.1]\ncoefficients=[1.0]\ncoeficients=[2.0]',
+     r"\[nozzles.1\]: unknown key 'coeficients' \(did you mean 'coefficients'\?\)"),
+])
+def test_misspelled_keys_are_errors_with_the_nearest_key(tmp_path, text, match):
+    p = tmp_path / "typo.toml"
+    p.write_text(text)
+    with pytest.raises(UserError, match=match):
+        ThrustTable.load(p)
+
+
+def test_a_table_without_unit_is_refused(tmp_path):
+    p = tmp_path / "nounit.toml"
+    p.write_text("[nozzles.1]\ncoefficients=[1.0]\n")
+    with pytest.raises(UserError, match="no unit"):
+        ThrustTable.load(p)
+
+
+def test_notes_and_fit_statistics_are_kept(tmp_path):
+    p = tmp_path / "notes.toml"
+    p.write_text('unit = "gf"\nsource = "bench 3"\nnotes = "x"\n[nozzles.1]\ncoefficients=[1.0]\n')
+    assert ThrustTable.load(p).extra == {"source": "bench 3", "notes": "x"}

@@ -110,3 +110,40 @@ def test_bound_sequence_equals_the_cli_json(tpods_exe, run_dirs):
                        model="friction")
     assert json.loads(json.dumps(b.to_dict(), default=json_default)) == json.loads(r.stdout)
     assert b.plant_source == "run truth" and math.isfinite(b.crlb.mass_sigma_kg)
+
+
+def test_implausible_residuals_reach_the_log_as_warnings(tmp_path, run_dirs):
+    """issue 16: poses in millimetres gave 'converged; mass = 0.0023 kg +/- 9e-09' and no
+    word; the warning now goes to ``log`` (what ``estimate batch`` prints) and the JSON."""
+    import shutil
+
+    import pandas as pd
+
+    d = tmp_path / "mm"
+    shutil.copytree(run_dirs["ideal"], d)
+    p = pd.read_csv(d / "poses.csv")
+    p.assign(x=p.x * 1000, y=p.y * 1000).to_csv(d / "poses.csv", index=False)
+    lines: list[str] = []
+    est = estimate_run(d, log=lines.append)
+    assert any(ln.startswith("tpods: warning: position residuals") and "millimetres" in ln
+               for ln in lines)
+    assert est.to_dict()["warnings"] == [ln.removeprefix("tpods: warning: ") for ln in lines]
+    quiet: list[str] = []
+    assert "warnings" not in estimate_run(run_dirs["ideal"], log=quiet.append).to_dict()
+    assert quiet == []
+
+
+def test_all_valves_closed_is_not_converged(tmp_path, run_dirs):
+    import shutil
+
+    import pandas as pd
+
+    d = tmp_path / "closed"
+    shutil.copytree(run_dirs["ideal"], d)
+    c = pd.read_csv(d / "commands.csv")
+    c[[k for k in c.columns if k != "t"]] = 0
+    c.to_csv(d / "commands.csv", index=False)
+    est = estimate_run(d)
+    assert not est.converged
+    assert "mass, izz have no information" in est.batch.message
+    assert est.to_dict()["converged"] is False

@@ -198,3 +198,70 @@ def test_no_torque_gives_an_infinite_izz_sigma_without_numpy_warnings():
         d = res.to_dict()
     assert math.isinf(d["izz_sigma_kgm2"]) and math.isfinite(d["mass_sigma_kg"])
     assert abs(d["mass_kg"] - 1.5) < 3 * d["mass_sigma_kg"]
+
+
+# issue 16: plausibility, said out loud
+
+def _run_folder(tmp_path, name, edit_poses=None, close_valves=False):
+    import pandas as pd
+
+    cmd_t, duty = phase_sine(20.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(3.1, 6.5e-3), config=SimConfig(seed=5, drop=0.02))
+    d = write_sim_run(sim, tmp_path / name)
+    if edit_poses is not None:
+        p = pd.read_csv(d / "poses.csv")
+        edit_poses(p).to_csv(d / "poses.csv", index=False)
+    if close_valves:
+        c = pd.read_csv(d / "commands.csv")
+        c[[k for k in c.columns if k != "t"]] = 0
+        c.to_csv(d / "commands.csv", index=False)
+    return read_run(d)
+
+
+def test_plausible_residuals_give_no_warning(tmp_path):
+    res = estimate_run(_run_folder(tmp_path, "ok"))
+    assert res.converged and res.warnings == [] and "warnings" not in res.to_dict()
+
+
+def test_poses_in_millimetres_warn_naming_the_cause(tmp_path):
+    run = _run_folder(tmp_path, "mm", lambda p: p.assign(x=p.x * 1000, y=p.y * 1000))
+    res = estimate_run(run)
+    assert any("position residuals" in w and "millimetres" in w for w in res.warnings)
+    assert res.to_dict()["warnings"] == res.warnings
+
+
+def test_yaw_in_degrees_warns_naming_the_cause(tmp_path):
+    run = _run_folder(tmp_path, "deg", lambda p: p.assign(psi=np.degrees(p.psi)))
+    res = estimate_run(run)
+    assert any("yaw residuals" in w and "yaw in degrees instead of radians?" in w
+               for w in res.warnings)
+
+
+def test_singular_normal_equations_are_a_user_error_not_a_traceback(monkeypatch):
+    import estimator.batch.least_squares as ls
+
+    def broken(*a, **k):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(ls, "_lm", broken)
+    cmd_t, duty = phase_sine(5.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(3.1, 6.5e-3), config=SimConfig(seed=5))
+    with pytest.raises(UserError, match="yaw in degrees instead of radians"):
+        batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n)
+
+
+def test_all_valves_closed_is_not_converged_and_says_why(tmp_path):
+    res = estimate_run(_run_folder(tmp_path, "closed", close_valves=True))
+    assert not res.converged
+    assert res.message.startswith("not converged: mass, izz have no information")
+    assert "no thrust: every valve is closed" in res.message
+
+
+def test_no_torque_is_not_converged_naming_izz():
+    from estimator.batch.least_squares import no_information
+
+    cmd_t, duty = translate_rotate(6.0, 50.0)
+    sim = simulate(cmd_t, duty, PlantParams(1.5, 6e-3), config=SimConfig(seed=3))
+    res = batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n)
+    why = no_information(res.names, res.sigma, sim.thrust_n)
+    assert why.startswith("izz has no information") and "no torque" in why
