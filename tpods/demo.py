@@ -34,7 +34,7 @@ from pathlib import Path
 
 from common.argtypes import positive_float
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
-from common.errors import UserError
+from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 
 
@@ -44,6 +44,7 @@ def register(sub) -> None:
                                    "simulated module run estimated live over Zenoh, batch estimation "
                                    "of the recorded run; a report under runs/.")
     p.add_argument("--out", default=None, help="report folder (default runs/demo-<timestamp>)")
+    add_force(p)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG,
                    help=f"true mass, kg (default {PAPER_MASS_KG})")
@@ -81,10 +82,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
               "shifts the emulated valve switches by several lab milliseconds (a bias on Izz)",
               file=sys.stderr)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("runs") / f"demo-{stamp}"
-    if out.exists() and any(out.iterdir()):
-        raise UserError(f"{out} is not empty; choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
+    out = stream_folder(Path("runs") / f"demo-{stamp}" if args.out is None else args.out,
+                        force=args.force)
     os.environ.setdefault("MPLBACKEND", "Agg")
     t_all = time.monotonic()
     # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
+from common.outputs import ResultFile, ResultFolder, add_force, stream_folder
 
 
 def register(sub) -> None:
@@ -51,6 +52,7 @@ def register(sub) -> None:
                         "the same reading again, which would shrink the step's standard error; "
                         "0: as fast as the balance answers)")
     p.add_argument("--out", required=True, help="output folder")
+    add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_characterize)
 
@@ -63,6 +65,7 @@ def register(sub) -> None:
     f.add_argument("--criterion", default="aicc", choices=("aicc", "bic", "cv"),
                    help="order selection: AICc (default), BIC or leave-one-step-out CV")
     f.add_argument("--out", default=None, help="thrust table to write (default RUN_DIR/thrust_table.toml)")
+    add_force(f, "--out (the thrust table)")
     f.add_argument("--pressure-psi", type=positive_float, default=None, help="accumulator pressure to record")
     f.add_argument("--plot-dir", default=None, help="where the PNG plots go (default: next to --out)")
     f.add_argument("--reference", default=None,
@@ -91,6 +94,7 @@ def register(sub) -> None:
     e.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     e.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds")
     e.add_argument("--log-dir", default=None, help="on exit write valves_log.csv and scale_sent.csv here")
+    add_force(e, "--log-dir")
     e.set_defaults(func=cmd_emulate)
 
 
@@ -124,10 +128,8 @@ def cmd_characterize(args: argparse.Namespace) -> int:
         watchdog_ms=args.watchdog_ms)
     if not 1 <= cfg.pwm_hz <= 100:
         raise UserError(f"--pwm-hz must be 1-100, got {cfg.pwm_hz:g}")
-    out = Path(args.out)
-    if (out / "raw.csv").exists():
-        raise UserError(f"{out} already holds a session (raw.csv); choose another --out")
     fmt = _serial_format(args.scale_format)
+    out = stream_folder(args.out, force=args.force)
     hs = args.scale_handshake
     with sigterm_raises():
         try:
@@ -158,13 +160,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bench.session import read_session
     from common.thrust_table import ThrustTable
 
+    out_file = ResultFile(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
+                          force=args.force)
+    out = out_file.path
     raw, steps = read_session(args.run_dir)
     result = fit_steps(steps, args.order, args.criterion)
-    out = Path(args.out) if args.out else Path(args.run_dir) / "thrust_table.toml"
-    if out.parent and not out.parent.exists():
-        raise UserError(f"{out.parent}: no such folder")
     table = result.table(args.pressure_psi, source=f"tpods bench fit {args.run_dir}")
-    table.save(out)
+    with out_file.writing() as tmp:
+        table.save(tmp)
     reference = None
     if args.reference is not None:
         reference = ThrustTable.default() if args.reference.lower() == "table2" else ThrustTable.load(args.reference)
@@ -193,6 +196,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
     from common.thrust_table import load_thrust_table
 
+    log_dir = (None if args.log_dir is None
+               else ResultFolder(args.log_dir, force=args.force, option="--log-dir"))
     table = load_thrust_table(args.table)
     if args.channels < 1:
         raise UserError("--channels must be at least 1")
@@ -223,17 +228,16 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         ss.stop()
         sv.stop()
         signal.signal(signal.SIGTERM, old)
-    if args.log_dir:
-        d = Path(args.log_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        with (d / "valves_log.csv").open("w") as fh:
-            fh.write("t_s,cause," + ",".join(f"d{i + 1}" for i in range(args.channels)) + "\n")
-            for ch in valves.log:
-                fh.write(f"{ch.t:.6f},{ch.cause}," + ",".join(f"{x:g}" for x in ch.duties) + "\n")
-        with (d / "scale_sent.csv").open("w") as fh:
-            fh.write("t_s,kind,line\n")
-            for s in scout.sent:
-                fh.write(f"{s.t:.6f},{s.kind},{s.data.strip()!r}\n")
+    if log_dir is not None:
+        with log_dir.writing() as d:
+            with (d / "valves_log.csv").open("w") as fh:
+                fh.write("t_s,cause," + ",".join(f"d{i + 1}" for i in range(args.channels)) + "\n")
+                for ch in valves.log:
+                    fh.write(f"{ch.t:.6f},{ch.cause}," + ",".join(f"{x:g}" for x in ch.duties) + "\n")
+            with (d / "scale_sent.csv").open("w") as fh:
+                fh.write("t_s,kind,line\n")
+                for s in scout.sent:
+                    fh.write(f"{s.t:.6f},{s.kind},{s.data.strip()!r}\n")
     print(f"stopped: {len(valves.log) - 1} valve change(s), {valves.watchdog_trips} watchdog trip(s), "
           f"{sum(s.kind == 'weight' for s in scout.sent)} reading(s) sent", file=sys.stderr)
     return 0

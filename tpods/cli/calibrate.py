@@ -11,6 +11,7 @@ from pathlib import Path
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
+from common.outputs import add_force, optional_folder
 
 
 def register(sub) -> None:
@@ -159,6 +160,7 @@ def _register_bifilar(cal) -> None:
                    help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="DIR", help="write result.json and plots here")
+    add_force(p)
     p.set_defaults(func=cmd_bifilar)
 
 
@@ -177,6 +179,7 @@ def _read_poses(path_text: str) -> tuple:
 def cmd_bifilar(args: argparse.Namespace) -> int:
     from calibration import bifilar
 
+    out_folder = optional_folder(args.out, force=args.force)
     common = dict(u_mass_kg=args.u_mass, u_spacing_m=args.u_spacing, u_length_m=args.u_length,
                   tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare, g=args.g, u_g=args.u_g)
     if args.times is not None:
@@ -195,16 +198,16 @@ def cmd_bifilar(args: argparse.Namespace) -> int:
             raise UserError(f"{path}: {exc}") from None
         source = str(path)
     out_files = []
-    if args.out:
+    if out_folder is not None:
         from calibration import plots
 
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "result.json").write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
-        out_files.append(out / "result.json")
-        out_files.append(plots.plot_budget(res, out / "budget.png"))
-        if args.poses:
-            out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
+        with out_folder.writing() as out:
+            (out / "result.json").write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
+            out_files.append(out / "result.json")
+            out_files.append(plots.plot_budget(res, out / "budget.png"))
+            if args.poses:
+                out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
+            out_files = [out_folder.final(p) for p in out_files]
     if args.json:
         _print_json(res.to_dict())
         return 0

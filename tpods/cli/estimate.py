@@ -7,6 +7,7 @@ import math
 
 from common.argtypes import float_list, fraction, nonneg_float, positive_float
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.outputs import ResultFolder, add_force
 
 
 def register(sub) -> None:
@@ -55,6 +56,7 @@ def register_sim(sub) -> None:
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped at random")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--out", required=True, help="run folder to write")
+    add_force(p)
     p.set_defaults(func=cmd_sim)
 
 
@@ -64,6 +66,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from estimator.plant.model import PlantParams
     from estimator.plant.sim import SimConfig, simulate, summary_lines, write_sim_run
 
+    out = ResultFolder(args.out, force=args.force)
     table = load_thrust_table(args.thrust_table)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
     ct, cr, kb = args.friction or (0.0, 0.0, 0.0)
@@ -73,8 +76,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     noise_yaw_rad=math.radians(args.noise_yaw_deg), drop=args.drop,
                     seed=args.seed, clamp=args.clamp)
     res = simulate(cmd_t, duty, params, table, cfg)
-    path = write_sim_run(res, args.out, args.input, args.thrust_table or "built-in Table 2")
-    print(f"wrote {path}")
+    with out.writing() as d:
+        write_sim_run(res, d, args.input, args.thrust_table or "built-in Table 2")
+    print(f"wrote {out.path}")
     for line in summary_lines(res):
         print("  " + line)
     return 0

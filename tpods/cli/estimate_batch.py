@@ -21,6 +21,7 @@ import numpy as np
 from common.argtypes import float_list, nonneg_float, positive_float
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
+from common.outputs import ResultFolder, add_force, not_an_input, optional_folder
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -90,6 +91,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write estimate.json, residuals.csv and residuals.png (Fig. 5) here")
+    add_force(p)
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
     p.set_defaults(func=cmd_batch)
@@ -111,6 +113,7 @@ def register(sub, est, rep) -> None:
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     c.add_argument("--out", default=None, metavar="DIR",
                    help="write crlb.json and sensitivities.png (Fig. 6) here")
+    add_force(c)
     cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
 
@@ -147,6 +150,7 @@ def register(sub, est, rep) -> None:
     d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     d.add_argument("--out", required=True, metavar="DIR",
                    help="write commands.csv (the best input), design.json and figures here")
+    add_force(d)
     d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     d.set_defaults(func=cmd_design)
 
@@ -157,6 +161,7 @@ def register(sub, est, rep) -> None:
                     "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
                     "sensitivities) beside the paper's numbers.")
     r.add_argument("--out", required=True, metavar="DIR", help="report folder")
+    add_force(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     r.add_argument("--thrust-table", default=None, metavar="F",
@@ -186,6 +191,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from tpods.cli import estimate_ekf as cli_ekf
     from tpods.cli import estimate_realism as cli_realism
 
+    args.out_folder = optional_folder(args.out, force=args.force)
+    not_an_input(args.out_folder, args.run_dir, args.thrust_table)
     # the run folder and the table are read by estimate_run once the options are checked
     est = estimate_run(
         args.run_dir, args.thrust_table, method=args.method, model=args.model, window=args.window,
@@ -200,17 +207,16 @@ def cmd_batch(args: argparse.Namespace) -> int:
     res = est.batch
     run = est.run
     out = est.to_dict()
-    if args.out:
+    if args.out_folder is not None:
         from estimator.reports.plots_batch import plot_residuals
 
-        d = Path(args.out)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
-        np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
-                   header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")
-        plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
-                       sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
-                       title=f"Batch LS residuals: {run.path.name}")
+        with args.out_folder.writing() as d:
+            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+            np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
+                       header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")
+            plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
+                           sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+                           title=f"Batch LS residuals: {run.path.name}")
     if not res.converged:
         print(f"tpods: warning: {res.message}; the estimate below is not a converged solution",
               file=sys.stderr)
@@ -248,6 +254,8 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     from estimator.estimate import bound_sequence, load_sequence
     from tpods.cli import estimate_realism as cli_realism
 
+    out_folder = optional_folder(args.out, force=args.force)
+    not_an_input(out_folder, args.run_dir, args.thrust_table)
     table = load_thrust_table(args.thrust_table)
     seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate)
     b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
@@ -256,14 +264,14 @@ def cmd_crlb(args: argparse.Namespace) -> int:
                        keep_sensitivities=bool(args.out))
     c, pose_t, mass, izz, kind, source = b.crlb, b.pose_t, b.mass_kg, b.izz_kgm2, b.kind, b.plant_source
     out = b.to_dict()
-    if args.out:
+    if out_folder is not None:
         from estimator.reports.plots_batch import plot_sensitivities
 
-        d = Path(args.out)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "crlb.json").write_text(json.dumps(out, indent=2) + "\n")
-        plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz], d / "sensitivities.png",
-                           title=f"Sensitivities of {Path(args.run_dir).name}")
+        with out_folder.writing() as d:
+            (d / "crlb.json").write_text(json.dumps(out, indent=2) + "\n")
+            plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz],
+                               d / "sensitivities.png",
+                               title=f"Sensitivities of {Path(args.run_dir).name}")
     if args.json:
         _print_json(out)
         return 0
@@ -286,8 +294,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     from estimator.batch.design import DesignSettings, evaluate_commands, search
     from estimator.plant.inputs import make_input
     from estimator.plant.model import PlantParams
-    from estimator.reports.plots_batch import plot_sensitivities
 
+    out_folder = ResultFolder(args.out, force=args.force)
     if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
         raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
     if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
@@ -311,8 +319,15 @@ def cmd_design(args: argparse.Namespace) -> int:
         res = search(table, settings, n_random=args.candidates, n_refine=args.refine,
                      refine_evals=args.refine_evals, omega_range=tuple(args.omega_range),
                      seed=args.seed, progress=bar.update)
-    d = Path(args.out)
-    d.mkdir(parents=True, exist_ok=True)
+    with out_folder.writing() as d:
+        out = _write_design(args, res, compared, d, out_folder.path)
+    return _print_design(args, res, compared, out, out_folder.path)
+
+
+def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path) -> dict:
+    """Write the design into ``d`` (the temporary folder that becomes ``final``)."""
+    from estimator.reports.plots_batch import plot_sensitivities
+
     best = res.best
     np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
                header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
@@ -333,12 +348,17 @@ def cmd_design(args: argparse.Namespace) -> int:
                         "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
                         "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
                         "mass_kg": args.mass, "izz_kgm2": args.izz},
-           "commands_csv": str(d / "commands.csv")}
+           "commands_csv": str(final / "commands.csv")}
     (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
     for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):
         t = np.arange(len(e.crlb.sens_x)) / args.pose_rate
         plot_sensitivities(t, e.crlb.sens_x, e.crlb.names, [args.mass, args.izz], d / name,
                            title=e.label)
+    return out
+
+
+def _print_design(args: argparse.Namespace, res, compared, out: dict, final: Path) -> int:
+    best = res.best
     if args.json:
         _print_json(out)
         return 0
@@ -353,7 +373,7 @@ def cmd_design(args: argparse.Namespace) -> int:
               f"{'yes' if e.feasible else 'NO'}")
     print(f"  best: {best.spec.describe()}")
     print(f"  log det gain over the paper's input: {best.logdet - res.paper.logdet:+.3f}")
-    print(f"  wrote {d / 'commands.csv'} (play it or simulate it with tpods sim --input), design.json")
+    print(f"  wrote {final / 'commands.csv'} (play it or simulate it with tpods sim --input), design.json")
     return 0
 
 
@@ -361,8 +381,11 @@ def cmd_table3(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
     from estimator.reports.table3 import write_table3
 
+    out_folder = ResultFolder(args.out, force=args.force)
     table = load_thrust_table(args.thrust_table)
-    path = write_table3(args.out, duration_s=args.duration, seed=args.seed, table=table,
-                        table_name=args.thrust_table or "built-in Table 2", log=print)
+    with out_folder.writing() as d:
+        path = out_folder.final(write_table3(d, duration_s=args.duration, seed=args.seed, table=table,
+                                             table_name=args.thrust_table or "built-in Table 2",
+                                             log=print))
     print(f"wrote {path}")
     return 0

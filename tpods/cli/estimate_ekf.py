@@ -18,6 +18,7 @@ import numpy as np
 
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from common.errors import UserError
+from common.outputs import ResultFolder, add_force, optional_folder
 
 
 def _state_values(what: str):
@@ -94,21 +95,21 @@ def report_filter(est, args) -> int:
 
     fe, run, out, has_truth = est.filter, est.run, est.to_dict(), est.has_truth
     r = fe.result
-    if args.out:
+    out_folder = getattr(args, "out_folder", None)
+    if out_folder is not None:
         from estimator.reports.plots_ekf import plot_error_bounds
 
-        d = Path(args.out)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
-        cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
-                                                                                   "underweighted"]
-        np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis,
-                                                       r.triggered]),
-                   delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-        plot_error_bounds(r.t, r.x[:, 6:8], r.sigma[:, 6:8], d / "errors.png",
-                          (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
-                          title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
-                                f"{run.path.name}")
+        with out_folder.writing() as d:
+            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+            cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
+                                                                                       "underweighted"]
+            np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis,
+                                                           r.triggered]),
+                       delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+            plot_error_bounds(r.t, r.x[:, 6:8], r.sigma[:, 6:8], d / "errors.png",
+                              (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
+                              title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
+                                    f"{run.path.name}")
     if r.diverged:
         print("tpods: warning: the filter diverged (non-physical parameters or innovations far "
               "larger than their covariance); try --method ls-ekf", file=sys.stderr)
@@ -168,6 +169,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write montecarlo.json, history.csv, runs.csv and the figures here")
+    add_force(p)
     _filter_options(p, "no-process-noise")
     p.set_defaults(func=cmd_montecarlo)
 
@@ -177,6 +179,7 @@ def register(sub, est, rep) -> None:
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
     r.add_argument("--out", required=True, metavar="DIR", help="report folder")
+    add_force(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
@@ -188,6 +191,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     from estimator.montecarlo import MC_FILTER, McConfig, config_dict, run_montecarlo
     from estimator.reports.plots_ekf import plot_mc_averages, plot_mc_runs
 
+    out_folder = optional_folder(args.out, force=args.force)
     base = MC_FILTER if args.preset == "no-process-noise" else None
     cfg_f = _filter_config(args, base)
     if args.method == "ls-ekf" and args.ls_window >= args.duration:
@@ -199,31 +203,28 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
                        ls_window_s=args.ls_window, ls_start=args.ls_start, filter=cfg_f)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    d = None
-    if args.out:
-        d = Path(args.out)
-        d.mkdir(parents=True, exist_ok=True)
     res = run_montecarlo(cfg, progress=True)
     summ = res.summary()
     if res.interrupted:
         print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
               file=sys.stderr)
-    if d is not None:
-        (d / "montecarlo.json").write_text(json.dumps(
-            {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
-        cols, data = res.history_table()
-        np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
-                   fmt="%.8g")
-        runs = np.column_stack([np.arange(cfg.runs), res.truth, res.final_err[:, 6:8],
-                                res.final_sigma[:, 6:8], res.rmse])
-        np.savetxt(d / "runs.csv", runs, delimiter=",", comments="", fmt="%.8g",
-                   header="run,mass_kg,izz_kgm2,final_err_mass_kg,final_err_izz_kgm2,"
-                          "final_sigma_mass_kg,final_sigma_izz_kgm2,rmse_mass_kg,rmse_izz_kgm2")
-        tag = f"{cfg.method}{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}"
-        plot_mc_runs(res.t, res.ex_err, res.ex_sigma, d / "mc_runs.png",
-                     title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
-        plot_mc_averages(res, d / "mc_averages.png",
-                         title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
+    if out_folder is not None:
+        with out_folder.writing() as d:
+            (d / "montecarlo.json").write_text(json.dumps(
+                {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
+            cols, data = res.history_table()
+            np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
+                       fmt="%.8g")
+            runs = np.column_stack([np.arange(cfg.runs), res.truth, res.final_err[:, 6:8],
+                                    res.final_sigma[:, 6:8], res.rmse])
+            np.savetxt(d / "runs.csv", runs, delimiter=",", comments="", fmt="%.8g",
+                       header="run,mass_kg,izz_kgm2,final_err_mass_kg,final_err_izz_kgm2,"
+                              "final_sigma_mass_kg,final_sigma_izz_kgm2,rmse_mass_kg,rmse_izz_kgm2")
+            tag = f"{cfg.method}{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}"
+            plot_mc_runs(res.t, res.ex_err, res.ex_sigma, d / "mc_runs.png",
+                         title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
+            plot_mc_averages(res, d / "mc_averages.png",
+                             title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
     code = 130 if res.interrupted else 0
     if args.json:
         sys.stdout.write(json.dumps(summ) + "\n")
@@ -258,14 +259,16 @@ def cmd_report_ekf(args: argparse.Namespace) -> int:
 
     from estimator.reports.ekf import build_report, summary_lines
 
+    out_folder = ResultFolder(args.out, force=args.force)
     if args.seeds < 1:
         raise UserError("--seeds must be at least 1")
     if args.ls_window >= args.duration:
         raise UserError("--ls-window must be shorter than --duration")
     bar = tqdm(total=args.seeds, desc="seeds", unit="seed")
     try:
-        rep = build_report(args.duration, tuple(range(args.seeds)), ls_window_s=args.ls_window,
-                           out_dir=args.out, progress=lambda _s: bar.update(1))
+        with out_folder.writing() as d:
+            rep = build_report(args.duration, tuple(range(args.seeds)), ls_window_s=args.ls_window,
+                               out_dir=d, progress=lambda _s: bar.update(1))
     finally:
         bar.close()
     if args.json:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
+from common.outputs import add_force, stream_folder
 
 
 def register(est) -> None:
@@ -33,6 +34,7 @@ def register(est) -> None:
                    help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
                         "then the filter restarts from it (default ekf)")
     p.add_argument("--out", default=None, metavar="RUN_DIR", help="record a run folder here")
+    add_force(p)
     p.add_argument("--rate", type=nonneg_float, default=10.0, metavar="HZ",
                    help="estimate publish rate, Hz; 0 = after every pose update (default 10)")
     p.add_argument("--max-wait-ms", type=nonneg_float, default=2.0, metavar="MS",
@@ -69,8 +71,8 @@ def cmd_live(args: argparse.Namespace) -> int:
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
     k = keys(args.body, args.mocap_prefix, args.prefix)
     rec = None
-    if args.out:
-        rec = LiveRecorder(args.out, {
+    if args.out is not None:
+        rec = LiveRecorder(stream_folder(args.out, force=args.force), {
             "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "body": args.body, "keys": k, "method": args.method,

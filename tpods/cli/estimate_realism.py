@@ -12,11 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from common.errors import UserError
+from common.outputs import ResultFolder, add_force
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
 
 
@@ -51,13 +51,13 @@ def report_ext(est, args: argparse.Namespace) -> int:
     from estimator.filters.ekf_ext import SIGMA0
 
     r, run, out = est.ext, est.run, est.to_dict()
-    if args.out:
-        d = Path(args.out)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
-        cols = ["t", *r.labels, *(f"sigma_{n}" for n in r.labels), "updated", "nis"]
-        np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),
-                   delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+    out_folder = getattr(args, "out_folder", None)
+    if out_folder is not None:
+        with out_folder.writing() as d:
+            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+            cols = ["t", *r.labels, *(f"sigma_{n}" for n in r.labels), "updated", "nis"]
+            np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),
+                       delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
     if r.diverged:
         print("tpods: warning: the extended filter diverged (non-physical parameters or "
               "innovations far larger than their covariance); try --method ls-ekf",
@@ -93,6 +93,7 @@ def register(sub, est, rep) -> None:
                     "selection, residual whiteness, identifiability (correlations) and a Monte "
                     "Carlo over friction, bias and tilt values.")
     r.add_argument("--out", required=True, metavar="DIR", help="report folder")
+    add_force(r)
     r.add_argument("--runs", type=int, default=40,
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
     r.add_argument("--seeds", type=int, default=5,
@@ -106,9 +107,12 @@ def register(sub, est, rep) -> None:
 def cmd_report_realism(args: argparse.Namespace) -> int:
     from estimator.reports.realism import write_report
 
+    out_folder = ResultFolder(args.out, force=args.force)
     if args.runs < 2 or args.seeds < 1:
         raise UserError("--runs must be >= 2 and --seeds >= 1")
-    path = write_report(args.out, runs=args.runs, seeds=args.seeds, seed=args.seed,
-                        duration_s=args.duration, with_ekf=not args.no_ekf, log=print)
+    with out_folder.writing() as d:
+        path = out_folder.final(write_report(d, runs=args.runs, seeds=args.seeds, seed=args.seed,
+                                             duration_s=args.duration, with_ekf=not args.no_ekf,
+                                             log=print))
     print(f"wrote {path}")
     return 0

@@ -14,6 +14,7 @@ from pathlib import Path
 from common.argtypes import nonneg_float, positive_float
 from common.console import Console
 from common.errors import UserError
+from common.outputs import add_force, stream_folder
 
 
 def register(sub) -> None:
@@ -66,6 +67,7 @@ def register(sub) -> None:
                     "flushed as samples arrive.")
     r.add_argument("--key", default="tpods/mocap/**", help="key expression (default tpods/mocap/**)")
     r.add_argument("--out", required=True, metavar="RUN_DIR", help="output folder")
+    add_force(r)
     r.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C)")
     r.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
@@ -151,7 +153,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     console = Console(args.quiet)
     stop = threading.Event()
-    rec = Recorder(args.out, key=args.key, t0=args.t0)
+    rec = Recorder(stream_folder(args.out, force=args.force), key=args.key, t0=args.t0)
     try:
         session = open_session(args)
         try:

@@ -7,10 +7,10 @@ import math
 import sys
 import threading
 import time
-from pathlib import Path
 
 from common.argtypes import fraction, nonneg_float, positive_float
 from common.errors import UserError
+from common.outputs import ResultFolder, add_force, stream_folder
 
 
 def register(sub) -> None:
@@ -35,6 +35,7 @@ def register(sub) -> None:
     p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="write commands.csv and run.json here")
+    add_force(p)
     p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     p.add_argument("--amplitude", type=nonneg_float, default=20.0,
                    help="phase-sine amplitude, duty percent (default 20)")
@@ -81,6 +82,7 @@ def register(sub) -> None:
                    help="stop after S s (default: Ctrl-C)")
     s.add_argument("--truth-out", default=None, metavar="DIR",
                    help="on exit write truth.csv and switches.csv here")
+    add_force(s, "--truth-out")
     _clock_options(s)
     add_zenoh_options(s)
     s.set_defaults(func=cmd_plant)
@@ -119,7 +121,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         raise UserError("--prefix must not be empty")
     clock = _clock(args)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
-    out = Path(args.out) if args.out else None
+    out = None if args.out is None else stream_folder(args.out, force=args.force)
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
     try:
@@ -171,6 +173,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     from estimator.plant.model import PlantParams
     from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
 
+    truth_out = (None if args.truth_out is None
+                 else ResultFolder(args.truth_out, force=args.force, option="--truth-out"))
     clock = _clock(args)
     table = load_thrust_table(args.thrust_table)
     ct = cr = kb = 0.0
@@ -231,16 +235,15 @@ def cmd_plant(args: argparse.Namespace) -> int:
         if session is not None:
             session.close()
         signal.signal(signal.SIGTERM, old)
-    if args.truth_out:
-        d = Path(args.truth_out)
-        d.mkdir(parents=True, exist_ok=True)
-        t, s = plant.truth_arrays()
-        np.savetxt(d / "truth.csv", np.column_stack([t, s]), delimiter=",",
-                   header="t_lab,x,y,psi,u,v,r", comments="", fmt="%.12g")
-        with (d / "switches.csv").open("w") as fh:
-            fh.write("t_lab,d1,d2,d3,d4\n")
-            for ts, du in plant.switches:
-                fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
+    if truth_out is not None:
+        with truth_out.writing() as d:
+            t, s = plant.truth_arrays()
+            np.savetxt(d / "truth.csv", np.column_stack([t, s]), delimiter=",",
+                       header="t_lab,x,y,psi,u,v,r", comments="", fmt="%.12g")
+            with (d / "switches.csv").open("w") as fh:
+                fh.write("t_lab,d1,d2,d3,d4\n")
+                for ts, du in plant.switches:
+                    fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
     print(f"plant: {plant.frames} poses ({plant.occluded} occluded), {len(plant.switches)} valve "
           f"changes, {valves.watchdog_trips} watchdog trip(s)", file=sys.stderr)
     return 0

@@ -1,0 +1,234 @@
+"""The one output policy: every command that writes with ``--out`` goes through here.
+
+- **Checked at the start.** ``--out ''``, a path under a file, an existing file where a
+  folder is wanted (or a folder where a file is wanted) and a parent that cannot be
+  created are a :class:`~common.errors.UserError` naming the path, before any work.
+- **Never replaced without --force.** A non-empty folder (or, for a file output, an
+  existing file) is refused with one line naming what is there, unless ``force``.
+- **Written atomically.** :class:`ResultFolder` writes into a temporary sibling folder
+  (same parent, ``.NAME.tmp-PID``) and renames it into place at the end; with ``force`` the
+  old folder is replaced only once the new one is complete. An interrupted command leaves
+  the old folder intact and either no new folder or a complete one. :class:`ResultFile`
+  does the same for one file (written beside, then renamed).
+- **Streams cannot be atomic.** :func:`stream_folder` (recorders: characterize, run play,
+  estimate live, mocap record, demo) refuses a non-empty folder unless ``force``, which
+  empties it first.
+
+Usage::
+
+    out = ResultFolder(args.out, force=args.force)      # at the start of the command
+    ...                                                  # the work
+    with out.writing() as d:                             # d: the temporary sibling
+        (d / "estimate.json").write_text(...)
+    print(f"wrote {out.path}")
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+from common.errors import UserError
+
+_SHOW = 4  # entries named in a refusal
+
+
+def add_force(parser, what: str = "--out") -> None:
+    """Add ``--force`` (replace what ``what`` already holds) to an argparse parser."""
+    parser.add_argument("--force", action="store_true",
+                        help=f"replace what {what} already holds (default: refuse)")
+
+
+def _holdings(folder: Path) -> list[str]:
+    try:
+        return sorted(p.name for p in folder.iterdir())
+    except OSError:
+        return []
+
+
+def _listing(names: list[str]) -> str:
+    shown = ", ".join(names[:_SHOW])
+    return shown + (f", ... ({len(names)} entries)" if len(names) > _SHOW else "")
+
+
+def _check_parent(path: Path, option: str) -> None:
+    """The nearest existing ancestor of ``path`` must be a writable folder."""
+    p = path.parent
+    while True:
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                raise UserError(f"{option} {path}: {p} is a file, not a folder; choose another {option}")
+            if not os.access(p, os.W_OK | os.X_OK):
+                raise UserError(f"{option} {path}: cannot write in {p} (permission denied); "
+                                f"choose another {option}")
+            return
+        if p == p.parent:
+            raise UserError(f"{option} {path}: no existing folder above it; choose another {option}")
+        p = p.parent
+
+
+def _base(path: str | Path | None, option: str) -> Path:
+    if path is None or str(path).strip() == "":
+        raise UserError(f"{option} is empty; give a folder or file name")
+    return Path(path)
+
+
+def check_folder(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
+    """Check that ``path`` may become a result folder (see the module doc); return it."""
+    p = _base(path, option)
+    if p.exists() and not p.is_dir():
+        raise UserError(f"{option} {p} is a file, not a folder; choose another {option}")
+    _check_parent(p, option)
+    if p.is_dir():
+        names = _holdings(p)
+        if names and not force:
+            raise UserError(f"{p} already holds {_listing(names)}; add --force to replace it "
+                            f"or choose another {option}")
+    return p
+
+
+def check_file(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
+    """Check that ``path`` may become a result file; return it."""
+    p = _base(path, option)
+    if p.is_dir():
+        raise UserError(f"{option} {p} is a folder, not a file; choose another {option}")
+    _check_parent(p, option)
+    if p.exists() and not force:
+        raise UserError(f"{p} already exists; add --force to replace it or choose another {option}")
+    return p
+
+
+def _make_parent(path: Path, option: str) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"{option} {path}: cannot create {path.parent} ({exc.strerror})") from None
+
+
+class ResultFolder:
+    """A folder of results, checked now and written atomically by :meth:`writing`."""
+
+    def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
+        self.path = check_folder(path, force=force, option=option)
+        self.force = force
+        self.option = option
+        self._tmp: Path | None = None
+
+    def final(self, p: str | Path) -> Path:
+        """``p`` (a path inside the temporary folder) as it reads after the rename."""
+        p = Path(p)
+        if self._tmp is not None:
+            with contextlib.suppress(ValueError):
+                return self.path / p.relative_to(self._tmp)
+        return p
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Path]:
+        """Yield an empty temporary sibling folder; rename it into place if the block ends
+        normally, remove it otherwise (the old folder, if any, is untouched)."""
+        path = self.path
+        # checked again: something may have appeared while the command worked
+        check_folder(path, force=self.force, option=self.option)
+        _make_parent(path, self.option)
+        tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
+        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            tmp.mkdir()
+        except OSError as exc:
+            raise UserError(f"{self.option} {path}: cannot create {tmp} ({exc.strerror})") from None
+        self._tmp = tmp
+        try:
+            yield tmp
+            _replace_folder(tmp, path)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        finally:
+            self._tmp = None
+
+
+def _replace_folder(new: Path, path: Path) -> None:
+    """Rename ``new`` to ``path``; an existing ``path`` is moved aside first and removed
+    only after the rename succeeded."""
+    old = None
+    if path.is_dir():
+        if not any(path.iterdir()):
+            path.rmdir()
+        else:
+            old = path.parent / f".{path.name}.old-{os.getpid()}"
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(path, old)
+    try:
+        os.replace(new, path)
+    except BaseException:
+        if old is not None:
+            os.replace(old, path)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+class ResultFile:
+    """One result file, checked now and written atomically by :meth:`writing`."""
+
+    def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
+        self.path = check_file(path, force=force, option=option)
+        self.force = force
+        self.option = option
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Path]:
+        """Yield a temporary path beside the file (same suffix); rename it over the file if
+        the block ends normally, remove it otherwise."""
+        path = self.path
+        check_file(path, force=self.force, option=self.option)
+        _make_parent(path, self.option)
+        tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+        try:
+            yield tmp
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise
+
+
+def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
+    """Prepare a folder a recorder writes into as it goes (it cannot be atomic): checked
+    as :func:`check_folder`; with ``force`` a non-empty folder is emptied. Returns the path
+    (created)."""
+    p = check_folder(path, force=force, option=option)
+    if p.is_dir() and force:
+        for child in p.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child)
+            else:
+                child.unlink()
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"{option} {p}: cannot create the folder ({exc.strerror})") from None
+    return p
+
+
+def optional_folder(path: str | Path | None, *, force: bool,
+                    option: str = "--out") -> ResultFolder | None:
+    """:class:`ResultFolder` for an optional ``--out``: None when the option was not
+    given (``--out ''`` is given, and refused)."""
+    return None if path is None else ResultFolder(path, force=force, option=option)
+
+
+def not_an_input(out: ResultFolder | None, *inputs: str | Path | None, option: str = "--out") -> None:
+    """Refuse (even with --force) an output folder that is, or holds, one of the inputs."""
+    if out is None:
+        return
+    o = out.path.resolve()
+    for i in inputs:
+        if i is None:
+            continue
+        p = Path(i).resolve()
+        if p == o or o in p.parents:
+            raise UserError(f"{option} {out.path} would replace the input {i}; choose another {option}")

@@ -1,0 +1,235 @@
+"""The one output policy (common/outputs.py) across every command that writes (issue 16).
+
+- an existing non-empty --out (an existing file for ``bench fit``) is refused, one line,
+  exit 2, nothing in it changed; with --force it is replaced;
+- --out '' / at a file / under a file: exit 2, one line, no traceback;
+- an interrupted atomic write leaves the old folder byte-identical and no temporary folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from common.errors import UserError
+from common.outputs import ResultFile, ResultFolder, check_folder, stream_folder
+from tpods.cli import main
+
+# Every command that writes, with the least it needs to reach its output check (the check
+# comes first, so missing inputs and devices are never reached). OUT stands for the output.
+FOLDER_COMMANDS = {
+    "sim": ["sim", "--duration", "2", "--out", "OUT"],
+    "design": ["design", "--out", "OUT"],
+    "estimate batch": ["estimate", "batch", "no-such-run", "--out", "OUT"],
+    "estimate crlb": ["estimate", "crlb", "no-such-run", "--out", "OUT"],
+    "estimate montecarlo": ["estimate", "montecarlo", "--out", "OUT"],
+    "report table3": ["report", "table3", "--out", "OUT"],
+    "report ekf": ["report", "ekf", "--out", "OUT"],
+    "report realism": ["report", "realism", "--out", "OUT"],
+    "calibrate bifilar": ["calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.1", "--length",
+                          "1.0", "--times", "16.4,16.5", "--out", "OUT"],
+    "bench characterize": ["bench", "characterize", "--valves", "no-dev", "--scale", "no-dev",
+                           "--out", "OUT"],
+    "mocap record": ["mocap", "record", "--out", "OUT"],
+    "run play": ["run", "play", "--valves", "no-dev", "--duration", "1", "--out", "OUT"],
+    "run plant": ["run", "plant", "--truth-out", "OUT"],
+    "bench emulate": ["bench", "emulate", "--log-dir", "OUT"],
+    "estimate live": ["estimate", "live", "--out", "OUT"],
+    "demo": ["demo", "--out", "OUT"],
+}
+FILE_COMMANDS = {"bench fit": ["bench", "fit", "no-such-run", "--out", "OUT"]}
+
+
+def _argv(template: list[str], out: Path | str) -> list[str]:
+    return [str(out) if a == "OUT" else a for a in template]
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
+    return {str(p.relative_to(folder)): (p.read_bytes(), p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("tpods: error: "), err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+def _old_results(tmp_path: Path) -> Path:
+    old = tmp_path / "results"
+    old.mkdir()
+    (old / "poses.csv").write_text("t,x,y,psi\n0,0,0,0\n")
+    (old / "run.json").write_text('{"kind": "old"}\n')
+    return old
+
+
+def _no_temporaries(parent: Path) -> None:
+    left = [p.name for p in parent.iterdir() if ".tmp-" in p.name or ".old-" in p.name]
+    assert not left, left
+
+
+@pytest.mark.parametrize("name", sorted(FOLDER_COMMANDS))
+def test_existing_folder_is_refused_and_untouched(name, tmp_path, capsys):
+    old = _old_results(tmp_path)
+    before = _snapshot(old)
+    assert main(_argv(FOLDER_COMMANDS[name], old)) == 2
+    err = _one_error_line(capsys)
+    assert f"{old} already holds poses.csv, run.json; add --force" in err, err
+    assert _snapshot(old) == before
+    _no_temporaries(tmp_path)
+
+
+@pytest.mark.parametrize("name", sorted(FILE_COMMANDS))
+def test_existing_file_is_refused_and_untouched(name, tmp_path, capsys):
+    f = tmp_path / "table.toml"
+    f.write_text("# an earlier fit\n")
+    before = (f.read_bytes(), f.stat().st_mtime_ns)
+    assert main(_argv(FILE_COMMANDS[name], f)) == 2
+    assert f"{f} already exists; add --force" in _one_error_line(capsys)
+    assert (f.read_bytes(), f.stat().st_mtime_ns) == before
+
+
+# a folder output: '', an existing file, a path under a file; a file output: '', a path
+# under a file, an existing folder (an existing file is the refusal tested above)
+IMPOSSIBLE = ([(n, c) for n in sorted(FOLDER_COMMANDS) for c in ("empty", "at-file", "under-file")]
+              + [(n, c) for n in sorted(FILE_COMMANDS) for c in ("empty", "under-file", "at-folder")])
+
+
+@pytest.mark.parametrize(("name", "case"), IMPOSSIBLE)
+def test_impossible_outputs_are_one_line(name, case, tmp_path, capsys):
+    table = FILE_COMMANDS.get(name) or FOLDER_COMMANDS[name]
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    (tmp_path / "a_folder").mkdir()
+    out = {"empty": "", "at-file": a_file, "under-file": a_file / "sub" / "out.toml",
+           "at-folder": tmp_path / "a_folder"}[case]
+    argv = _argv(table, out)
+    assert main(argv + ["--force"]) == 2
+    err = _one_error_line(capsys)
+    assert ("is empty" in err) if case == "empty" else (str(out) in err), err
+    assert a_file.read_text() == "x\n"
+
+
+def test_sim_force_replaces_the_folder_whole(tmp_path, capsys):
+    old = _old_results(tmp_path)
+    (old / "thrusts.csv").write_text("stale\n")  # would take precedence if left behind
+    assert main(["sim", "--duration", "2", "--out", str(old), "--force"]) == 0
+    names = {p.name for p in old.iterdir()}
+    assert {"poses.csv", "commands.csv", "run.json", "truth.csv"} <= names
+    assert "thrusts.csv" not in names and '"simulation"' in (old / "run.json").read_text()
+    _no_temporaries(tmp_path)
+
+
+def test_interrupted_sim_leaves_the_old_folder(tmp_path, capsys, monkeypatch):
+    import estimator.plant.sim as sim
+
+    real = sim.write_sim_run
+
+    def half_then_fail(res, out, *a, **k):
+        real(res, out, *a, **k)
+        (Path(out) / "poses.csv").write_text("t,x,y,psi\n0,")  # truncated
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim, "write_sim_run", half_then_fail)
+    old = _old_results(tmp_path)
+    before = _snapshot(old)
+    assert main(["sim", "--duration", "2", "--out", str(old), "--force"]) == 130
+    assert _snapshot(old) == before
+    _no_temporaries(tmp_path)
+    # and with no old folder: no new one either
+    new = tmp_path / "new"
+    assert main(["sim", "--duration", "2", "--out", str(new)]) == 130
+    assert not new.exists()
+    _no_temporaries(tmp_path)
+
+
+def test_estimate_batch_force_and_interrupt(tmp_path, capsys, monkeypatch):
+    run = tmp_path / "run"
+    assert main(["sim", "--duration", "8", "--out", str(run)]) == 0
+    old = _old_results(tmp_path)
+    before = _snapshot(old)
+    import estimator.reports.plots_batch as plots_batch
+
+    def fail(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(plots_batch, "plot_residuals", fail)
+    with pytest.raises(OSError):
+        main(["estimate", "batch", str(run), "--out", str(old), "--force"])
+    assert _snapshot(old) == before
+    _no_temporaries(tmp_path)
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(["estimate", "batch", str(run), "--out", str(old), "--force"]) == 0
+    assert {p.name for p in old.iterdir()} == {"estimate.json", "residuals.csv", "residuals.png"}
+    _no_temporaries(tmp_path)
+
+
+def test_force_never_replaces_the_input_run(tmp_path, capsys):
+    run = _old_results(tmp_path)
+    before = _snapshot(run)
+    for cmd in ("batch", "crlb"):
+        assert main(["estimate", cmd, str(run), "--out", str(run), "--force"]) == 2
+        assert "would replace the input" in _one_error_line(capsys)
+    assert _snapshot(run) == before
+
+
+def test_calibrate_bifilar_force(tmp_path, capsys):
+    old = _old_results(tmp_path)
+    argv = _argv(FOLDER_COMMANDS["calibrate bifilar"], old)
+    assert main(argv + ["--force"]) == 0
+    assert "result.json" in {p.name for p in old.iterdir()} and not (old / "poses.csv").exists()
+    assert str(old / "result.json") in capsys.readouterr().out
+
+
+def test_result_file_interrupted_and_forced(tmp_path):
+    f = tmp_path / "thrust_table.toml"
+    f.write_text("old\n")
+    with pytest.raises(UserError, match="already exists"):
+        ResultFile(f)
+    out = ResultFile(f, force=True)
+    with pytest.raises(RuntimeError), out.writing() as tmp:
+        tmp.write_text("half")
+        raise RuntimeError
+    assert f.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == [f.name]
+    with out.writing() as tmp:
+        tmp.write_text("new\n")
+    assert f.read_text() == "new\n" and sorted(p.name for p in tmp_path.iterdir()) == [f.name]
+
+
+def test_result_folder_rechecks_and_maps_paths(tmp_path):
+    target = tmp_path / "a" / "b"  # missing parents are created at the end
+    out = ResultFolder(target)
+    assert not (tmp_path / "a").exists()
+    with out.writing() as d:
+        (d / "x.txt").write_text("1")
+        assert out.final(d / "x.txt") == target / "x.txt"
+    assert (target / "x.txt").read_text() == "1"
+    # something appeared while the command worked: still refused without --force
+    late = tmp_path / "late"
+    out = ResultFolder(late)
+    late.mkdir()
+    (late / "other.csv").write_text("z")
+    with pytest.raises(UserError, match="already holds other.csv"), out.writing():
+        pass
+    assert (late / "other.csv").read_text() == "z"
+
+
+def test_stream_folder_refuses_then_empties_with_force(tmp_path):
+    old = _old_results(tmp_path)
+    with pytest.raises(UserError, match="add --force"):
+        stream_folder(old, force=False)
+    assert stream_folder(old, force=True) == old and not any(old.iterdir())
+    assert check_folder(old, force=False) == old  # an empty folder is fine
+
+
+def test_long_listing_is_shortened(tmp_path):
+    d = tmp_path / "many"
+    d.mkdir()
+    for i in range(9):
+        (d / f"f{i}.csv").write_text("")
+    with pytest.raises(UserError) as e:
+        check_folder(d, force=False)
+    assert "f0.csv, f1.csv, f2.csv, f3.csv, ... (9 entries)" in str(e.value)
