@@ -123,3 +123,18 @@ def test_notes_and_fit_statistics_are_kept(tmp_path):
     p = tmp_path / "notes.toml"
     p.write_text('unit = "gf"\nsource = "bench 3"\nnotes = "x"\n[nozzles.1]\ncoefficients=[1.0]\n')
     assert ThrustTable.load(p).extra == {"source": "bench 3", "notes": "x"}
+
+
+def test_a_dip_within_fit_accuracy_is_read_as_zero_not_refused(tmp_path):
+    # a cubic fitted to emulated bench data dipped to -0.039 gf at 10 % for 4 nozzles
+    # (0.1 % of its full scale, inside the fit's < 1 % accuracy): the demo's own table
+    p = tmp_path / "dip.toml"
+    p.write_text('unit = "gf"\nduty_range = [10.0, 90.0]\n[nozzles.1]\n'
+                 'coefficients = [-1.639, 0.16]\n')  # -0.039 gf at 10 %, 12.8 gf at 90 %
+    t = ThrustTable.load(p)
+    assert t.per_nozzle(10.0, 1) < 0  # the polynomial itself dips (-0.039 gf)
+    assert t.thrust_n([[10.0, 0, 0, 0]])[0, 0] == 0.0  # a nozzle cannot pull
+    p.write_text('unit = "gf"\nduty_range = [10.0, 90.0]\n[nozzles.1]\n'
+                 'coefficients = [-2.0, 0.16]\n')  # -0.4 gf of 12.4 gf: 3.2 % of full scale
+    with pytest.raises(UserError, match="negative thrust"):
+        ThrustTable.load(p)

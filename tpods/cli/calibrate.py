@@ -208,6 +208,8 @@ def cmd_bifilar(args: argparse.Namespace) -> int:
             if args.poses:
                 out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
             out_files = [out_folder.final(p) for p in out_files]
+    for w in getattr(res, "warnings", ()):
+        print(f"tpods: warning: {w}", file=sys.stderr)
     if args.json:
         _print_json(res.to_dict())
         return 0

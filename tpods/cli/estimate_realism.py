@@ -33,9 +33,13 @@ def add_model_option(p, auto: bool = True) -> None:
 
 
 def selection_log(args: argparse.Namespace):
-    """Where ``--model auto`` prints its selection table: stderr under ``--json``, else stdout."""
+    """Where ``estimate_run`` reports: the ``--model auto`` selection table to stderr under
+    ``--json``, else stdout; plausibility warnings (``tpods: warning: ...``) to stderr."""
     out = sys.stderr if args.json else sys.stdout
-    return lambda line: print(line, file=out)
+
+    def log(line: str) -> None:
+        print(line, file=sys.stderr if line.startswith("tpods: warning:") else out)
+    return log
 
 
 def crlb_lines(c) -> list[str]:

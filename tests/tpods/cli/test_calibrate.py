@@ -112,3 +112,13 @@ def test_bad_input_one_line(tpods_exe, tmp_path, capsys):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and cases[0][1] in lines[0], r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_bifilar_plausibility_warning_is_one_stderr_line_in_text_mode(tpods_exe):
+    # --spacing typed in cm: the result is still printed, the warning goes to stderr
+    r = run(tpods_exe, "calibrate", "bifilar", "--mass", "0.72", "--spacing", "10", "--length", "1.0",
+            "--times", "20.1,20.2,20.0", "--cycles", "10")
+    assert r.returncode == 0
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning:")]
+    assert len(warn) == 1 and "spacing D = 10 m" in warn[0] and "cm or mm" in warn[0]
+    assert r.stdout.startswith("Izz = ") and "warning" not in r.stdout

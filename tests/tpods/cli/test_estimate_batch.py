@@ -167,3 +167,17 @@ def test_filter_methods_are_delegated(tpods_exe, sim_run):
     if r.returncode == 0:
         obj = json.loads(r.stdout)
         assert obj["method"] == "ekf"
+
+
+def test_poses_in_millimetres_warn_on_stderr_naming_the_likely_cause(tpods_exe, tmp_path):
+    d = tmp_path / "mm"
+    assert run(tpods_exe, "sim", "--duration", "20", "--noise-pos", "0.01", "--seed", "3",
+               "--out", str(d)).returncode == 0
+    poses = (d / "poses.csv").read_text().splitlines()
+    rows = [poses[0]] + [",".join([t, str(float(x) * 1e3), str(float(y) * 1e3), psi])
+                         for t, x, y, psi in (ln.split(",") for ln in poses[1:])]
+    (d / "poses.csv").write_text("\n".join(rows) + "\n")
+    r = run(tpods_exe, "estimate", "batch", str(d))
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning:")]
+    assert any("millimetres" in w and "--sigma-pos" in w for w in warn), r.stderr
+    assert "Traceback" not in r.stderr and "warning" not in r.stdout
