@@ -12,18 +12,7 @@ is a thin shell; the derivation is in docs/calibration.md):
   fitted small-amplitude frequency. Reported beside it: Eq. 19 on the period seen in
   the trace (a damped-sine fit) and the size of that amplitude correction.
 
-Geometry: strings of length ``h`` (m), attached ``D`` (m) apart on the body and
-directly above at the top, the body's centre of mass midway between them. Angles
-in radians, times in seconds, SI throughout.
-
-The model: with q = sqrt(1 - (D/h)^2 (1 - cos th) / 2), w0^2 = m g D^2 / (4 h Izz)
-and mu = w0^2 D^2 / (4 g h) = m D^4 / (16 h^2 Izz),
-
-    (1 + mu s^2/q^2) th'' = -w0^2 s/q - mu (s/q^2) (cos th + (D/h)^2 s^2 / (4 q^2)) th'^2
-                            - c1 th' - c2 |th'| th'          (s = sin th)
-
-``vertical_ke=False`` drops the mu terms (Jardin & Mueller's form). The small-angle
-limit is th'' = -w0^2 th - c1 th', i.e. Equation 19 with T = 2 pi / w0.
+Geometry, the model and its small-angle limit: :mod:`calibration.bifilar_model`.
 
 This module gathers them (import from here): Equation 19 and its budget in
 :mod:`calibration.bifilar_eq19`, the nonlinear model and its simulation in
