@@ -62,3 +62,32 @@ def float_list(n: int | None = None):
         return vals
 
     return parse
+
+
+def parse_time_window(text: str | None) -> tuple[float | None, float | None]:
+    """``"T0:T1"`` in seconds, either side may be empty (the documented form; ``"T0,T1"``
+    is read the same) -> ``(t0, t1)``; ``(None, None)`` for None or ''. A ValueError
+    names what is wrong (not two numbers, or an end that does not follow its start)."""
+    if text is None or text.strip() == "":
+        return None, None
+    sep = ":" if ":" in text else ","
+    parts = text.split(sep)
+    if len(parts) != 2:
+        raise ValueError(f"window must be T0:T1 (seconds), got {text!r}")
+    try:
+        t0, t1 = (float(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise ValueError(f"window must be T0:T1 (seconds), got {text!r}") from None
+    if any(v is not None and not math.isfinite(v) for v in (t0, t1)):
+        raise ValueError(f"window must be T0:T1 (seconds), got {text!r}")
+    if t0 is not None and t1 is not None and t1 <= t0:
+        raise ValueError(f"window end must follow its start, got {text!r}")
+    return t0, t1
+
+
+def time_window(text: str) -> tuple[float | None, float | None]:
+    """argparse type for ``--window T0:T1`` (or ``T0,T1``); see :func:`parse_time_window`."""
+    try:
+        return parse_time_window(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from common.argtypes import parse_time_window
 from common.errors import UserError
 from estimator.batch.crlb import (
     DEFAULT_MAX_STEP_S,
@@ -571,20 +572,11 @@ def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, si
 
 
 def parse_window(text: str | None) -> tuple[float | None, float | None]:
-    """``"T0:T1"`` (either side may be empty) -> (t0, t1) in seconds."""
-    if text is None or text == "":
-        return None, None
-    if ":" not in text:
-        raise UserError(f"window must be T0:T1 (seconds), got {text!r}")
-    a, b = text.split(":", 1)
+    """``"T0:T1"`` (either side may be empty; ``"T0,T1"`` is read too) -> (t0, t1) in seconds."""
     try:
-        t0 = float(a) if a.strip() else None
-        t1 = float(b) if b.strip() else None
-    except ValueError:
-        raise UserError(f"window must be T0:T1 (seconds), got {text!r}") from None
-    if t0 is not None and t1 is not None and t1 <= t0:
-        raise UserError(f"window end must follow its start, got {text!r}")
-    return t0, t1
+        return parse_time_window(text)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def estimate_run(run, table=None, window: tuple[float | None, float | None] | str | None = None,

@@ -20,7 +20,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse parser whose errors are one line (usage goes to --help)."""
 
     def error(self, message: str) -> None:  # pragma: no cover - exercised via CLI tests
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        # the documented contract: every user error is one line `tpods: error: ...`, exit 2
+        self.exit(2, f"tpods: error: {message} (see '{self.prog} --help')\n")
 
 
 def build_parser() -> argparse.ArgumentParser:

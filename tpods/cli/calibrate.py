@@ -8,7 +8,7 @@ import math
 import sys
 from pathlib import Path
 
-from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
+from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
 from common.outputs import add_force, optional_folder
@@ -154,8 +154,8 @@ def _register_bifilar(cal) -> None:
     p.add_argument("--g", type=positive_float, default=G_STANDARD_MPS2,
                    help=f"m/s^2 (default {G_STANDARD_MPS2})")
     p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
-    p.add_argument("--window", type=float_list(2), default=None, metavar="T0,T1",
-                   help="use only poses with T0 <= t <= T1, s (--poses)")
+    p.add_argument("--window", type=time_window, default=None, metavar="T0:T1",
+                   help="use only poses with T0 <= t <= T1, s (--poses); T0,T1 is read too")
     p.add_argument("--no-rise-ke", action="store_true",
                    help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -189,7 +189,8 @@ def cmd_bifilar(args: argparse.Namespace) -> int:
     else:
         t, psi, path = _read_poses(args.poses)
         if args.window:
-            keep = (t >= args.window[0]) & (t <= args.window[1])
+            t0, t1 = args.window
+            keep = (t >= (-math.inf if t0 is None else t0)) & (t <= (math.inf if t1 is None else t1))
             t, psi = t[keep], psi[keep]
         try:
             res = bifilar.fit_swing_trace(t, psi, args.mass, args.spacing, args.length,

@@ -122,3 +122,18 @@ def test_bifilar_plausibility_warning_is_one_stderr_line_in_text_mode(tpods_exe)
     warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning:")]
     assert len(warn) == 1 and "spacing D = 10 m" in warn[0] and "cm or mm" in warn[0]
     assert r.stdout.startswith("Izz = ") and "warning" not in r.stdout
+
+
+def test_bifilar_window_takes_both_syntaxes_and_refuses_a_reversed_one(tpods_exe, tmp_path):
+    p = Pendulum(0.72, 1.5e-3, 0.12, 0.9, c1=0.003, c2=0.01)
+    t, psi = simulate_trace(p, duration_s=30, seed=8)
+    d = tmp_path / "swing"
+    write_run(d, pose_t=t, pose=np.column_stack([0 * t, 0 * t, psi]))
+    base = ("calibrate", "bifilar", "--poses", str(d / "poses.csv"), "--mass", "0.72",
+            "--spacing", "0.12", "--length", "0.9", "--json")
+    a, b = (run(tpods_exe, *base, "--window", w) for w in ("2:25", "2,25"))
+    assert a.returncode == b.returncode == 0, a.stderr + b.stderr
+    assert json.loads(a.stdout)["izz_kgm2"] == json.loads(b.stdout)["izz_kgm2"]
+    r = run(tpods_exe, *base, "--window", "25,2")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "end must follow its start" in lines[0]

@@ -62,3 +62,15 @@ def test_a_negative_value_list_is_read_as_the_option_value(tmp_path):
     out = tmp_path / "run"
     assert main(["sim", "--duration", "2", "--tilt", "-0.8e-3,0.6e-3", "--out", str(out)]) == 0
     assert read_run(out).truth["ax"] == -0.8e-3 and read_run(out).truth["ay"] == 0.6e-3
+
+
+def test_option_errors_use_the_documented_prefix(tpods_exe):
+    """Every user error is one line `tpods: error: ...` (README), argparse's too."""
+    for args, what in ((("sim", "--duration", "abc"), "--duration"),
+                       (("estimate", "batch"), "RUN_DIR"),
+                       (("no-such-command",), "no-such-command")):
+        r = run(tpods_exe, *args)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 2 and len(lines) == 1, (args, r.stderr)
+        assert lines[0].startswith("tpods: error: ") and what in lines[0], (args, r.stderr)
+        assert "--help" in lines[0]
