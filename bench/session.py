@@ -17,8 +17,8 @@ Output folder:
   balance's requested and used acquisition mode, continuous print or ``IP`` polling,
   the fallback reason and the poll rate), ``t0_unix`` (wall-clock time of
   ``t_s = 0``), timing, counts, exit status
-  (``running`` while it runs, then ``success`` / ``aborted`` / ``failed``) and
-  whether OFF was confirmed.
+  (``running`` while it runs, then ``success`` / ``aborted`` / ``failed``: anything but
+  ``success`` is a partial session, see docs/run-format.md) and whether OFF was confirmed.
 
 Choose ``settle_s`` and ``zero_settle_s`` of at least five time constants of the
 balance's response (about 0.3 s for a Scout): the residual of the step response
@@ -46,6 +46,7 @@ from tqdm import tqdm
 from bench.ohaus import OhausScout, Reading
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
+from common.runfolder import warn_if_partial
 from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.thrust_table import GF_TO_N
 
@@ -418,7 +419,10 @@ def parse_int_list(text: str, what: str) -> tuple[int, ...]:
 
 def read_session(run_dir: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Read a session folder: ``(raw, steps)``; steps are recomputed from raw.csv when
-    steps.csv is missing or empty (a session killed before it could write it)."""
+    steps.csv is missing or empty (a session killed before it could write it). A session
+    whose run.json status is not ``success`` (``running``: killed; ``aborted``, ``failed``)
+    is partial: read, with one warning line on stderr
+    (:func:`common.runfolder.warn_if_partial`)."""
     run = Path(run_dir)
     if not run.is_dir():
         raise UserError(f"{run}: no such run folder")
@@ -451,4 +455,5 @@ def read_session(run_dir: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
             raise UserError(f"{steps_path}: unreadable ({exc})") from None
     if steps is None or steps.empty:
         steps = summarize_steps(raw)
+    warn_if_partial(run)
     return raw, steps

@@ -13,6 +13,12 @@
 - **Streams cannot be atomic.** :func:`stream_folder` (recorders: characterize, run play,
   estimate live, mocap record, demo) refuses a non-empty folder unless ``force``, which
   empties it first.
+- **No stale temporaries.** A command killed outright (SIGKILL, power loss) leaves its
+  ``.NAME.tmp-PID`` (and, killed between the two renames of a ``--force`` replace,
+  ``.NAME.old-PID``). The next command that writes ``NAME`` removes them when process
+  ``PID`` no longer runs (a ``.NAME.old-PID`` whose ``NAME`` is gone is renamed back to
+  ``NAME``: the old results return), saying so in one line on stderr each
+  (:func:`clean_stale`); the temporaries of a process that still runs are left alone.
 
 Usage::
 
@@ -27,7 +33,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -76,6 +84,68 @@ def _base(path: str | Path | None, option: str) -> Path:
     return Path(path)
 
 
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (this process counts; when unsure: yes)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: it runs, as another user; anything else: unsure
+        return True
+    return True
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    else:
+        p.unlink()
+
+
+def clean_stale(path: str | Path) -> list[Path]:
+    """Remove the temporaries a killed command left beside ``path`` (see the module doc).
+
+    Looks in ``path``'s parent for ``.NAME.tmp-PID`` (a folder, or ``.STEM.tmp-PID.SUFFIX``
+    for a result file) and ``.NAME.old-PID`` whose process ``PID`` no longer runs. A stale
+    ``.NAME.old-PID`` is removed when ``NAME`` exists (the replace had completed) and
+    renamed back to ``NAME`` otherwise. One line on stderr per temporary; returns them."""
+    path = Path(path)
+    parent, name = path.parent, path.name
+    if not name or not parent.is_dir():
+        return []
+    pats = [re.compile(rf"\.{re.escape(name)}\.(?P<kind>tmp|old)-(?P<pid>\d+)")]
+    if path.suffix:
+        pats.append(re.compile(rf"\.{re.escape(path.stem)}\.(?P<kind>tmp)-(?P<pid>\d+){re.escape(path.suffix)}"))
+    found: list[tuple[str, int, Path]] = []
+    try:
+        for child in parent.iterdir():
+            for pat in pats:
+                m = pat.fullmatch(child.name)
+                if m:
+                    found.append((m["kind"], int(m["pid"]), child))
+                    break
+    except OSError:
+        return []
+    done = []
+    for kind, pid, child in sorted(found, key=lambda f: f[0] != "old"):  # .old first
+        if _pid_alive(pid):
+            continue
+        try:
+            if kind == "old" and not (path.exists() or path.is_symlink()):
+                os.replace(child, path)
+                msg = f"restored {path} from {child.name}, left by process {pid} (no longer running) while it replaced {name}"
+            else:
+                _remove(child)
+                msg = f"removed {child}, a temporary left by process {pid} (no longer running: killed?)"
+        except OSError as exc:
+            msg = f"cannot remove {child}, a temporary left by process {pid} ({exc.strerror}); remove it by hand"
+        print(f"tpods: warning: {msg}", file=sys.stderr)
+        done.append(child)
+    return done
+
+
 def check_folder(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
     """Check that ``path`` may become a result folder (see the module doc); return it."""
     p = _base(path, option)
@@ -112,6 +182,7 @@ class ResultFolder:
     """A folder of results, checked now and written atomically by :meth:`writing`."""
 
     def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
+        clean_stale(_base(path, option))
         self.path = check_folder(path, force=force, option=option)
         self.force = force
         self.option = option
@@ -175,6 +246,7 @@ class ResultFile:
     """One result file, checked now and written atomically by :meth:`writing`."""
 
     def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
+        clean_stale(_base(path, option))
         self.path = check_file(path, force=force, option=option)
         self.force = force
         self.option = option
@@ -200,6 +272,7 @@ def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out"
     """Prepare a folder a recorder writes into as it goes (it cannot be atomic): checked
     as :func:`check_folder`; with ``force`` a non-empty folder is emptied. Returns the path
     (created)."""
+    clean_stale(_base(path, option))
     p = check_folder(path, force=force, option=option)
     if p.is_dir() and force:
         for child in p.iterdir():

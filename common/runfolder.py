@@ -7,10 +7,15 @@ A run is a folder holding (see docs/run-format.md):
 - ``thrusts.csv``   optional ``t,T1,T2,T3,T4`` in newtons, same hold rule; used
   instead of commands.csv + thrust table when present.
 - ``poses.csv``     ``t,x,y,psi``: metres and radians, lab frame; psi may be wrapped.
-- ``run.json``      optional metadata (truth for simulated runs).
+- ``run.json``      optional metadata (truth for simulated runs; a recorder's ``status``).
 
 Readers validate and refuse bad input with one :class:`UserError` line naming the
-file and the row. Writers (:func:`write_run` here, the recorders) write through
+file and the row. A run whose ``run.json`` (or, for a body folder of ``tpods mocap
+record``, the ``recording.json`` above it) has a ``status`` other than ``complete`` or
+``success`` is partial (:func:`partial_status`): it is read, with one warning line on
+stderr naming the folder and the status (:func:`warn_if_partial`).
+
+Writers (:func:`write_run` here, the recorders) write through
 ``common.runwriter`` (CSV logs flushed per row, atomic JSON, one JSON policy).
 """
 
@@ -20,6 +25,7 @@ import io
 import json
 import math
 import re
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +41,18 @@ from common.thrust_table import load_thrust_table
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
 POSE_COLUMNS = ("t", "x", "y", "psi")
+
+# run.json ``status``: a recorder writes ``running`` when it starts and its final status
+# when it ends. Only these mean it ended cleanly; any other status marks a partial run
+# (docs/run-format.md). A run.json without status (simulated runs) is whole.
+WHOLE_STATUSES = ("complete", "success")
+_STATUS_MEANING = {
+    "running": "the recorder never finished: it was killed, crashed or still runs",
+    "incomplete": "the recording ended early",
+    "aborted": "interrupted (Ctrl-C, SIGTERM or a stop) before the end",
+    "stopped": "stopped (Ctrl-C or SIGTERM) before the end of the run",
+    "failed": "the recording failed",
+}
 
 
 @dataclass
@@ -210,7 +228,51 @@ def read_run(path: str | Path) -> Run:
             raise UserError(f"{meta_file}: not valid JSON ({exc})") from None
         if not isinstance(meta, dict):
             raise UserError(f"{meta_file}: must hold a JSON object")
+        warn_if_partial(path, meta)
+    else:
+        warn_if_partial(path)  # a body folder of a mocap recording
     return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta)
+
+
+def partial_status(meta: Any) -> str | None:
+    """The ``status`` of run metadata that marks its run partial, None for a whole run
+    (status ``complete`` or ``success``, or no status at all)."""
+    status = meta.get("status") if isinstance(meta, dict) else None
+    if status is None or str(status) in WHOLE_STATUSES:
+        return None
+    return str(status)
+
+
+def _status_file_meta(path: Path) -> tuple[Path, Any] | None:
+    """(file, metadata) of the status file of a folder: its run.json, else the
+    recording.json of the mocap recording it is a body folder of. Unreadable: None."""
+    for f in (path / "run.json", path.parent / "recording.json"):
+        if f.is_file():
+            try:
+                return f, json.loads(f.read_text(encoding="utf-8-sig"))
+            except (OSError, ValueError):
+                return None
+    return None
+
+
+def warn_if_partial(path: str | Path, meta: Any = None, *, source: str | Path | None = None) -> str | None:
+    """Print one warning line on stderr if the run at ``path`` is partial; return its status.
+
+    ``meta`` is its run.json as read (None: read ``path``'s status file here, see
+    :func:`_status_file_meta`); ``source`` names the file the status came from."""
+    if meta is None:
+        found = _status_file_meta(Path(path))
+        if found is None:
+            return None
+        source, meta = found
+    status = partial_status(meta)
+    if status is None:
+        return None
+    why = _STATUS_MEANING.get(status, "not a clean end")
+    src = source if source is not None else Path(path) / "run.json"
+    print(f"tpods: warning: {path} is a partial run ({src} says status {status!r}: {why}); "
+          "reading what it holds", file=sys.stderr)
+    return status
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.ndarray) -> None:

@@ -14,6 +14,10 @@
   :func:`common.runfolder.read_run`), as the recorders always wrote them.
 - :func:`run_header`: the first keys of every ``run.json`` (``kind``, ``software``,
   ``created``) followed by the caller's fields.
+- :func:`run_status`: a ``run.json`` that says ``running`` while a block runs, then
+  ``complete``, ``aborted`` (Ctrl-C) or ``failed`` (any other exception, with ``error``).
+  A status other than ``complete``/``success`` marks a partial run
+  (:func:`common.runfolder.partial_status`, docs/run-format.md).
 
 Files are UTF-8 with ``\\n`` line ends on every platform.
 """
@@ -28,7 +32,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -88,6 +92,31 @@ def run_header(kind: str, *, created: float | None = None, **fields: Any) -> dic
     when = _dt.datetime.now(_dt.UTC) if created is None else _dt.datetime.fromtimestamp(created, _dt.UTC)
     return {"kind": kind, "software": f"tpods {__version__}",
             "created": when.isoformat(timespec="seconds"), **fields}
+
+
+@contextlib.contextmanager
+def run_status(path: str | Path, kind: str, **fields: Any) -> Iterator[dict[str, Any]]:
+    """Write ``path`` (a run.json: :func:`run_header` with ``status = "running"``), run the
+    block, then rewrite it with its end: ``complete``, ``aborted`` on KeyboardInterrupt,
+    ``failed`` (and ``error``) on any other exception, which propagates. A hard kill leaves
+    ``running``. Yields the metadata (keys added to it in the block are written at the end)."""
+    path = Path(path)
+    meta = run_header(kind, status="running", **fields)
+    write_json_atomic(path, meta)
+    status, error = "failed", None
+    try:
+        yield meta
+        status = "complete"
+    except KeyboardInterrupt:
+        status, error = "aborted", "interrupted (Ctrl-C)"
+        raise
+    except BaseException as exc:
+        error = str(exc) or exc.__class__.__name__
+        raise
+    finally:
+        meta.update(status=status, error=error)
+        with contextlib.suppress(OSError):
+            write_json_atomic(path, meta)
 
 
 def _formatter(fmt: Format | None) -> Callable[[Any], str]:

@@ -2,7 +2,7 @@
 
 Layout of ``OUT``::
 
-    OUT/recording.json           key, host start time, t0, counters (rewritten at the end)
+    OUT/recording.json           key, host start time, t0, status, counters (rewritten at the end)
     OUT/<body>/poses.csv         t,x,y,psi   (run-folder contract; occluded frames left out)
     OUT/<body>/samples.csv       every sample as received (occluded ones too)
 
@@ -11,7 +11,11 @@ poses.csv times are the sample's ``t_src`` when the source has its own timeline
 received (or the ``t0`` given). Values are written with 12 significant digits, like
 ``common.runfolder.write_run``; samples.csv keeps full precision (shortest repr). Both
 are ``common.runwriter.CsvLog`` files (flushed per row unless ``flush=False``);
-recording.json is replaced atomically.
+recording.json is replaced atomically. Its ``status`` is ``running`` until :meth:`Recorder.close`
+writes ``complete`` (a clean stop: Ctrl-C or the end of ``--duration``) or ``incomplete``
+(samples that could not be written, or closed on an error); ``running`` left behind means
+the recorder was killed. Readers warn on a recording that is not ``complete``
+(:func:`common.runfolder.warn_if_partial`).
 """
 
 from __future__ import annotations
@@ -84,12 +88,13 @@ class Recorder:
         self._lock = threading.Lock()
         self._closed = False
         self.last_error = ""
+        self.status = "running"
         self._write_meta()
 
     def _write_meta(self) -> None:
         write_json_atomic(self.out / "recording.json", run_header(
             "mocap-recording", created=self.started, key=self.key, t0_host_s=self.t0,
-            bodies=dict(self._names), counters=dict(self.counters)))
+            status=self.status, bodies=dict(self._names), counters=dict(self.counters)))
 
     def _files_for(self, body: str) -> _BodyFiles:
         bf = self._files.get(body)
@@ -134,14 +139,21 @@ class Recorder:
                     self.counters["recorded"] += 1
             return d
 
-    def close(self) -> dict[str, int]:
-        """Close the files and write the final counters to recording.json."""
+    def close(self, status: str | None = None) -> dict[str, int]:
+        """Close the files and write the final status and counters to recording.json.
+
+        ``status`` defaults to ``complete``, or ``incomplete`` when samples could not be
+        written (``write_errors``); pass ``incomplete`` when closing on an error. A second
+        call does nothing."""
         with self._lock:
             if self._closed:
                 return dict(self.counters)
             self._closed = True
             for bf in self._files.values():
                 bf.close()
+            if status is None:
+                status = "incomplete" if self.counters.get("write_errors") else "complete"
+            self.status = status
             self._write_meta()
             return dict(self.counters)
 
@@ -153,8 +165,8 @@ class Recorder:
     def __enter__(self) -> Recorder:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        self.close(None if exc_type is None else "incomplete")
 
 
 def subscribe(session: Any, key: str, recorder: Recorder):

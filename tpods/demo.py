@@ -16,7 +16,9 @@ Stages (each writes into the report folder ``runs/demo-<timestamp>/``):
 5. **batch**: batch least squares on the run the live estimator recorded.
 
 It ends with a summary table (truth, balance/bifilar, live EKF, batch LS with sigma and
-error) and ``report.md`` with the figures of every stage.
+error) and ``report.md`` with the figures of every stage. The folder's ``run.json`` says
+``running`` until then and ``complete`` at the end (``aborted`` on Ctrl-C, ``failed`` on an
+error: a partial lab day, see docs/run-format.md).
 
 This module is the command (``register``, :func:`cmd_demo`: the stages in order, their
 timings, the summary printed); the stages are in :mod:`tpods.demo_stages`, the figures,
@@ -84,6 +86,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = stream_folder(Path("runs") / f"demo-{stamp}" if args.out is None else args.out,
                         force=args.force)
+    from common.runwriter import run_status  # lazy: numpy; keeps tpods --help fast
+
+    # run.json: "running" until the end, then "complete" (or "aborted"/"failed": the
+    # folder holds a partial lab day; a kill leaves "running")
+    with run_status(out / "run.json", "lab-day-demo", seed=args.seed, quick=args.quick,
+                    duration_s=args.duration, time_scale=args.time_scale):
+        return _stages(args, out)
+
+
+def _stages(args: argparse.Namespace, out: Path) -> int:
+    """The stages of :func:`cmd_demo` into ``out``, the summary table and the report."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     t_all = time.monotonic()
     # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)

@@ -33,7 +33,9 @@ class LiveRecorder:
     - ``estimates.csv``: the filter's mean and sigma after every update (flushed at most
       every ``flush_every_s``).
     - ``run.json``: settings, ``t0_lab``, status (``running`` until the end: left
-      behind, it means the process died), counters and the final estimate.
+      behind, it means the process died; then the live run's ``success``, ``stopped``,
+      ``aborted`` or ``failed``), counters and the final estimate. Anything but
+      ``success`` marks a partial run: readers warn (docs/run-format.md).
     """
 
     def __init__(self, out: str | Path, meta: dict[str, Any], n_channels: int = 4,
@@ -105,7 +107,8 @@ class LiveRecorder:
         self.counts["estimates"] += 1
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
-        """Close the files: a last hold row covers the poses still pending."""
+        """Close the files: a last hold row covers the poses still pending; write ``status``
+        (``success`` for a run that ended cleanly, anything else marks it partial)."""
         if self.closed:
             return
         self.closed = True

@@ -172,6 +172,9 @@ def cmd_record(args: argparse.Namespace) -> int:
             sub.undeclare()
         finally:
             session.close()
+    except BaseException:
+        rec.close("incomplete")  # recording.json says so; what was written stays
+        raise
     finally:
         counters = rec.close()
         console.end()

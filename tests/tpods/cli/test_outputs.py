@@ -233,3 +233,81 @@ def test_long_listing_is_shortened(tmp_path):
     with pytest.raises(UserError) as e:
         check_folder(d, force=False)
     assert "f0.csv, f1.csv, f2.csv, f3.csv, ... (9 entries)" in str(e.value)
+
+
+# ---- stale temporaries: a command killed outright (SIGKILL) leaves .NAME.tmp-PID behind
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def _stale_tmp(parent: Path, name: str, pid: int, kind: str = "tmp") -> Path:
+    tmp = parent / f".{name}.{kind}-{pid}"
+    tmp.mkdir()
+    (tmp / "poses.csv").write_text("t,x,y,psi\n0,")  # half written when killed
+    return tmp
+
+
+def test_a_stale_temporary_is_removed_and_said(tmp_path, capsys):
+    pid = _dead_pid()
+    tmp = _stale_tmp(tmp_path, "results", pid)
+    other = _stale_tmp(tmp_path, "another", pid)  # not this command's output: left alone
+    assert main(["sim", "--duration", "2", "--out", str(tmp_path / "results")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("tpods: warning: removed "), err
+    assert str(tmp) in err and f"process {pid}" in err
+    assert not tmp.exists() and other.exists() and (tmp_path / "results" / "run.json").exists()
+
+
+def test_the_temporary_of_a_running_process_is_left_alone(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        tmp = _stale_tmp(tmp_path, "results", p.pid)
+        assert main(["sim", "--duration", "2", "--out", str(tmp_path / "results")]) == 0
+        assert tmp.exists() and "removed" not in capsys.readouterr().err
+    finally:
+        p.kill()
+        p.wait()
+
+
+def test_killed_between_the_renames_restores_the_old_folder(tmp_path, capsys):
+    pid = _dead_pid()
+    old = _stale_tmp(tmp_path, "results", pid, "old")  # the old results, moved aside
+    (old / "poses.csv").write_text("t,x,y,psi\n0,0,0,0\n")
+    new = _stale_tmp(tmp_path, "results", pid)          # the new ones, never renamed
+    out = tmp_path / "results"
+    assert main(["sim", "--duration", "2", "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 3, lines
+    assert lines[0].startswith(f"tpods: warning: restored {out} from .results.old-{pid}")
+    assert lines[1].startswith(f"tpods: warning: removed {new}")
+    assert lines[2].startswith(f"tpods: error: {out} already holds poses.csv; add --force")
+    assert (out / "poses.csv").read_text() == "t,x,y,psi\n0,0,0,0\n" and not old.exists()
+    _no_temporaries(tmp_path)
+
+
+def test_stale_old_beside_a_replaced_folder_is_removed(tmp_path, capsys):
+    pid = _dead_pid()
+    out = _old_results(tmp_path)
+    old = _stale_tmp(tmp_path, "results", pid, "old")
+    stream_folder(out, force=True)
+    assert not old.exists() and f"removed {old}" in capsys.readouterr().err
+
+
+def test_stale_file_temporary_is_removed(tmp_path, capsys):
+    pid = _dead_pid()
+    tmp = tmp_path / f".thrust_table.tmp-{pid}.toml"
+    tmp.write_text("half")
+    out = ResultFile(tmp_path / "thrust_table.toml")
+    with out.writing() as t:
+        t.write_text("unit = 'gf'\n")
+    assert not tmp.exists() and f"removed {tmp}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thrust_table.toml"]
