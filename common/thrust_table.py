@@ -29,12 +29,13 @@ import tomli_w
 
 from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and callers use it here)
 from common.errors import UserError
+from common.thrust_uncertainty import ThrustCalibration, ThrustUncertainty, coefficient_covariance
 
 _UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
 NEGATIVE_TOLERANCE_FS = 0.01
 """A table may dip below zero by at most this fraction of a row's full scale (fit noise)."""
 
-KNOWN_KEYS = ("unit", "duty_range", "pressure_psi", "nozzles")
+KNOWN_KEYS = ("unit", "duty_range", "pressure_psi", "nozzles", "uncertainty", "calibration")
 """The keys a thrust table is read by. Any other top-level key is kept in ``extra`` (fit
 statistics, ``source``, notes) unless it looks like a misspelling of one of these."""
 
@@ -74,6 +75,9 @@ class ThrustTable:
         duty_range: ``(low, high)`` valid duty in percent for an open valve.
         pressure_psi: accumulator pressure the table was measured at (or None).
         extra: any other top-level keys from the file (fit statistics, source).
+        uncertainty: the table's stated scale uncertainty (``[uncertainty]``), or None.
+        calibration: factors calibrated in situ (``[calibration]``), or None: thrust of
+            channel j is multiplied by its efficiency and by the nozzle count's scale.
     """
 
     coefficients: Mapping[int, tuple[float, ...]]
@@ -81,6 +85,8 @@ class ThrustTable:
     duty_range: tuple[float, float] = (10.0, 90.0)
     pressure_psi: float | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    uncertainty: ThrustUncertainty | None = None
+    calibration: ThrustCalibration | None = None
 
     def __post_init__(self) -> None:
         if self.unit not in _UNIT_TO_N:
@@ -95,6 +101,7 @@ class ThrustTable:
                 raise UserError(f"thrust table nozzle count must be a positive integer, got {k!r}")
             if len(c) < 1 or not np.all(np.isfinite(c)):
                 raise UserError(f"thrust table [nozzles.{k}] coefficients must be finite numbers")
+            coefficient_covariance(self.extra, k, len(c))  # a malformed covariance is refused
 
     # ------------------------------------------------------------------ I/O
     @classmethod
@@ -125,10 +132,12 @@ class ThrustTable:
             p = None if p is None else num(p)
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{source}: malformed thrust table ({exc.__class__.__name__}: {exc})") from None
-        known = {"nozzles", "unit", "duty_range", "pressure_psi"}
+        known = {"nozzles", "unit", "duty_range", "pressure_psi", "uncertainty", "calibration"}
         extra = {k: v for k, v in data.items() if k not in known}
         try:
-            table = cls(coeffs, unit, (lo, hi), p, extra)
+            unc = ThrustUncertainty.from_dict(data["uncertainty"]) if "uncertainty" in data else None
+            cal = ThrustCalibration.from_dict(data["calibration"]) if "calibration" in data else None
+            table = cls(coeffs, unit, (lo, hi), p, extra, unc, cal)
         except UserError as exc:
             raise UserError(f"{source}: {exc}") from None
         if "unit" not in data:
@@ -198,9 +207,39 @@ class ThrustTable:
         if self.pressure_psi is not None:
             out["pressure_psi"] = float(self.pressure_psi)
         out.update(self.extra)
+        if self.uncertainty is not None:
+            out["uncertainty"] = self.uncertainty.to_dict()
+        if self.calibration is not None:
+            out["calibration"] = self.calibration.to_dict()
         out["nozzles"] = {str(k): {"coefficients": [float(a) for a in self.coefficients[k]]}
                           for k in sorted(self.coefficients)}
         return out
+
+    # ------------------------------------------------------------ uncertainty
+    @property
+    def newtons_per_unit(self) -> float:
+        """N per unit of the table (9.80665e-3 for gf)."""
+        return _UNIT_TO_N[self.unit]
+
+    def channel_factors(self, n_channels: int) -> np.ndarray:
+        """(n_channels,) calibrated efficiency of each channel (ones without a calibration)."""
+        return np.ones(n_channels) if self.calibration is None else self.calibration.factors(n_channels)
+
+    def nozzle_factor(self, k: int) -> float:
+        """Calibrated scale of every nozzle when ``k`` are open (1 without a calibration)."""
+        return 1.0 if self.calibration is None else float(self.calibration.nozzle_scale.get(k, 1.0))
+
+    @property
+    def states_uncertainty(self) -> bool:
+        """True when the table states any uncertainty (scale, coefficient covariance or
+        calibration covariance); False for a bare table such as the paper's Table 2."""
+        if self.uncertainty is not None and (self.uncertainty.scale_rel > 0 or
+                                             any(v > 0 for v in self.uncertainty.nozzle_scale_rel.values())):
+            return True
+        if self.calibration is not None and self.calibration.parameters:
+            return True
+        return any(coefficient_covariance(self.extra, k, len(c)) is not None
+                   for k, c in self.coefficients.items())
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(tomli_w.dumps(self.to_dict()))
@@ -256,7 +295,10 @@ class ThrustTable:
             if kk == 0:
                 continue
             rows = k == kk
-            out[rows] = np.where(is_open[rows], self.per_nozzle(d[rows], int(kk)), 0.0)
+            out[rows] = np.where(is_open[rows], self.per_nozzle(d[rows], int(kk)) *
+                                 self.nozzle_factor(int(kk)), 0.0)
+        if self.calibration is not None:
+            out = out * self.channel_factors(d.shape[-1])
         return np.maximum(out, 0.0) * _UNIT_TO_N[self.unit]
 
 

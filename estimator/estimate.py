@@ -289,6 +289,8 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
+        if res.cov_thrust is None and res.thrust_note:
+            log(f"tpods: warning: {res.thrust_note}")
     out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
     out.update(res.to_dict())
     out["model"] = model

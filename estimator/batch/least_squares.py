@@ -98,6 +98,45 @@ class BatchResult:
     elapsed_s: float = 0.0
     fisher: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
+    cov_noise: np.ndarray | None = None
+    cov_thrust: np.ndarray | None = None
+    thrust_terms: tuple[str, ...] = ()
+    thrust_note: str = ""
+
+    def add_thrust_covariance(self, cov_thrust: np.ndarray, terms: tuple[str, ...]) -> None:
+        """Make ``cov``/``sigma`` (and the mass/Izz copies) the TOTAL: measurement noise
+        plus the thrust table's consider part ``cov_thrust`` (:mod:`estimator.batch.consider`)."""
+        if self.cov_noise is None:
+            self.cov_noise = self.cov
+        self.cov_thrust = cov_thrust
+        self.thrust_terms = tuple(terms)
+        self.cov = self.cov_noise + cov_thrust
+        self.sigma = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        for name, attr in (("mass", "mass_sigma_kg"), ("izz", "izz_sigma_kgm2")):
+            if name in self.names:
+                setattr(self, attr, float(self.sigma[6 + self.names.index(name)]))
+        if "mass" in self.names and "izz" in self.names:
+            im, ii = 6 + self.names.index("mass"), 6 + self.names.index("izz")
+            self.corr_mass_izz = float(self.cov[im, ii] / (self.sigma[im] * self.sigma[ii]))
+
+    @property
+    def sigma_noise(self) -> np.ndarray:
+        """(6+p,) standard deviations from measurement noise alone."""
+        c = self.cov if self.cov_noise is None else self.cov_noise
+        return np.sqrt(np.maximum(np.diag(c), 0.0))
+
+    @property
+    def sigma_thrust(self) -> np.ndarray:
+        """(6+p,) standard deviations from the thrust table's uncertainty (0 without one)."""
+        if self.cov_thrust is None:
+            return np.zeros(len(self.z0))
+        return np.sqrt(np.maximum(np.diag(self.cov_thrust), 0.0))
+
+    def budget(self) -> dict[str, tuple[float, float, float]]:
+        """``{parameter: (sigma_noise, sigma_thrust, sigma_total)}`` in SI units."""
+        sn, st, s = self.sigma_noise, self.sigma_thrust, self.sigma
+        return {n: (float(sn[6 + j]), float(st[6 + j]), float(s[6 + j]))
+                for j, n in enumerate(self.names)}
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -128,8 +167,25 @@ class BatchResult:
             "final_cost": self.cost_history[-1] if self.cost_history else None,
             "cost_history": self.cost_history, "stages_s": self.stages,
             "message": self.message, "elapsed_s": self.elapsed_s,
+            **self._budget_dict(),
             **({"warnings": list(self.warnings)} if self.warnings else {}),
         }
+
+    def _budget_dict(self) -> dict[str, Any]:
+        """The uncertainty budget keys of :meth:`to_dict` (sigma = total; RSS of the parts)."""
+        sn, st = self.sigma_noise, self.sigma_thrust
+        out: dict[str, Any] = {}
+        for name, unit in (("mass", "kg"), ("izz", "kgm2")):
+            if name in self.names:
+                i = 6 + self.names.index(name)
+                out[f"{name}_sigma_noise_{unit}"] = float(sn[i])
+                out[f"{name}_sigma_thrust_{unit}"] = float(st[i])
+        out["sigma_noise"] = dict(zip(self.labels, sn.tolist(), strict=True))
+        out["sigma_thrust"] = dict(zip(self.labels, st.tolist(), strict=True))
+        out["thrust_uncertainty"] = {"included": self.cov_thrust is not None,
+                                     "terms": list(self.thrust_terms),
+                                     "note": self.thrust_note}
+        return out
 
 
 RESIDUAL_RATIO = 10.0
@@ -580,15 +636,25 @@ def parse_window(text: str | None) -> tuple[float | None, float | None]:
 
 
 def estimate_run(run, table=None, window: tuple[float | None, float | None] | str | None = None,
-                 *, clamp: bool = False, **kwargs) -> BatchResult:
+                 *, clamp: bool = False, thrust_uncertainty: bool = True, **kwargs) -> BatchResult:
     """:func:`batch_ls` on a :class:`common.runfolder.Run` (thrusts from the run's table).
 
     A fit in which an estimated parameter has no information (infinite sigma: no thrust,
     no torque) is not converged, its ``message`` naming the parameter and why
     (:func:`no_information`).
 
+    With ``thrust_uncertainty`` (default) the result's sigma is the TOTAL: measurement
+    noise plus the thrust table's stated uncertainty carried as a consider covariance
+    (:mod:`estimator.batch.consider`; ``cov_noise``/``cov_thrust`` hold the parts). A table
+    that states none, or thrusts given in thrusts.csv, leave sigma at the noise part and
+    say so in ``thrust_note`` (callers print it as a warning).
+
     ``window`` is ``(t0, t1)`` or ``"T0:T1"`` in seconds; other keywords go to batch_ls.
     """
+    from common.thrust_table import load_thrust_table
+    from common.thrust_uncertainty import thrust_sensitivity
+    from estimator.batch.consider import NO_UNCERTAINTY, THRUSTS_GIVEN, batch_consider
+
     if isinstance(window, str) or window is None:
         window = parse_window(window)
     if window != (None, None):
@@ -601,4 +667,38 @@ def estimate_run(run, table=None, window: tuple[float | None, float | None] | st
         res.converged = False
         res.message = "not converged: " + empty
         res.warnings = []  # the residuals say nothing more than that
+        return res
+    if not thrust_uncertainty:
+        return res
+    if run.thrust_n is not None:
+        res.thrust_note = THRUSTS_GIVEN
+    else:
+        table = table if table is not None else load_thrust_table(None)
+        if not table.states_uncertainty:
+            res.thrust_note = NO_UNCERTAINTY
+        else:
+            sens = thrust_sensitivity(table, run.duty_pct, clamp=clamp)
+            c = batch_consider(res, cmd_t, sens,
+                               sigma_pos_m=kwargs.get("sigma_pos_m", 0.01),
+                               sigma_yaw_rad=kwargs.get("sigma_yaw_rad", math.radians(1.0)),
+                               max_step=kwargs.get("max_step", DEFAULT_MAX_STEP_S))
+            res.add_thrust_covariance(c.cov_thrust, c.names)
+            res.thrust_note = ("sigma = measurement noise + thrust table uncertainty "
+                               f"({', '.join(_term_groups(c.names))})")
     return res
+
+
+def _term_groups(names: Sequence[str]) -> list[str]:
+    """Readable groups of consider parameter names: scale, scale per count, coefficients..."""
+    out = []
+    if "scale" in names:
+        out.append("common scale")
+    ks = [n.split(".")[1] for n in names if n.startswith("scale.")]
+    if ks:
+        out.append(f"scale of {', '.join(ks)} open")
+    ks = sorted({n.split(".")[1] for n in names if n.startswith("coef.")})
+    if ks:
+        out.append(f"fit coefficients of {', '.join(ks)} open")
+    if any(n.startswith(("efficiency.", "nozzle_scale.")) for n in names):
+        out.append("in-situ calibration")
+    return out
