@@ -446,6 +446,24 @@ class CommandSequence:
     s0: Any
     run: Run | None = None
     truth: dict | None = None
+    thrust_sens: Any = None  # ThrustSensitivity of the rows when the table states uncertainty
+    thrust_note: str = ""
+
+
+def _sequence_sensitivity(seq: CommandSequence, table: ThrustTable | None, duty, clamp: bool
+                          ) -> CommandSequence:
+    """Attach the table's thrust sensitivity (or say why there is none)."""
+    from common.thrust_uncertainty import thrust_sensitivity
+    from estimator.batch.consider import NO_UNCERTAINTY, THRUSTS_GIVEN
+
+    table = table if table is not None else ThrustTable.default()
+    if duty is None:
+        seq.thrust_note = THRUSTS_GIVEN
+    elif not table.states_uncertainty:
+        seq.thrust_note = NO_UNCERTAINTY
+    else:
+        seq.thrust_sens = thrust_sensitivity(table, duty, clamp=clamp)
+    return seq
 
 
 def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = False,
@@ -460,7 +478,9 @@ def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = Fal
         s0 = truth.get("initial_state") if truth else None
         if s0 is None:
             s0 = [*run.pose[0], 0.0, 0.0, 0.0]
-        return CommandSequence("recorded", cmd_t, thrust, run.pose_t, s0, run, truth)
+        return _sequence_sensitivity(
+            CommandSequence("recorded", cmd_t, thrust, run.pose_t, s0, run, truth), table,
+            run.duty_pct if run.thrust_n is None else None, clamp)
     csv = p / "commands.csv" if p.is_dir() else p
     if not csv.exists():
         raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
@@ -473,8 +493,9 @@ def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = Fal
         thrust = table.thrust_n(duty, clamp=clamp)
     except UserError as exc:
         raise UserError(f"{csv}: {exc}") from None
-    return CommandSequence("planned", cmd_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
-                     np.zeros(6))
+    return _sequence_sensitivity(
+        CommandSequence("planned", cmd_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
+                        np.zeros(6)), table, duty, clamp)
 
 
 @dataclass
@@ -546,4 +567,28 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
             out[f"crlb_{n}_sigma"] = float(s)
     sd = np.where(c.sigma > 0, c.sigma, 1.0)
     out["crlb_correlation"] = (c.cov / np.outer(sd, sd)).tolist()
+    out.update(_bound_budget(seq, c, pose_t, params, s0, sigma_pos_m, sigma_yaw_rad))
     return Bound(seq.kind, c, pose_t, mass, izz, source, out)
+
+
+def _bound_budget(seq: CommandSequence, c: CRLBResult, pose_t, params, s0, sigma_pos_m,
+                  sigma_yaw_rad) -> dict[str, Any]:
+    """The total uncertainty beside the noise bound: the thrust table's consider part at the
+    bound's plant (``*_sigma_thrust``, ``*_sigma_total``; total = RSS of the two)."""
+    out: dict[str, Any] = {"thrust_uncertainty": {"included": seq.thrust_sens is not None,
+                                                  "note": seq.thrust_note}}
+    if seq.thrust_sens is None:
+        return out
+    from estimator.batch.consider import bound_consider
+
+    s0 = np.zeros(6) if s0 is None else np.asarray(s0, float)
+    cons = bound_consider(pose_t, seq.cmd_t, seq.thrust_sens, params, s0, c.names,
+                          sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+    st = np.sqrt(np.maximum(np.diag(cons.cov_thrust)[6:], 0.0))
+    total = np.hypot(c.sigma, st)
+    out["thrust_uncertainty"]["terms"] = list(cons.names)
+    for j, n in enumerate(c.names):
+        key = {"mass": "mass_sigma_{}_kg", "izz": "izz_sigma_{}_kgm2"}.get(n, n + "_sigma_{}")
+        out[key.format("thrust")] = float(st[j])
+        out[key.format("total")] = float(total[j])
+    return out

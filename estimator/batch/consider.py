@@ -214,3 +214,21 @@ def batch_consider(res, cmd_t: np.ndarray, sens, *, sigma_pos_m: float, sigma_ya
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     cov_noise = res.cov if res.cov_noise is None else res.cov_noise
     return consider(phi[:, :3, :], w, cov_noise, J, sens.covariance, sens.names)
+
+
+def bound_consider(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[str, float],
+                   s0, names, *, sigma_pos_m: float, sigma_yaw_rad: float,
+                   max_step: float = DEFAULT_MAX_STEP_S) -> ConsiderResult:
+    """The thrust part of the covariance of an efficient estimate (the Cramér-Rao bound's
+    companion): ``S P_c S^T`` with ``S = F^-1 sum_k H_k^T W J_k`` at the plant ``params``.
+    Indices as the augmented vector (6 states, then ``names``)."""
+    from estimator.batch.crlb import fisher_information, safe_inverse
+
+    grid = make_grid(cmd_t, sens.thrust_n, pose_t, max_step)
+    s0 = np.asarray(s0, float)
+    states = reference_states(s0, grid, params)
+    _, phi = trajectory_stm(s0, None, None, pose_t, params, tuple(names), grid=grid, states=states)
+    J = output_sensitivity(states, grid, params, segment_jacobian(grid, sens.jacobian))
+    F = fisher_information(phi, sigma_pos_m, sigma_yaw_rad)
+    w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
+    return consider(phi[:, :3, :], w, safe_inverse(F), J, sens.covariance, sens.names)

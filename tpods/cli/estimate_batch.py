@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from common.argtypes import float_list, nonneg_float, positive_float
+from common.argtypes import float_list, nonneg_float, positive_float, random_seed
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, not_an_input, optional_folder
+from common.outputs import ResultFolder, add_force, not_an_input, result_output
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -89,8 +89,9 @@ def register(sub, est, rep) -> None:
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="write estimate.json, residuals.csv and residuals.png (Fig. 5) here")
+    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
+                   help="write estimate.json, residuals.csv and residuals.png (Fig. 5) in folder DIR, "
+                        "or only the estimate to FILE.json")
     add_force(p)
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
@@ -111,8 +112,9 @@ def register(sub, est, rep) -> None:
                    help="pose rate for a planned sequence, Hz (default 120)")
     c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    c.add_argument("--out", default=None, metavar="DIR",
-                   help="write crlb.json and sensitivities.png (Fig. 6) here")
+    c.add_argument("--out", default=None, metavar="DIR|FILE.json",
+                   help="write crlb.json and sensitivities.png (Fig. 6) in folder DIR, or only the "
+                        "bounds to FILE.json")
     add_force(c)
     cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
@@ -147,7 +149,7 @@ def register(sub, est, rep) -> None:
                    help="frequency search range, rad/s (default 0.2,4)")
     d.add_argument("--compare", nargs="*", default=[], metavar="INPUT",
                    help="also score these inputs: phase-sine, translate-rotate, or commands.csv paths")
-    d.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    d.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
     d.add_argument("--out", required=True, metavar="DIR",
                    help="write commands.csv (the best input), design.json and figures here")
     add_force(d)
@@ -163,7 +165,7 @@ def register(sub, est, rep) -> None:
     r.add_argument("--out", required=True, metavar="DIR", help="report folder")
     add_force(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    r.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    r.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
     r.add_argument("--thrust-table", default=None, metavar="F",
                    help="thrust table TOML (default: the paper's Table 2)")
     r.set_defaults(func=cmd_table3)
@@ -191,7 +193,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from tpods.cli import estimate_ekf as cli_ekf
     from tpods.cli import estimate_realism as cli_realism
 
-    args.out_folder = optional_folder(args.out, force=args.force)
+    args.out_folder = result_output(args.out, "estimate.json", force=args.force,
+                                    command="tpods estimate batch")
     not_an_input(args.out_folder, args.run_dir, args.thrust_table)
     # the run folder and the table are read by estimate_run once the options are checked
     est = estimate_run(
@@ -210,13 +213,14 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if args.out_folder is not None:
         from estimator.reports.plots_batch import plot_residuals
 
-        with args.out_folder.writing() as d:
-            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
-            np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
-                       header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")
-            plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
-                           sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
-                           title=f"Batch LS residuals: {run.path.name}")
+        with args.out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            if d is not None:
+                np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
+                           header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")
+                plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
+                               sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+                               title=f"Batch LS residuals: {run.path.name}")
     if not res.converged:
         print(f"tpods: warning: {res.message}; the estimate below is not a converged solution",
               file=sys.stderr)
@@ -227,8 +231,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
           f"t = {res.t[0]:.3f}..{res.t[-1]:.3f} s)")
     print(f"  {res.message}; {res.iterations} iterations, horizons "
           f"{', '.join(f'{h:.1f}' for h in res.stages)} s, {res.elapsed_s:.2f} s")
-    print(f"  mass  = {res.mass_kg:.6g} kg      +/- {res.mass_sigma_kg:.3g} (1 sigma)")
-    print(f"  Izz   = {res.izz_kgm2:.6g} kg m^2  +/- {res.izz_sigma_kgm2:.3g} (1 sigma)")
+    what = "1 sigma, total" if res.cov_thrust is not None else "1 sigma, noise only"
+    print(f"  mass  = {res.mass_kg:.6g} kg      +/- {res.mass_sigma_kg:.3g} ({what})")
+    print(f"  Izz   = {res.izz_kgm2:.6g} kg m^2  +/- {res.izz_sigma_kgm2:.3g} ({what})")
+    for line in budget_lines(res.budget()):
+        print(line)
     if not math.isnan(res.corr_mass_izz):
         print(f"  corr(mass, Izz) = {res.corr_mass_izz:+.3f}")
     for n in res.names:
@@ -244,9 +251,26 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if "crlb_mass_sigma_kg" in out:
         print(f"  CRLB at truth: mass {out['crlb_mass_sigma_kg']:.3g} kg, "
               f"Izz {out['crlb_izz_sigma_kgm2']:.3g} kg m^2")
-    if args.out:
-        print(f"  wrote {Path(args.out) / 'estimate.json'}, residuals.csv, residuals.png")
+    if args.out_folder is not None:
+        print(f"  wrote {args.out_folder.main}"
+              + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
     return 0
+
+
+_UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s", "kb": "N m s/m",
+          "ax": "m/s^2", "ay": "m/s^2"}
+
+
+def budget_lines(budget: dict[str, tuple[float, float, float]]) -> list[str]:
+    """The uncertainty budget as a small table (1 sigma: noise, thrust table, total); no
+    lines when the thrust part is zero everywhere (the total is the noise part)."""
+    if not any(t for _, t, _ in budget.values()):
+        return []
+    lines = [f"  {'uncertainty (1 sigma)':<22} {'noise':>10} {'thrust':>10} {'total':>10}"]
+    for name, (n, t, tot) in budget.items():
+        lab = f"{'Izz' if name == 'izz' else name} ({_UNITS.get(name, '')})"
+        lines.append(f"    {lab:<20} {n:10.3g} {t:10.3g} {tot:10.3g}")
+    return lines
 
 
 def cmd_crlb(args: argparse.Namespace) -> int:
@@ -254,24 +278,25 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     from estimator.estimate import bound_sequence, load_sequence
     from tpods.cli import estimate_realism as cli_realism
 
-    out_folder = optional_folder(args.out, force=args.force)
+    out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")
     not_an_input(out_folder, args.run_dir, args.thrust_table)
     table = load_thrust_table(args.thrust_table)
     seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate)
     b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
                        izz_kgm2=args.izz, model=args.model, sigma_pos_m=args.sigma_pos,
                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
-                       keep_sensitivities=bool(args.out))
+                       keep_sensitivities=out_folder is not None and out_folder.is_folder)
     c, pose_t, mass, izz, kind, source = b.crlb, b.pose_t, b.mass_kg, b.izz_kgm2, b.kind, b.plant_source
     out = b.to_dict()
     if out_folder is not None:
         from estimator.reports.plots_batch import plot_sensitivities
 
-        with out_folder.writing() as d:
-            (d / "crlb.json").write_text(json.dumps(out, indent=2) + "\n")
-            plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz],
-                               d / "sensitivities.png",
-                               title=f"Sensitivities of {Path(args.run_dir).name}")
+        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps(out, indent=2) + "\n")
+            if d is not None:
+                plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz],
+                                   d / "sensitivities.png",
+                                   title=f"Sensitivities of {Path(args.run_dir).name}")
     if args.json:
         _print_json(out)
         return 0
@@ -280,10 +305,16 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     print(f"  mass  sigma >= {c.mass_sigma_kg:.4g} kg      ({out['crlb_mass_rel'] * 100:.4f} %)")
     print(f"  Izz   sigma >= {c.izz_sigma_kgm2:.4g} kg m^2  ({out['crlb_izz_rel'] * 100:.4f} %)")
     print(f"  correlation {out['crlb_corr_mass_izz']:+.3f}, log det(information) {c.logdet:.3f}")
+    if out["thrust_uncertainty"]["included"]:
+        print(f"  with the thrust table's uncertainty: mass sigma {out['mass_sigma_total_kg']:.4g} kg "
+              f"(thrust part {out['mass_sigma_thrust_kg']:.4g}), Izz sigma "
+              f"{out['izz_sigma_total_kgm2']:.4g} kg m^2 (thrust part {out['izz_sigma_thrust_kgm2']:.4g})")
+    else:
+        print(f"tpods: warning: {out['thrust_uncertainty']['note']}", file=sys.stderr)
     for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
         print(line)
-    if args.out:
-        print(f"  wrote {Path(args.out) / 'crlb.json'} and sensitivities.png")
+    if out_folder is not None:
+        print(f"  wrote {out_folder.main}" + (" and sensitivities.png" if out_folder.is_folder else ""))
     return 0
 
 
@@ -295,7 +326,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     from estimator.plant.inputs import make_input
     from estimator.plant.model import PlantParams
 
-    out_folder = ResultFolder(args.out, force=args.force)
+    out_folder = ResultFolder(args.out, force=args.force, command="tpods design")
     if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
         raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
     if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
@@ -381,7 +412,7 @@ def cmd_table3(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
     from estimator.reports.table3 import write_table3
 
-    out_folder = ResultFolder(args.out, force=args.force)
+    out_folder = ResultFolder(args.out, force=args.force, command="tpods report table3")
     table = load_thrust_table(args.thrust_table)
     with out_folder.writing() as d:
         path = out_folder.final(write_table3(d, duration_s=args.duration, seed=args.seed, table=table,
