@@ -209,3 +209,71 @@ def max_error_pct_full_scale(table: ThrustTable, reference: ThrustTable,
         fs = float(np.max(np.abs(ref)))
         out[k] = 100.0 * float(np.max(np.abs(table.per_nozzle(d, k) - ref))) / fs
     return out
+
+
+LINEARITY_READABILITY = 2.0
+"""A balance's linearity in readability steps d: OHAUS states +/-2 d for the 0.01 g Scout
+models (for example +/-0.02 g at d = 0.01 g). Override with ``linearity_g``."""
+
+
+def readability_g(readings_gf: np.ndarray) -> float:
+    """The balance's display step d, g: the smallest non-zero difference between readings
+    (rounded to 1, 2 or 5 x 10^n); NaN when the readings do not show one."""
+    r = np.asarray(readings_gf, dtype=float)
+    r = np.unique(np.round(r[np.isfinite(r)], 6))
+    steps = np.diff(r)
+    steps = steps[steps > 1e-9]
+    if steps.size == 0:
+        return math.nan
+    d = float(np.min(steps))
+    e = 10.0 ** math.floor(math.log10(d))
+    d = min((m * e for m in (1.0, 2.0, 5.0, 10.0)), key=lambda c: abs(c - d))
+    q = r / d
+    if np.mean(np.abs(q - np.round(q)) < 0.01) < 0.95:
+        return math.nan  # not a display step: the readings are not multiples of it
+    return d
+
+
+def table_uncertainty(steps: pd.DataFrame, readings_gf: np.ndarray | None = None, *,
+                      linearity_g: float | None = None, extra_rel: float = 0.0,
+                      extra_source: str = ""):
+    """The systematic part of a fitted table's uncertainty, ``[uncertainty]`` (the
+    statistical part is the fit's coefficient covariance).
+
+    ``scale_rel = sqrt((L / sqrt(3) / T_med)^2 + extra_rel^2)``: the balance's linearity
+    ``L`` (a +/- bound, read as uniform), relative to the median step thrust ``T_med``; and
+    ``extra_rel``, what the session cannot measure (accumulator pressure set-point, PWM
+    frequency differences between bench and run), as the user states it. ``L`` is
+    ``linearity_g`` or 2 d with d measured from the readings. Zero drift and repeatability
+    are random per step: they are in the fit's residuals and so in its covariance.
+    Returns a :class:`common.thrust_uncertainty.ThrustUncertainty`.
+    """
+    from common.thrust_uncertainty import ThrustUncertainty
+
+    thrust = steps["thrust_gf"].to_numpy(dtype=float)
+    thrust = thrust[np.isfinite(thrust) & (thrust > 0)]
+    if thrust.size == 0:
+        raise UserError("no completed duty steps: cannot state the table's uncertainty")
+    t_med = float(np.median(thrust))
+    how = []
+    if linearity_g is None:
+        d = readability_g(readings_gf) if readings_gf is not None else math.nan
+        if math.isfinite(d):
+            linearity_g = LINEARITY_READABILITY * d
+            how.append(f"balance linearity +/-{linearity_g:g} g (2 x readability {d:g} g "
+                       "measured from the readings, OHAUS Scout spec)")
+        else:
+            how.append("balance linearity NOT included: the readings show no display step "
+                       "(give --balance-linearity-g)")
+    else:
+        how.append(f"balance linearity +/-{linearity_g:g} g (--balance-linearity-g)")
+    bal = 0.0 if linearity_g is None else linearity_g / math.sqrt(3.0) / t_med
+    if linearity_g is not None:
+        how[-1] += f" over the median step thrust {t_med:.3g} gf: {bal:.2%}"
+    if extra_rel > 0:
+        how.append(f"{extra_rel:.2%} stated by the user ({extra_source or '--scale-rel'})")
+    else:
+        how.append("NOT included: accumulator pressure set-point and PWM frequency differences "
+                   "between bench and run (add them with --scale-rel or edit scale_rel)")
+    scale = math.hypot(bal, extra_rel)
+    return ThrustUncertainty(scale, {}, {"scale_rel": "; ".join(how)})

@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from common.argtypes import nonneg_float, positive_float
+from common.argtypes import nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFile, ResultFolder, add_force, stream_folder
+from common.outputs import ResultFolder, add_force, not_an_input, result_output, stream_folder
 
 
 def register(sub) -> None:
@@ -64,9 +64,17 @@ def register(sub) -> None:
                    help="polynomial order, or auto (pick by --criterion; default)")
     f.add_argument("--criterion", default="aicc", choices=("aicc", "bic", "cv"),
                    help="order selection: AICc (default), BIC or leave-one-step-out CV")
-    f.add_argument("--out", default=None, help="thrust table to write (default RUN_DIR/thrust_table.toml)")
-    add_force(f, "--out (the thrust table)")
+    f.add_argument("--out", default=None, metavar="FILE.toml|DIR",
+                   help="thrust table to write: FILE.toml, or thrust_table.toml in folder DIR "
+                        "(default RUN_DIR/thrust_table.toml)")
+    add_force(f, "--out")
     f.add_argument("--pressure-psi", type=positive_float, default=None, help="accumulator pressure to record")
+    f.add_argument("--balance-linearity-g", type=positive_float, default=None, metavar="G",
+                   help="the balance's linearity, +/- g (default: 2 x its readability, read from "
+                        "the session: the OHAUS Scout spec)")
+    f.add_argument("--scale-rel", type=nonneg_float, default=0.0, metavar="R",
+                   help="other relative 1-sigma scale errors the session cannot measure: "
+                        "pressure set-point, PWM frequency (default 0, reported as not included)")
     f.add_argument("--plot-dir", default=None, help="where the PNG plots go (default: next to --out)")
     f.add_argument("--reference", default=None,
                    help="thrust table to compare with (a TOML path, or 'table2' for the paper's Table 2)")
@@ -91,7 +99,7 @@ def register(sub) -> None:
     e.add_argument("--scale-baud", type=positive_float, default=None,
                    help="pace the balance's pty like an 8N1 serial line at this baud rate "
                         "(default: no pacing; a Scout runs at 9600)")
-    e.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    e.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
     e.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds")
     e.add_argument("--log-dir", default=None, help="on exit write valves_log.csv and scale_sent.csv here")
     add_force(e, "--log-dir")
@@ -129,7 +137,7 @@ def cmd_characterize(args: argparse.Namespace) -> int:
     if not 1 <= cfg.pwm_hz <= 100:
         raise UserError(f"--pwm-hz must be 1-100, got {cfg.pwm_hz:g}")
     fmt = _serial_format(args.scale_format)
-    out = stream_folder(args.out, force=args.force)
+    out = stream_folder(args.out, force=args.force, command="tpods bench characterize")
     hs = args.scale_handshake
     with sigterm_raises():
         try:
@@ -155,26 +163,39 @@ def cmd_characterize(args: argparse.Namespace) -> int:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from bench.fit import fit_steps, max_error_pct_full_scale
+    import dataclasses
+
+    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
     from bench.plots import plot_fit_orders, plot_time_series
     from bench.session import read_session
     from common.thrust_table import ThrustTable
 
-    out_file = ResultFile(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
-                          force=args.force)
-    out = out_file.path
+    # the --out rule: FILE.toml is the table; a folder receives thrust_table.toml and the plots
+    out_file = result_output(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
+                             "thrust_table.toml", force=args.force, command="tpods bench fit")
+    not_an_input(out_file, args.run_dir)
+    out = out_file.main
     raw, steps = read_session(args.run_dir)
     result = fit_steps(steps, args.order, args.criterion)
     table = result.table(args.pressure_psi, source=f"tpods bench fit {args.run_dir}")
-    with out_file.writing() as tmp:
-        table.save(tmp)
+    readings = raw["reading_gf"].to_numpy(dtype=float) if "reading_gf" in raw else None
+    unc = table_uncertainty(steps, readings, linearity_g=args.balance_linearity_g,
+                            extra_rel=args.scale_rel)
+    table = dataclasses.replace(table, uncertainty=unc)
     reference = None
     if args.reference is not None:
         reference = ThrustTable.default() if args.reference.lower() == "table2" else ThrustTable.load(args.reference)
-    plot_dir = Path(args.plot_dir) if args.plot_dir else out.parent
-    plot_dir.mkdir(parents=True, exist_ok=True)
-    p1 = plot_fit_orders(result, plot_dir / f"{out.stem}_orders.png", truth=reference)
-    p2 = plot_time_series(raw, plot_dir / f"{out.stem}_timeseries.png", steps)
+    in_folder = out_file.is_folder and not args.plot_dir  # a folder output holds its plots
+    with out_file.writing_main() as (tmp, d):
+        table.save(tmp)
+        if in_folder:
+            p1 = out_file.final(plot_fit_orders(result, d / f"{out.stem}_orders.png", truth=reference))
+            p2 = out_file.final(plot_time_series(raw, d / f"{out.stem}_timeseries.png", steps))
+    if not in_folder:
+        plot_dir = Path(args.plot_dir) if args.plot_dir else out.parent
+        plot_dir.mkdir(parents=True, exist_ok=True)
+        p1 = plot_fit_orders(result, plot_dir / f"{out.stem}_orders.png", truth=reference)
+        p2 = plot_time_series(raw, plot_dir / f"{out.stem}_timeseries.png", steps)
     hdr = f"{'nozzles':>7} {'order':>5} {'rms_gf':>8} {'cv_rms_gf':>9} {'AICc':>8} {'BIC':>8}"
     print(hdr)
     for k in sorted(result.fits):
@@ -185,6 +206,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         errs = max_error_pct_full_scale(table, reference)
         print("max |fit - reference| over 10-90 %, % of full scale: "
               + ", ".join(f"{k} nozzle(s) {v:.2f}" for k, v in errs.items()))
+    print(f"table uncertainty: coefficient covariance of each fit (statistical) and "
+          f"scale_rel = {unc.scale_rel:.2%}: {unc.sources['scale_rel']}")
     print(f"wrote {out}, {p1}, {p2}")
     return 0
 
@@ -197,7 +220,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
 
     log_dir = (None if args.log_dir is None
-               else ResultFolder(args.log_dir, force=args.force, option="--log-dir"))
+               else ResultFolder(args.log_dir, force=args.force, option="--log-dir",
+                                 command="tpods bench emulate"))
     table = load_thrust_table(args.table)
     if args.channels < 1:
         raise UserError("--channels must be at least 1")
