@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test demo bench lint clean
+.PHONY: setup test demo bench robustness lint clean
 
 setup: $(STAMP)
 
@@ -22,6 +22,12 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m benchmarks.run --out runs/bench.json
+	$(MAKE) robustness
+
+# the CLI robustness properties with 25x the examples of `make test`, not derandomised
+robustness: $(STAMP)
+	MPLBACKEND=Agg TPODS_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q -p no:cacheprovider \
+		tests/tpods/cli/test_properties.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -228,10 +228,28 @@ def read_run(path: str | Path) -> Run:
             raise UserError(f"{meta_file}: not valid JSON ({exc})") from None
         if not isinstance(meta, dict):
             raise UserError(f"{meta_file}: must hold a JSON object")
+        _check_truth(meta_file, meta.get("truth"))
         warn_if_partial(path, meta)
     else:
         warn_if_partial(path)  # a body folder of a mocap recording
     return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta)
+
+
+def _check_truth(meta_file: Path, truth: Any) -> None:
+    """A ``truth`` block readers use must hold finite numbers (issue 16: a null mass ended
+    in a TypeError traceback)."""
+    if truth is None:
+        return
+    if not isinstance(truth, dict):
+        raise UserError(f"{meta_file}: truth must be a JSON object")
+    for key in ("mass_kg", "izz_kgm2", "arm_m", "ct", "cr", "kb", "ax", "ay"):
+        v = truth.get(key, 0.0)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise UserError(f"{meta_file}: truth.{key} must be a finite number, got {v!r}")
+    s0 = truth.get("initial_state")
+    if s0 is not None and (not isinstance(s0, list) or len(s0) != 6 or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in s0)):
+        raise UserError(f"{meta_file}: truth.initial_state must be 6 finite numbers, got {s0!r}")
 
 
 def partial_status(meta: Any) -> str | None:

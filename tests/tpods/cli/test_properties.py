@@ -223,8 +223,10 @@ CSV_DAMAGE = st.one_of(
     st.tuples(st.just("header"), _IDX, _IDX, st.sampled_from(BAD_HEADERS)),
     st.tuples(st.just("extra_column"), _IDX, _IDX, st.sampled_from(["extra", "t", "x", ""])),
     st.tuples(st.just("drop_column"), _IDX, _IDX, st.just("")),
+    # FINDING 11: columns scaled by +-1e300 drove `estimate batch --method ekf --model friction`
+    # into "ValueError: math domain error" (estimator/plant/propagate.py rk4_step); not drawn
     st.tuples(st.just("scale_column"), _IDX, _IDX,
-              st.sampled_from(["1e300", "-1e300", "1000", "0", "-1", "57.29577951308232"])),
+              st.sampled_from(["1e3", "1000", "0", "-1", "57.29577951308232"])),
     st.tuples(st.just("blank_line"), _IDX, _IDX, st.sampled_from(["", ",,,", " "])),
     st.tuples(st.sampled_from(["bom", "crlf", "cr_only", "decimal_comma", "semicolon", "tabs",
                                "empty", "header_only", "no_header", "delete", "latin1",
@@ -345,7 +347,10 @@ def damage_json(data: bytes | None, dmg: tuple) -> bytes | None:
     if kind == "truncate":
         return data[: int(len(data) * arg)]
     top, key, value = arg
-    obj = json.loads(data)
+    try:
+        obj = json.loads(data)
+    except ValueError:  # damaged by an earlier step already
+        return data
     if not isinstance(obj, dict):
         return data
     if key and isinstance(obj.get(top), dict):
@@ -551,6 +556,18 @@ def test_estimate_options(base, method, values):
                     st.sampled_from([w for w in WEIRD_NUMBERS
                                      if w not in ("1e308", "inf", "1e400", "NaN", "nan")]),
                     st.floats(0.5, 2000).map(lambda x: f"{x:.4g}")), label=opt)
+            elif opt in ("--sigma-pos", "--sigma-yaw-deg"):
+                # FINDING 10: a tiny sigma (1e-300) overflows sigma**-2: OverflowError traceback
+                # in estimator/batch/crlb.py fisher_information (crlb and batch); not drawn
+                v = values.draw(st.one_of(st.sampled_from(
+                    [w for w in WEIRD_NUMBERS if w != "1e-300"]),
+                    st.floats(1e-4, 1.0).map(lambda x: f"{x:.4g}")), label=opt)
+            elif opt in ("--mass", "--izz"):
+                # FINDING 12: `estimate crlb PLAN --mass=1e-300` ends in numpy's LinAlgError
+                # "SVD did not converge" traceback; not drawn
+                v = values.draw(st.one_of(st.sampled_from(
+                    [w for w in WEIRD_NUMBERS if w != "1e-300"]),
+                    st.floats(1e-3, 10.0).map(lambda x: f"{x:.4g}")), label=opt)
             elif opt == "--ls-window":
                 v = values.draw(number_text(0.1, 500), label=opt)
             else:
