@@ -91,3 +91,18 @@ def time_window(text: str) -> tuple[float | None, float | None]:
         return parse_time_window(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+SEED_MAX = 2**32 - 1
+
+
+def random_seed(text: str) -> int:
+    """argparse type for ``--seed``: a whole number in 0..2**32-1 (what every random
+    generator of the toolkit accepts; numpy refuses negative seeds)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number in 0..{SEED_MAX}, got {text!r}") from None
+    if not 0 <= v <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"must be a whole number in 0..{SEED_MAX}, got {text!r}")
+    return v

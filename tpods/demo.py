@@ -34,7 +34,7 @@ import sys
 import time
 from pathlib import Path
 
-from common.argtypes import positive_float
+from common.argtypes import positive_float, random_seed
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
@@ -47,7 +47,7 @@ def register(sub) -> None:
                                    "of the recorded run; a report under runs/.")
     p.add_argument("--out", default=None, help="report folder (default runs/demo-<timestamp>)")
     add_force(p)
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
     p.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG,
                    help=f"true mass, kg (default {PAPER_MASS_KG})")
     p.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2,

@@ -69,12 +69,21 @@ def from_commands_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return v[:, 0], v[:, 1:]
 
 
-def make_input(spec: str, duration_s: float, cmd_rate_hz: float = 50.0,
+DEFAULT_DURATION_S = 120.0
+END_TOLERANCE_S = 1e-3  # a file that ends this close to the asked duration is long enough
+
+
+def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
                amplitude_pct: float = 20.0, omega_rad_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Build an input by name (``phase-sine``, ``translate-rotate``) or from a commands.csv path.
 
-    A file input is cut to ``duration_s`` (rows after it dropped, a closing row added).
+    A file input is cut to ``duration_s`` (rows after it dropped, a closing row added);
+    ``duration_s=None`` takes the whole file (and :data:`DEFAULT_DURATION_S` for a
+    generated input). A file that ends before ``duration_s`` is a UserError naming both
+    lengths (the run would silently be shorter than asked).
     """
+    if duration_s is None and spec in INPUT_NAMES:
+        duration_s = DEFAULT_DURATION_S
     if spec == "phase-sine":
         return phase_sine(duration_s, cmd_rate_hz, amplitude_pct, omega_rad_s)
     if spec == "translate-rotate":
@@ -85,6 +94,12 @@ def make_input(spec: str, duration_s: float, cmd_rate_hz: float = 50.0,
     if not p.exists():
         raise UserError(f"unknown input {spec!r}: choose {', '.join(INPUT_NAMES)} or a commands.csv path")
     t, d = from_commands_csv(p)
+    if duration_s is None:
+        return t, d
+    if t[-1] < duration_s - END_TOLERANCE_S:
+        raise UserError(f"{p} holds {t[-1]:g} s of commands (t = {t[0]:g}..{t[-1]:g} s), less than "
+                        f"--duration {duration_s:g} s: leave out --duration to use the whole file, "
+                        f"or give --duration {t[-1]:g} or less")
     if t[-1] > duration_s:
         keep = t < duration_s
         t, d = _close(t[keep], d[keep], duration_s)

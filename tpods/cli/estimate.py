@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
-from common.argtypes import float_list, fraction, nonneg_float, positive_float
+from common.argtypes import float_list, fraction, nonneg_float, positive_float, random_seed
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.errors import UserError
 from common.outputs import ResultFolder, add_force
 
 
@@ -35,7 +37,8 @@ def register_sim(sub) -> None:
                     "folder (commands.csv, poses.csv, truth.csv, run.json).")
     p.add_argument("--input", default="phase-sine",
                    help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
-    p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    p.add_argument("--duration", type=positive_float, default=None,
+                   help="seconds (default 120; a commands.csv input: its whole length)")
     p.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG, help="kg (default 2.268)")
     p.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2, help="kg m^2 (default 3.78e-3)")
     p.add_argument("--friction", type=float_list(3), default=None, metavar="CT,CR,KB",
@@ -54,7 +57,7 @@ def register_sim(sub) -> None:
     p.add_argument("--noise-pos", type=nonneg_float, default=0.01, help="position noise sigma, m")
     p.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="yaw noise sigma, deg")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped at random")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
     p.add_argument("--out", required=True, help="run folder to write")
     add_force(p)
     p.set_defaults(func=cmd_sim)
@@ -62,23 +65,86 @@ def register_sim(sub) -> None:
 
 def cmd_sim(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
-    from estimator.plant.inputs import make_input
+    from estimator.plant.inputs import DEFAULT_DURATION_S, INPUT_NAMES, make_input
     from estimator.plant.model import PlantParams
     from estimator.plant.sim import SimConfig, simulate, summary_lines, write_sim_run
 
     out = ResultFolder(args.out, force=args.force)
     table = load_thrust_table(args.thrust_table)
+    generated = args.input in INPUT_NAMES
+    if generated:  # sizes and duties from the options, before anything is allocated
+        check_sim_size(args, args.duration or DEFAULT_DURATION_S)
+        check_phase_sine(args, table)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
+    if not generated:
+        check_sim_size(args, float(cmd_t[-1] - cmd_t[0]), n_cmds=len(cmd_t))
     ct, cr, kb = args.friction or (0.0, 0.0, 0.0)
     ax, ay = args.tilt or (0.0, 0.0)
     params = PlantParams(args.mass, args.izz, ct=ct, cr=cr, kb=kb, ax=ax, ay=ay)
     cfg = SimConfig(pose_rate_hz=args.pose_rate, noise_pos_m=args.noise_pos,
                     noise_yaw_rad=math.radians(args.noise_yaw_deg), drop=args.drop,
                     seed=args.seed, clamp=args.clamp)
-    res = simulate(cmd_t, duty, params, table, cfg)
+    try:
+        res = simulate(cmd_t, duty, params, table, cfg)
+    except UserError as exc:  # a duty of a commands.csv outside the table: name the options
+        raise UserError(f"--input {args.input}: {clamp_named(exc)}") from None
     with out.writing() as d:
         write_sim_run(res, d, args.input, args.thrust_table or "built-in Table 2")
     print(f"wrote {out.path}")
     for line in summary_lines(res):
         print("  " + line)
     return 0
+
+
+def clamp_named(exc: Exception) -> str:
+    """A thrust table's duty error with the option to give (``--clamp``) named."""
+    return str(exc).replace("(use the clamp option to saturate)", "(add --clamp to saturate)")
+
+
+def check_sim_size(args: argparse.Namespace, duration_s: float, n_cmds: int | None = None) -> None:
+    """Refuse a simulation that will not fit in memory (naming the option that makes it
+    big) and announce one that takes long; from the options, before any allocation."""
+    from tpods.cli import sizes
+
+    n_poses = sizes.samples(duration_s, args.pose_rate)
+    cmds = sizes.samples(duration_s, args.cmd_rate) if n_cmds is None else float(n_cmds)
+    n_bytes, seconds = sizes.sim_cost(n_poses, cmds)
+    span = (f"--duration {sizes.number(duration_s)} s" if n_cmds is None or args.duration
+            else f"--input {args.input} ({sizes.number(duration_s)} s)")
+    if n_cmds is None:
+        what = (f"{span} at --pose-rate {sizes.number(args.pose_rate)} Hz and --cmd-rate "
+                f"{sizes.number(args.cmd_rate)} Hz is {sizes.samples_text(duration_s, args.pose_rate)} "
+                f"poses and {sizes.samples_text(duration_s, args.cmd_rate)} command rows")
+        rate = ("--cmd-rate" if sizes.SIM_BYTES_PER_CMD * cmds > sizes.SIM_BYTES_PER_POSE * n_poses
+                else "--pose-rate")
+        fix = f"lower {rate} or --duration"
+    else:
+        what = (f"{span} at --pose-rate {sizes.number(args.pose_rate)} Hz is "
+                f"{sizes.samples_text(duration_s, args.pose_rate)} poses")
+        fix = "lower --pose-rate or --duration" if args.duration else \
+            "lower --pose-rate or give a shorter --duration"
+    sizes.refuse_if_too_big(what, n_bytes, fix)
+    sizes.announce(seconds, f"simulating {sizes.number(n_poses)} poses")
+
+
+def check_phase_sine(args: argparse.Namespace, table) -> None:
+    """The phase-sine's duties 50 +/- --amplitude against 0..100 % and the thrust table's
+    valid range (unless --clamp); --omega against the command rate."""
+    if args.input != "phase-sine":
+        return
+    a, lo, hi = args.amplitude, *table.duty_range
+    a_max = min(50.0 - lo, hi - 50.0)
+    d_lo, d_hi = 50.0 - a, 50.0 + a
+    if d_lo < 0 or d_hi > 100:
+        raise UserError(f"--amplitude {a:g} puts the phase-sine duties at {d_lo:g}..{d_hi:g} %, "
+                        f"outside 0..100 %; the thrust table's valid range {lo:g}-{hi:g} % allows "
+                        f"--amplitude {max(a_max, 0):g} or less")
+    if a > 0 and (d_lo < lo or d_hi > hi) and not getattr(args, "clamp", False):
+        raise UserError(f"--amplitude {a:g} puts the phase-sine duties at {d_lo:g}..{d_hi:g} %, "
+                        f"outside the thrust table's valid range {lo:g}-{hi:g} %: use --amplitude "
+                        f"{max(a_max, 0):g} or less, or add --clamp to saturate")
+    nyquist = math.pi * args.cmd_rate
+    if args.omega > nyquist:
+        print(f"tpods: warning: --omega {args.omega:g} rad/s is above the Nyquist frequency of "
+              f"--cmd-rate {args.cmd_rate:g} Hz ({nyquist:.4g} rad/s): the held commands alias "
+              "to a slower sine", file=sys.stderr)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
+from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, optional_folder
 
@@ -162,7 +162,7 @@ def register(sub, est, rep) -> None:
                    help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
                    help="filter start (default ekf)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
     p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
     p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")

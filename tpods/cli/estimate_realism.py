@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from common.argtypes import random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
@@ -102,7 +103,7 @@ def register(sub, est, rep) -> None:
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
     r.add_argument("--seeds", type=int, default=5,
                    help="noise seeds of the fixed-truth comparison (default 5)")
-    r.add_argument("--seed", type=int, default=0, help="base random seed (default 0)")
+    r.add_argument("--seed", type=random_seed, default=0, help="base random seed (default 0)")
     r.add_argument("--duration", type=positive_float, default=14.0, help="seconds (default 14)")
     r.add_argument("--no-ekf", action="store_true", help="skip the extended-state LS+EKF rows")
     r.set_defaults(func=cmd_report_realism)

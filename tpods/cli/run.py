@@ -8,7 +8,7 @@ import sys
 import threading
 import time
 
-from common.argtypes import fraction, nonneg_float, positive_float
+from common.argtypes import fraction, nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, stream_folder
 
@@ -30,8 +30,9 @@ def register(sub) -> None:
                    help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...)")
     p.add_argument("--input", default="phase-sine",
                    help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
-    p.add_argument("--duration", type=positive_float, default=120.0, metavar="S",
-                   help="seconds of input (a longer commands.csv is cut; default 120)")
+    p.add_argument("--duration", type=positive_float, default=None, metavar="S",
+                   help="seconds of input (default 120; a commands.csv input: its whole length, "
+                        "cut to S when given)")
     p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="write commands.csv and run.json here")
@@ -70,7 +71,7 @@ def register(sub) -> None:
     s.add_argument("--noise-pos", type=nonneg_float, default=0.01, help="m (default 0.01)")
     s.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="deg (default 1)")
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
-    s.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    s.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
                    help="publish through the bridge over zenoh (default) or send Tracker UDP")
@@ -105,6 +106,25 @@ def _clock(args):
     return LabClock(args.time_scale, args.clock_origin if args.clock_origin is not None else time.time())
 
 
+def _check_play_duties(args: argparse.Namespace, duty, lo: float, hi: float) -> None:
+    """Every open duty of the input inside --duty-limits, checked before a valve opens
+    (the controller would refuse the first bad one in the middle of the run)."""
+    opened = duty[duty > 0]
+    bad = opened[(opened < lo) | (opened > hi)]
+    if duty.size and (duty.min() < 0 or duty.max() > 100):
+        bad = duty[(duty < 0) | (duty > 100)]
+    if not bad.size:
+        return
+    span = f"{duty[duty > 0].min():g}..{duty.max():g} %" if opened.size else f"{duty.min():g} %"
+    if args.input == "phase-sine":
+        a_max = max(min(50.0 - lo, hi - 50.0), 0.0)
+        raise UserError(f"--amplitude {args.amplitude:g} puts the phase-sine duties at "
+                        f"{50 - args.amplitude:g}..{50 + args.amplitude:g} %, outside --duty-limits "
+                        f"{lo:g},{hi:g}: use --amplitude {a_max:g} or less")
+    raise UserError(f"--input {args.input}: open duties span {span}, outside --duty-limits "
+                    f"{lo:g},{hi:g} (first: {float(bad[0]):g} %)")
+
+
 def cmd_play(args: argparse.Namespace) -> int:
     from bench.session import Terminated, parse_duty_steps, sigterm_raises
     from bench.valves import ValveController
@@ -121,6 +141,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         raise UserError("--prefix must not be empty")
     clock = _clock(args)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
+    _check_play_duties(args, duty, lim[0], lim[1])
     out = None if args.out is None else stream_folder(args.out, force=args.force)
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
@@ -142,7 +163,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                     res = play(valves, cmd_t, duty, clock=clock, publish=pub.put, body=args.body,
                                out_dir=out, watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
                                heartbeat_s=args.heartbeat, progress=not args.no_progress,
-                               meta={"input": args.input, "duration_s": args.duration,
+                               meta={"input": args.input, "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
             except Terminated:
                 print("tpods: terminated; valves closed" + (f"; commands in {out}" if out else ""),

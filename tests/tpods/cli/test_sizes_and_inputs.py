@@ -1,0 +1,113 @@
+"""Issue 16: sizes checked from the options before anything is allocated, one --seed type,
+inputs shorter than --duration, phase-sine duties named by their option."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from common.argtypes import SEED_MAX, random_seed
+from common.errors import UserError
+from tests.support.cli import run
+from tpods.cli import sizes
+from tpods.cli.estimate import check_sim_size
+
+
+def _one_error_line(r) -> str:
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("tpods: error: "), r.stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize("args,names", [
+    (("--cmd-rate", "1e9"), ("--cmd-rate 1e9 Hz", "1.2e11 command rows", "lower --cmd-rate")),
+    (("--duration", "1e9"), ("--duration 1e9 s", "1.2e11 poses", "5e10 command rows")),
+    (("--pose-rate", "1e7"), ("--pose-rate 1e7 Hz", "1.2e9 poses", "lower --pose-rate")),
+    (("--duration", "1e308"), ("--duration 1e308 s", "unbounded memory")),
+])
+def test_sim_refuses_what_will_not_fit_before_allocating(tpods_exe, tmp_path, args, names):
+    r = run(tpods_exe, "sim", *args, "--out", str(tmp_path / "o"), timeout=60)
+    line = _one_error_line(r)
+    for n in names:
+        assert n in line, line
+    assert "memory; this machine has" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_refusal_is_against_half_the_available_memory():
+    sizes.refuse_if_too_big("x", 4e9, "fix", memory=10e9)  # fits
+    with pytest.raises(UserError, match=r"x \(needs ~6 GB memory; this machine has 10 GB available\): fix"):
+        sizes.refuse_if_too_big("x", 6e9, "fix", memory=10e9)
+    assert sizes.available_memory() > 0
+
+
+def test_long_simulation_is_announced_short_one_is_not(capsys):
+    ns = argparse.Namespace(pose_rate=3000.0, cmd_rate=50.0, duration=None, input="phase-sine")
+    check_sim_size(ns, 120.0)
+    err = capsys.readouterr().err
+    assert err.startswith("tpods: simulating 360001 poses will take about ") and err.endswith(" s\n")
+    ns.pose_rate = 120.0
+    check_sim_size(ns, 120.0)
+    assert capsys.readouterr().err == ""
+
+
+def test_size_texts():
+    assert sizes.number(1e9) == "1e9" and sizes.number(120.0) == "120" and sizes.number(1.2e11) == "1.2e11"
+    assert sizes.size_text(9.6e13) == "96 TB" and sizes.size_text(2.4e9) == "2.4 GB"
+    assert sizes.samples_text(1e308, 120.0) == "1.2e310"
+
+
+def test_seed_type():
+    assert random_seed("0") == 0 and random_seed(str(SEED_MAX)) == SEED_MAX
+    for bad in ("-5", "1.5", "x", str(SEED_MAX + 1)):
+        with pytest.raises(argparse.ArgumentTypeError, match="whole number in 0..4294967295"):
+            random_seed(bad)
+
+
+@pytest.mark.parametrize("cmd", [
+    ("sim",), ("design",), ("estimate", "montecarlo"), ("report", "realism"), ("report", "table3"),
+    ("bench", "emulate"), ("run", "plant"), ("demo",),
+])
+def test_every_seed_option_refuses_a_negative_seed(tpods_exe, tmp_path, cmd):
+    r = run(tpods_exe, *cmd, "--seed", "-5", "--out", str(tmp_path / "o"))
+    line = _one_error_line(r)
+    assert "argument --seed: must be a whole number in 0..4294967295, got '-5'" in line
+
+
+def test_sim_input_shorter_than_duration(tpods_exe, tmp_path):
+    short = tmp_path / "short"
+    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(short)).returncode == 0
+    line = _one_error_line(run(tpods_exe, "sim", "--input", str(short / "commands.csv"),
+                               "--duration", "60", "--out", str(tmp_path / "o")))
+    assert "holds 3 s of commands" in line and "--duration 60 s" in line
+    assert not (tmp_path / "o").exists()
+    # without --duration the whole file; with a shorter one, cut
+    r = run(tpods_exe, "sim", "--input", str(short), "--out", str(tmp_path / "whole"))
+    assert r.returncode == 0 and "duration        3.00 s" in r.stdout, r.stderr
+    r = run(tpods_exe, "sim", "--input", str(short), "--duration", "2", "--out", str(tmp_path / "cut"))
+    assert r.returncode == 0 and "duration        2.00 s" in r.stdout, r.stderr
+
+
+@pytest.mark.parametrize("args,expected", [
+    (("--amplitude", "80"), "--amplitude 80 puts the phase-sine duties at -30..130 %, outside 0..100 %"),
+    (("--amplitude", "45"), "--amplitude 45 puts the phase-sine duties at 5..95 %, outside the thrust "
+                            "table's valid range 10-90 %: use --amplitude 40 or less, or add --clamp"),
+])
+def test_sim_amplitude_names_the_option(tpods_exe, tmp_path, args, expected):
+    assert expected in _one_error_line(run(tpods_exe, "sim", *args, "--out", str(tmp_path / "o")))
+
+
+def test_sim_clamp_and_omega_above_nyquist_warns(tpods_exe, tmp_path):
+    r = run(tpods_exe, "sim", "--amplitude", "45", "--clamp", "--duration", "1", "--omega", "1000",
+            "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert "tpods: warning: --omega 1000 rad/s is above the Nyquist frequency of --cmd-rate 50 Hz" in r.stderr
+
+
+def test_run_play_checks_duties_before_opening_the_valves(tpods_exe, tmp_path):
+    # /dev/null is never opened: the duties are refused first
+    line = _one_error_line(run(tpods_exe, "run", "play", "--valves", "/dev/null", "--amplitude", "45"))
+    assert "--amplitude 45" in line and "--duty-limits 10,90" in line and "--amplitude 40 or less" in line
