@@ -1,5 +1,13 @@
 """The one output policy: every command that writes with ``--out`` goes through here.
 
+- **One rule for --out.** A path ending in ``.toml``, ``.json`` or ``.mcap``
+  (:data:`FILE_SUFFIXES`) names that file; anything else a folder that receives the
+  command's files. A command whose result is one main file (``estimate batch`` ->
+  ``estimate.json``, ``bench fit`` -> ``thrust_table.toml``, ...) takes either through
+  :func:`result_output`: given a file with its main file's suffix it writes just that file,
+  given a folder the main file and the rest (residuals, plots) in it. A command that writes
+  a folder refuses a file name (:func:`check_folder`), and ``.mcap`` is refused everywhere
+  (MCAP output is not implemented yet).
 - **Checked at the start.** ``--out ''``, a path under a file, an existing file where a
   folder is wanted (or a folder where a file is wanted) and a parent that cannot be
   created are a :class:`~common.errors.UserError` naming the path, before any work.
@@ -22,11 +30,19 @@
 
 Usage::
 
-    out = ResultFolder(args.out, force=args.force)      # at the start of the command
+    out = ResultFolder(args.out, force=args.force, command="tpods sim")  # at the start
     ...                                                  # the work
     with out.writing() as d:                             # d: the temporary sibling
-        (d / "estimate.json").write_text(...)
+        (d / "poses.csv").write_text(...)
     print(f"wrote {out.path}")
+
+    out = result_output(args.out, "estimate.json", force=args.force,
+                        command="tpods estimate batch")  # ResultFile, ResultFolder or None
+    with out.writing_main() as (main, d):                # d: None for a file output
+        main.write_text(...)
+        if d is not None:
+            (d / "residuals.csv").write_text(...)
+    print(f"wrote {out.main}")
 """
 
 from __future__ import annotations
@@ -42,6 +58,9 @@ from pathlib import Path
 from common.errors import UserError
 
 _SHOW = 4  # entries named in a refusal
+
+FILE_SUFFIXES = (".toml", ".json", ".mcap")
+"""An ``--out`` ending in one of these names a file; anything else a folder."""
 
 
 def add_force(parser, what: str = "--out") -> None:
@@ -82,6 +101,28 @@ def _base(path: str | Path | None, option: str) -> Path:
     if path is None or str(path).strip() == "":
         raise UserError(f"{option} is empty; give a folder or file name")
     return Path(path)
+
+
+def names_a_file(path: str | Path) -> bool:
+    """Whether ``path`` names a file by the --out rule (it ends in :data:`FILE_SUFFIXES`)."""
+    return Path(path).suffix.lower() in FILE_SUFFIXES
+
+
+def _not_mcap(p: Path, option: str, command: str, instead: str) -> None:
+    if p.suffix.lower() == ".mcap":
+        raise UserError(f"{option} {p}: MCAP output is not implemented yet; {command} writes "
+                        f"{instead}")
+
+
+def _folder_base(path: str | Path | None, option: str, command: str | None) -> Path:
+    """``path`` for a command that writes a folder: a file name (the --out rule) is refused."""
+    p = _base(path, option)
+    if names_a_file(p):
+        command = command or "this command"
+        _not_mcap(p, option, command, "a folder; give a folder name")
+        raise UserError(f"{option} {p} names a file; {command} writes a folder of files; "
+                        f"give a folder name (without {p.suffix})")
+    return p
 
 
 def _pid_alive(pid: int) -> bool:
@@ -146,9 +187,11 @@ def clean_stale(path: str | Path) -> list[Path]:
     return done
 
 
-def check_folder(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
-    """Check that ``path`` may become a result folder (see the module doc); return it."""
-    p = _base(path, option)
+def check_folder(path: str | Path | None, *, force: bool, option: str = "--out",
+                 command: str | None = None) -> Path:
+    """Check that ``path`` may become a result folder (see the module doc); return it.
+    ``command`` (``"tpods sim"``) names the command in the refusal of a file name."""
+    p = _folder_base(path, option, command)
     if p.exists() and not p.is_dir():
         raise UserError(f"{option} {p} is a file, not a folder; choose another {option}")
     _check_parent(p, option)
@@ -179,13 +222,22 @@ def _make_parent(path: Path, option: str) -> None:
 
 
 class ResultFolder:
-    """A folder of results, checked now and written atomically by :meth:`writing`."""
+    """A folder of results, checked now and written atomically by :meth:`writing`.
 
-    def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
-        clean_stale(_base(path, option))
-        self.path = check_folder(path, force=force, option=option)
+    ``main``: the name of the command's main file in it (see :func:`result_output`);
+    :attr:`main` is then its final path."""
+
+    is_folder = True
+
+    def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out",
+                 command: str | None = None, main: str | None = None) -> None:
+        clean_stale(_folder_base(path, option, command))
+        self.path = check_folder(path, force=force, option=option, command=command)
         self.force = force
         self.option = option
+        self.command = command
+        self.main_name = main
+        self.main = None if main is None else self.path / main
         self._tmp: Path | None = None
 
     def final(self, p: str | Path) -> Path:
@@ -202,7 +254,7 @@ class ResultFolder:
         normally, remove it otherwise (the old folder, if any, is untouched)."""
         path = self.path
         # checked again: something may have appeared while the command worked
-        check_folder(path, force=self.force, option=self.option)
+        check_folder(path, force=self.force, option=self.option, command=self.command)
         _make_parent(path, self.option)
         tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
         shutil.rmtree(tmp, ignore_errors=True)
@@ -219,6 +271,12 @@ class ResultFolder:
             raise
         finally:
             self._tmp = None
+
+    @contextlib.contextmanager
+    def writing_main(self) -> Iterator[tuple[Path, Path | None]]:
+        """:meth:`writing`, yielding ``(main file, folder)`` inside the temporary folder."""
+        with self.writing() as d:
+            yield d / (self.main_name or "result"), d
 
 
 def _replace_folder(new: Path, path: Path) -> None:
@@ -245,11 +303,26 @@ def _replace_folder(new: Path, path: Path) -> None:
 class ResultFile:
     """One result file, checked now and written atomically by :meth:`writing`."""
 
+    is_folder = False
+
     def __init__(self, path: str | Path | None, *, force: bool = False, option: str = "--out") -> None:
         clean_stale(_base(path, option))
         self.path = check_file(path, force=force, option=option)
+        self.main = self.path
         self.force = force
         self.option = option
+        self._tmp: Path | None = None
+
+    def final(self, p: str | Path) -> Path:
+        """``p`` (the temporary file) as it reads after the rename."""
+        return self.path if self._tmp is not None and Path(p) == self._tmp else Path(p)
+
+    @contextlib.contextmanager
+    def writing_main(self) -> Iterator[tuple[Path, None]]:
+        """:meth:`writing`, yielding ``(temporary file, None)``: a file output has no folder
+        for the command's other files."""
+        with self.writing() as tmp:
+            yield tmp, None
 
     @contextlib.contextmanager
     def writing(self) -> Iterator[Path]:
@@ -259,6 +332,7 @@ class ResultFile:
         check_file(path, force=self.force, option=self.option)
         _make_parent(path, self.option)
         tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+        self._tmp = tmp
         try:
             yield tmp
             os.replace(tmp, path)
@@ -266,14 +340,17 @@ class ResultFile:
             with contextlib.suppress(OSError):
                 tmp.unlink()
             raise
+        finally:
+            self._tmp = None
 
 
-def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
+def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out",
+                  command: str | None = None) -> Path:
     """Prepare a folder a recorder writes into as it goes (it cannot be atomic): checked
     as :func:`check_folder`; with ``force`` a non-empty folder is emptied. Returns the path
     (created)."""
-    clean_stale(_base(path, option))
-    p = check_folder(path, force=force, option=option)
+    clean_stale(_folder_base(path, option, command))
+    p = check_folder(path, force=force, option=option, command=command)
     if p.is_dir() and force:
         for child in p.iterdir():
             if child.is_dir() and not child.is_symlink():
@@ -287,11 +364,33 @@ def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out"
     return p
 
 
-def optional_folder(path: str | Path | None, *, force: bool,
-                    option: str = "--out") -> ResultFolder | None:
+def optional_folder(path: str | Path | None, *, force: bool, option: str = "--out",
+                    command: str | None = None) -> ResultFolder | None:
     """:class:`ResultFolder` for an optional ``--out``: None when the option was not
     given (``--out ''`` is given, and refused)."""
-    return None if path is None else ResultFolder(path, force=force, option=option)
+    return None if path is None else ResultFolder(path, force=force, option=option, command=command)
+
+
+def result_output(path: str | Path | None, main: str, *, force: bool, command: str,
+                  option: str = "--out") -> ResultFile | ResultFolder | None:
+    """The --out rule for a command whose result is one main file (``main``, e.g.
+    ``estimate.json``) with, in a folder, other files beside it.
+
+    None when the option was not given; a :class:`ResultFile` when ``path`` ends in
+    ``main``'s suffix; a refusal for another file suffix (:data:`FILE_SUFFIXES`; ``.mcap``:
+    not implemented); else a :class:`ResultFolder` that receives ``main`` and the rest.
+    Write through ``writing_main()`` on either; ``.main`` is the main file's final path."""
+    if path is None:
+        return None
+    p = _base(path, option)
+    want = Path(main).suffix
+    if names_a_file(p):
+        instead = f"{main}: give a {want} file or a folder"
+        _not_mcap(p, option, command, instead)
+        if p.suffix.lower() != want:
+            raise UserError(f"{option} {p} names a {p.suffix} file; {command} writes {instead}")
+        return ResultFile(p, force=force, option=option)
+    return ResultFolder(p, force=force, option=option, command=command, main=main)
 
 
 def not_an_input(out: ResultFolder | None, *inputs: str | Path | None, option: str = "--out") -> None:

@@ -85,7 +85,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
               file=sys.stderr)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     out = stream_folder(Path("runs") / f"demo-{stamp}" if args.out is None else args.out,
-                        force=args.force)
+                        force=args.force, command="tpods demo")
     from common.runwriter import run_status  # lazy: numpy; keeps tpods --help fast
 
     # run.json: "running" until the end, then "complete" (or "aborted"/"failed": the

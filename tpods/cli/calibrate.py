@@ -11,7 +11,7 @@ from pathlib import Path
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
-from common.outputs import add_force, optional_folder
+from common.outputs import add_force, result_output
 
 
 def register(sub) -> None:
@@ -159,7 +159,8 @@ def _register_bifilar(cal) -> None:
     p.add_argument("--no-rise-ke", action="store_true",
                    help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", metavar="DIR", help="write result.json and plots here")
+    p.add_argument("--out", metavar="DIR|FILE.json",
+                   help="write result.json and plots in folder DIR, or only the result to FILE.json")
     add_force(p)
     p.set_defaults(func=cmd_bifilar)
 
@@ -179,7 +180,8 @@ def _read_poses(path_text: str) -> tuple:
 def cmd_bifilar(args: argparse.Namespace) -> int:
     from calibration import bifilar
 
-    out_folder = optional_folder(args.out, force=args.force)
+    out_folder = result_output(args.out, "result.json", force=args.force,
+                               command="tpods calibrate bifilar")
     common = dict(u_mass_kg=args.u_mass, u_spacing_m=args.u_spacing, u_length_m=args.u_length,
                   tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare, g=args.g, u_g=args.u_g)
     if args.times is not None:
@@ -202,12 +204,13 @@ def cmd_bifilar(args: argparse.Namespace) -> int:
     if out_folder is not None:
         from calibration import plots
 
-        with out_folder.writing() as out:
-            (out / "result.json").write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
-            out_files.append(out / "result.json")
-            out_files.append(plots.plot_budget(res, out / "budget.png"))
-            if args.poses:
-                out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
+        with out_folder.writing_main() as (main, out):  # out: None for --out FILE.json
+            main.write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
+            out_files.append(main)
+            if out is not None:
+                out_files.append(plots.plot_budget(res, out / "budget.png"))
+                if args.poses:
+                    out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
             out_files = [out_folder.final(p) for p in out_files]
     for w in getattr(res, "warnings", ()):
         print(f"tpods: warning: {w}", file=sys.stderr)

@@ -69,7 +69,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from estimator.plant.model import PlantParams
     from estimator.plant.sim import SimConfig, simulate, summary_lines, write_sim_run
 
-    out = ResultFolder(args.out, force=args.force)
+    out = ResultFolder(args.out, force=args.force, command="tpods sim")
     table = load_thrust_table(args.thrust_table)
     generated = args.input in INPUT_NAMES
     if generated:  # sizes and duties from the options, before anything is allocated

@@ -18,7 +18,7 @@ import numpy as np
 
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, optional_folder
+from common.outputs import ResultFolder, add_force, result_output
 
 
 def _state_values(what: str):
@@ -99,17 +99,18 @@ def report_filter(est, args) -> int:
     if out_folder is not None:
         from estimator.reports.plots_ekf import plot_error_bounds
 
-        with out_folder.writing() as d:
-            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
             cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
                                                                                        "underweighted"]
-            np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis,
-                                                           r.triggered]),
-                       delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-            plot_error_bounds(r.t, r.x[:, 6:8], r.sigma[:, 6:8], d / "errors.png",
-                              (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
-                              title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
-                                    f"{run.path.name}")
+            if d is not None:
+                np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis,
+                                                               r.triggered]),
+                           delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+                plot_error_bounds(r.t, r.x[:, 6:8], r.sigma[:, 6:8], d / "errors.png",
+                                  (out["truth_mass_kg"], out["truth_izz_kgm2"]) if has_truth else None,
+                                  title=f"{args.method}{' (' + fe.ls_start + ')' if fe.ls else ''}: "
+                                        f"{run.path.name}")
     if r.diverged:
         print("tpods: warning: the filter diverged (non-physical parameters or innovations far "
               "larger than their covariance); try --method ls-ekf", file=sys.stderr)
@@ -134,8 +135,8 @@ def report_filter(est, args) -> int:
               f"Izz {out['truth_izz_kgm2']:.6g} (error {out['izz_rel_error'] * 100:+.3f} %)")
         print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
               f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")
-    if args.out:
-        print(f"  wrote {Path(args.out) / 'estimate.json'}, history.csv, errors.png")
+    if out_folder is not None:
+        print(f"  wrote {out_folder.main}" + (", history.csv, errors.png" if out_folder.is_folder else ""))
     return 0
 
 
@@ -167,8 +168,9 @@ def register(sub, est, rep) -> None:
     p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="write montecarlo.json, history.csv, runs.csv and the figures here")
+    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
+                   help="write montecarlo.json, history.csv, runs.csv and the figures in folder DIR, "
+                        "or only the summary to FILE.json")
     add_force(p)
     _filter_options(p, "no-process-noise")
     p.set_defaults(func=cmd_montecarlo)
@@ -191,7 +193,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     from estimator.montecarlo import MC_FILTER, McConfig, config_dict, run_montecarlo
     from estimator.reports.plots_ekf import plot_mc_averages, plot_mc_runs
 
-    out_folder = optional_folder(args.out, force=args.force)
+    out_folder = result_output(args.out, "montecarlo.json", force=args.force,
+                               command="tpods estimate montecarlo")
     base = MC_FILTER if args.preset == "no-process-noise" else None
     cfg_f = _filter_config(args, base)
     if args.method == "ls-ekf" and args.ls_window >= args.duration:
@@ -209,22 +212,23 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
               file=sys.stderr)
     if out_folder is not None:
-        with out_folder.writing() as d:
-            (d / "montecarlo.json").write_text(json.dumps(
+        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps(
                 {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
-            cols, data = res.history_table()
-            np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
-                       fmt="%.8g")
-            runs = np.column_stack([np.arange(cfg.runs), res.truth, res.final_err[:, 6:8],
-                                    res.final_sigma[:, 6:8], res.rmse])
-            np.savetxt(d / "runs.csv", runs, delimiter=",", comments="", fmt="%.8g",
-                       header="run,mass_kg,izz_kgm2,final_err_mass_kg,final_err_izz_kgm2,"
-                              "final_sigma_mass_kg,final_sigma_izz_kgm2,rmse_mass_kg,rmse_izz_kgm2")
-            tag = f"{cfg.method}{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}"
-            plot_mc_runs(res.t, res.ex_err, res.ex_sigma, d / "mc_runs.png",
-                         title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
-            plot_mc_averages(res, d / "mc_averages.png",
-                             title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
+            if d is not None:
+                cols, data = res.history_table()
+                np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
+                           fmt="%.8g")
+                runs = np.column_stack([np.arange(cfg.runs), res.truth, res.final_err[:, 6:8],
+                                        res.final_sigma[:, 6:8], res.rmse])
+                np.savetxt(d / "runs.csv", runs, delimiter=",", comments="", fmt="%.8g",
+                           header="run,mass_kg,izz_kgm2,final_err_mass_kg,final_err_izz_kgm2,"
+                                  "final_sigma_mass_kg,final_sigma_izz_kgm2,rmse_mass_kg,rmse_izz_kgm2")
+                tag = f"{cfg.method}{' (' + cfg.ls_start + ')' if cfg.method == 'ls-ekf' else ''}"
+                plot_mc_runs(res.t, res.ex_err, res.ex_sigma, d / "mc_runs.png",
+                             title=f"Monte Carlo {tag}: {res.ex_err.shape[0]} of {cfg.runs} runs")
+                plot_mc_averages(res, d / "mc_averages.png",
+                                 title=f"Monte Carlo {tag}, {cfg.runs} runs, spread +/-{cfg.spread:g}")
     code = 130 if res.interrupted else 0
     if args.json:
         sys.stdout.write(json.dumps(summ) + "\n")
@@ -249,8 +253,9 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         print(f"  underweighted updates: {100 * s['underweighted_frac']:.2f} %")
     if s["ls_failed"]:
         print(f"  {s['ls_failed']} runs whose LS fit failed started from the ekf initialisation")
-    if d is not None:
-        print(f"  wrote {d / 'montecarlo.json'}, history.csv, runs.csv, mc_runs.png, mc_averages.png")
+    if out_folder is not None:
+        print(f"  wrote {out_folder.main}" + (", history.csv, runs.csv, mc_runs.png, mc_averages.png"
+                                              if out_folder.is_folder else ""))
     return code
 
 
@@ -259,7 +264,7 @@ def cmd_report_ekf(args: argparse.Namespace) -> int:
 
     from estimator.reports.ekf import build_report, summary_lines
 
-    out_folder = ResultFolder(args.out, force=args.force)
+    out_folder = ResultFolder(args.out, force=args.force, command="tpods report ekf")
     if args.seeds < 1:
         raise UserError("--seeds must be at least 1")
     if args.ls_window >= args.duration:

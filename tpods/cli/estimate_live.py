@@ -72,7 +72,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     k = keys(args.body, args.mocap_prefix, args.prefix)
     rec = None
     if args.out is not None:
-        rec = LiveRecorder(stream_folder(args.out, force=args.force), {
+        rec = LiveRecorder(stream_folder(args.out, force=args.force, command="tpods estimate live"), {
             "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "body": args.body, "keys": k, "method": args.method,

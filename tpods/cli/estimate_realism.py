@@ -58,11 +58,12 @@ def report_ext(est, args: argparse.Namespace) -> int:
     r, run, out = est.ext, est.run, est.to_dict()
     out_folder = getattr(args, "out_folder", None)
     if out_folder is not None:
-        with out_folder.writing() as d:
-            (d / "estimate.json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
             cols = ["t", *r.labels, *(f"sigma_{n}" for n in r.labels), "updated", "nis"]
-            np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),
-                       delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+            if d is not None:
+                np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),
+                           delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
     if r.diverged:
         print("tpods: warning: the extended filter diverged (non-physical parameters or "
               "innovations far larger than their covariance); try --method ls-ekf",
@@ -112,7 +113,7 @@ def register(sub, est, rep) -> None:
 def cmd_report_realism(args: argparse.Namespace) -> int:
     from estimator.reports.realism import write_report
 
-    out_folder = ResultFolder(args.out, force=args.force)
+    out_folder = ResultFolder(args.out, force=args.force, command="tpods report realism")
     if args.runs < 2 or args.seeds < 1:
         raise UserError("--runs must be >= 2 and --seeds >= 1")
     with out_folder.writing() as d:

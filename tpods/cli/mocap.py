@@ -153,7 +153,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     console = Console(args.quiet)
     stop = threading.Event()
-    rec = Recorder(stream_folder(args.out, force=args.force), key=args.key, t0=args.t0)
+    rec = Recorder(stream_folder(args.out, force=args.force, command="tpods mocap record"),
+                   key=args.key, t0=args.t0)
     try:
         session = open_session(args)
         try:

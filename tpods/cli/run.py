@@ -142,7 +142,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     clock = _clock(args)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
     _check_play_duties(args, duty, lim[0], lim[1])
-    out = None if args.out is None else stream_folder(args.out, force=args.force)
+    out = None if args.out is None else stream_folder(args.out, force=args.force, command="tpods run play")
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
     try:
@@ -195,7 +195,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
 
     truth_out = (None if args.truth_out is None
-                 else ResultFolder(args.truth_out, force=args.force, option="--truth-out"))
+                 else ResultFolder(args.truth_out, force=args.force, option="--truth-out",
+                                   command="tpods run plant"))
     clock = _clock(args)
     table = load_thrust_table(args.thrust_table)
     ct = cr = kb = 0.0

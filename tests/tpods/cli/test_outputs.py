@@ -1,9 +1,13 @@
 """The one output policy (common/outputs.py) across every command that writes (issue 16).
 
-- an existing non-empty --out (an existing file for ``bench fit``) is refused, one line,
+- an existing non-empty --out (an existing file for a file output) is refused, one line,
   exit 2, nothing in it changed; with --force it is replaced;
 - --out '' / at a file / under a file: exit 2, one line, no traceback;
-- an interrupted atomic write leaves the old folder byte-identical and no temporary folder.
+- an interrupted atomic write leaves the old folder byte-identical and no temporary folder;
+- a temporary left by a killed command is removed by the next one (if its PID is dead);
+- the --out rule: a path ending in .toml, .json or .mcap names that file, anything else a
+  folder. Commands with one main file write just it to FILE.json / FILE.toml, or it and the
+  rest into a folder; commands that write a folder refuse a file name; .mcap is refused.
 """
 
 from __future__ import annotations
@@ -38,7 +42,19 @@ FOLDER_COMMANDS = {
     "estimate live": ["estimate", "live", "--out", "OUT"],
     "demo": ["demo", "--out", "OUT"],
 }
-FILE_COMMANDS = {"bench fit": ["bench", "fit", "no-such-run", "--out", "OUT"]}
+# Commands whose result is one main file: --out FILE.<suffix> writes just that file.
+FILE_COMMANDS = {
+    "bench fit": ["bench", "fit", "no-such-run", "--out", "OUT"],
+    "estimate batch": FOLDER_COMMANDS["estimate batch"],
+    "estimate crlb": FOLDER_COMMANDS["estimate crlb"],
+    "estimate montecarlo": FOLDER_COMMANDS["estimate montecarlo"],
+    "calibrate bifilar": FOLDER_COMMANDS["calibrate bifilar"],
+}
+MAIN_FILE = {"bench fit": "thrust_table.toml", "estimate batch": "estimate.json",
+             "estimate crlb": "crlb.json", "estimate montecarlo": "montecarlo.json",
+             "calibrate bifilar": "result.json"}
+# Commands that write a folder (a run folder, a report, logs) and nothing else.
+FOLDER_ONLY = sorted(set(FOLDER_COMMANDS) - set(FILE_COMMANDS))
 
 
 def _argv(template: list[str], out: Path | str) -> list[str]:
@@ -83,7 +99,7 @@ def test_existing_folder_is_refused_and_untouched(name, tmp_path, capsys):
 
 @pytest.mark.parametrize("name", sorted(FILE_COMMANDS))
 def test_existing_file_is_refused_and_untouched(name, tmp_path, capsys):
-    f = tmp_path / "table.toml"
+    f = tmp_path / ("earlier" + Path(MAIN_FILE[name]).suffix)
     f.write_text("# an earlier fit\n")
     before = (f.read_bytes(), f.stat().st_mtime_ns)
     assert main(_argv(FILE_COMMANDS[name], f)) == 2
@@ -92,19 +108,20 @@ def test_existing_file_is_refused_and_untouched(name, tmp_path, capsys):
 
 
 # a folder output: '', an existing file, a path under a file; a file output: '', a path
-# under a file, an existing folder (an existing file is the refusal tested above)
-IMPOSSIBLE = ([(n, c) for n in sorted(FOLDER_COMMANDS) for c in ("empty", "at-file", "under-file")]
-              + [(n, c) for n in sorted(FILE_COMMANDS) for c in ("empty", "under-file", "at-folder")])
+# under a file, an existing folder named like a file (an existing file: refused above)
+IMPOSSIBLE = ([("folder", n, c) for n in sorted(FOLDER_COMMANDS) for c in ("empty", "at-file", "under-file")]
+              + [("file", n, c) for n in sorted(FILE_COMMANDS) for c in ("empty", "under-file", "at-folder")])
 
 
-@pytest.mark.parametrize(("name", "case"), IMPOSSIBLE)
-def test_impossible_outputs_are_one_line(name, case, tmp_path, capsys):
-    table = FILE_COMMANDS.get(name) or FOLDER_COMMANDS[name]
+@pytest.mark.parametrize(("kind", "name", "case"), IMPOSSIBLE)
+def test_impossible_outputs_are_one_line(kind, name, case, tmp_path, capsys):
+    table = FILE_COMMANDS[name] if kind == "file" else FOLDER_COMMANDS[name]
+    suffix = Path(MAIN_FILE[name]).suffix if kind == "file" else ""
     a_file = tmp_path / "a_file"
     a_file.write_text("x\n")
-    (tmp_path / "a_folder").mkdir()
-    out = {"empty": "", "at-file": a_file, "under-file": a_file / "sub" / "out.toml",
-           "at-folder": tmp_path / "a_folder"}[case]
+    (tmp_path / f"a_folder{suffix}").mkdir()
+    out = {"empty": "", "at-file": a_file, "under-file": a_file / "sub" / f"out{suffix}",
+           "at-folder": tmp_path / f"a_folder{suffix}"}[case]
     argv = _argv(table, out)
     assert main(argv + ["--force"]) == 2
     err = _one_error_line(capsys)
@@ -311,3 +328,125 @@ def test_stale_file_temporary_is_removed(tmp_path, capsys):
         t.write_text("unit = 'gf'\n")
     assert not tmp.exists() and f"removed {tmp}" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["thrust_table.toml"]
+
+
+# ---- the --out rule: FILE.toml / FILE.json / FILE.mcap is that file, anything else a folder
+
+def write_session(run: Path) -> Path:
+    """A characterisation session folder (raw.csv as the session writes it) that fits."""
+    import pandas as pd
+
+    from common.thrust_table import ThrustTable
+
+    table = ThrustTable.default()
+    rows, t, w = [], 0.0, 0
+    for k in (1, 2):
+        for d in range(10, 91, 20):
+            for phase, step, val in (("zero", -1, 0.0), ("dwell", w, float(table.per_nozzle(d, k)))):
+                for i in range(5):
+                    rows.append((t, w, phase, step, k if step >= 0 else 0, d if step >= 0 else 0,
+                                 val + 0.01 * (i - 2), 1))
+                    t += 0.1
+            w += 1
+    run.mkdir(parents=True)
+    pd.DataFrame(rows, columns=["t_s", "window", "phase", "step", "n_open", "duty_pct",
+                                "reading_gf", "stable"]).to_csv(run / "raw.csv", index=False)
+    return run
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, Path]:
+    base = tmp_path_factory.mktemp("inputs")
+    assert main(["sim", "--duration", "8", "--out", str(base / "run")]) == 0
+    return {"RUN": base / "run", "SESSION": write_session(base / "session")}
+
+
+# what each command needs to run for real, and the files a folder output receives besides
+# the main file (MAIN_FILE)
+REAL = {
+    "estimate batch": (["estimate", "batch", "RUN", "--out", "OUT"], {"residuals.csv", "residuals.png"}),
+    "estimate batch ekf": (["estimate", "batch", "RUN", "--method", "ekf", "--out", "OUT"],
+                           {"history.csv", "errors.png"}),
+    "estimate crlb": (["estimate", "crlb", "RUN", "--out", "OUT"], {"sensitivities.png"}),
+    "estimate montecarlo": (["estimate", "montecarlo", "--runs", "3", "--duration", "3", "--out", "OUT"],
+                            {"history.csv", "runs.csv", "mc_runs.png", "mc_averages.png"}),
+    "calibrate bifilar": (FOLDER_COMMANDS["calibrate bifilar"], {"budget.png"}),
+    "bench fit": (["bench", "fit", "SESSION", "--order", "3", "--out", "OUT"],
+                  {"thrust_table_orders.png", "thrust_table_timeseries.png"}),
+}
+
+
+def _real_argv(name: str, out: Path, inputs: dict[str, Path]) -> list[str]:
+    return [str(inputs[a]) if a in inputs else a for a in _argv(REAL[name][0], out)]
+
+
+def _main_file(name: str) -> str:
+    return MAIN_FILE[name.removesuffix(" ekf")]
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_a_file_name_writes_just_that_file(name, inputs, tmp_path, capsys):
+    main_file = _main_file(name)
+    out = tmp_path / "results" / ("mine" + Path(main_file).suffix)  # missing parents are made
+    assert main(_real_argv(name, out, inputs)) == 0
+    # bench fit keeps its plots beside the table (--plot-dir moves them), as it always did
+    beside = {"mine_orders.png", "mine_timeseries.png"} if name == "bench fit" else set()
+    assert {p.name for p in (tmp_path / "results").iterdir()} == {out.name} | beside
+    text = out.read_text()
+    if main_file == "thrust_table.toml":
+        from common.thrust_table import ThrustTable
+
+        assert sorted(ThrustTable.load(out).coefficients) == [1, 2]
+    else:
+        import json
+
+        assert isinstance(json.loads(text), dict) and len(text) > 50
+    assert str(out) in capsys.readouterr().out  # "wrote <out>", nothing else claimed
+    _no_temporaries(tmp_path / "results")
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_any_other_name_is_a_folder_of_the_files(name, inputs, tmp_path, capsys):
+    out = tmp_path / "results.v2"  # a suffix outside the rule: still a folder
+    assert main(_real_argv(name, out, inputs)) == 0
+    assert {p.name for p in out.iterdir()} == {_main_file(name)} | REAL[name][1]
+    _no_temporaries(tmp_path)
+
+
+# a file name of the wrong kind for a main-file command: (command, --out name, message)
+WRONG_FILE = ([(n, f"x{s}", f"names a {s} file; tpods {n} writes {MAIN_FILE[n]}")
+               for n in sorted(FILE_COMMANDS) for s in (".json", ".toml")
+               if s != Path(MAIN_FILE[n]).suffix]
+              + [(n, "x.mcap", f"MCAP output is not implemented yet; tpods {n} writes {MAIN_FILE[n]}")
+                 for n in sorted(FILE_COMMANDS)])
+
+
+@pytest.mark.parametrize(("name", "out", "message"), WRONG_FILE)
+def test_a_main_file_command_refuses_another_file_kind(name, out, message, tmp_path, capsys):
+    path = tmp_path / out
+    assert main(_argv(FILE_COMMANDS[name], path)) == 2
+    err = _one_error_line(capsys)
+    assert err.startswith(f"tpods: error: --out {path}") and message in err, err
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("suffix", [".json", ".toml", ".mcap", ".JSON"])
+@pytest.mark.parametrize("name", FOLDER_ONLY)
+def test_a_folder_command_refuses_a_file_name(name, suffix, tmp_path, capsys):
+    option = {"run plant": "--truth-out", "bench emulate": "--log-dir"}.get(name, "--out")
+    path = tmp_path / f"x{suffix}"
+    assert main(_argv(FOLDER_COMMANDS[name], path)) == 2
+    err = _one_error_line(capsys)
+    assert err.startswith(f"tpods: error: {option} {path}"), err
+    if suffix == ".mcap":
+        assert f"MCAP output is not implemented yet; tpods {name} writes a folder" in err, err
+    else:
+        assert f"names a file; tpods {name} writes a folder" in err, err
+    assert not any(tmp_path.iterdir())
+
+
+def test_bench_fit_never_replaces_its_session(inputs, tmp_path, capsys):
+    session = inputs["SESSION"]
+    assert main(["bench", "fit", str(session), "--out", str(session), "--force"]) == 2
+    assert "would replace the input" in _one_error_line(capsys)
+    assert (session / "raw.csv").exists()
