@@ -7,7 +7,9 @@
 - a temporary left by a killed command is removed by the next one (if its PID is dead);
 - the --out rule: a path ending in .toml, .json or .mcap names that file, anything else a
   folder. Commands with one main file write just it to FILE.json / FILE.toml, or it and the
-  rest into a folder; commands that write a folder refuse a file name; .mcap is refused.
+  rest into a folder; commands that write a folder refuse a file name; .mcap is refused;
+- long commands (bench emulate --log-dir, run plant --truth-out) refuse a bad output at
+  their start, not after the run.
 """
 
 from __future__ import annotations
@@ -450,3 +452,25 @@ def test_bench_fit_never_replaces_its_session(inputs, tmp_path, capsys):
     assert main(["bench", "fit", str(session), "--out", str(session), "--force"]) == 2
     assert "would replace the input" in _one_error_line(capsys)
     assert (session / "raw.csv").exists()
+
+
+# ---- long commands check their output before they run, not at their end
+
+@pytest.mark.parametrize("argv", [
+    ["bench", "emulate", "--duration", "60", "--log-dir"],
+    ["run", "plant", "--duration", "60", "--truth-out"],
+])
+@pytest.mark.parametrize("case", ["a-file", "under-a-file", "a-json-name"])
+def test_long_commands_refuse_their_output_at_the_start(argv, case, tpods_exe, tmp_path):
+    import subprocess
+    import time
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x\n")
+    out = {"a-file": a_file, "under-a-file": a_file / "logs", "a-json-name": tmp_path / "logs.json"}[case]
+    t0 = time.monotonic()
+    r = subprocess.run([tpods_exe, *argv, str(out)], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and time.monotonic() - t0 < 20  # not after the 60 s run
+    assert r.stderr.startswith(f"tpods: error: {argv[-1]} {out}") and r.stderr.count("\n") == 1, r.stderr
+    assert r.stdout == ""  # nothing served, nothing simulated
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"] and a_file.read_text() == "x\n"
