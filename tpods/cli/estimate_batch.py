@@ -290,7 +290,9 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     out = b.to_dict()
     if out_folder is not None:
         from estimator.reports.plots_batch import plot_sensitivities
+    _check_crlb_size(args)  # planned poses: before they are allocated
 
+    _check_crlb_size(args, seq)
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             main.write_text(json.dumps(out, indent=2) + "\n")
             if d is not None:
@@ -327,6 +329,67 @@ def cmd_design(args: argparse.Namespace) -> int:
     from estimator.plant.model import PlantParams
 
     out_folder = ResultFolder(args.out, force=args.force, command="tpods design")
+def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
+    """Refuse a bound that will not fit in memory, naming --pose-rate (planned poses) or the
+    run's size, and announce a long one. Without ``seq``: a planned sequence's poses from
+    its commands' span and --pose-rate, before they are allocated."""
+    from estimator.plant.inputs import from_commands_csv
+    from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS
+    from tpods.cli import sizes
+
+    n_params = len(MODELS[args.model or DEFAULT_MODEL])
+    if seq is None:
+        p = Path(args.run_dir)
+        if p.is_dir() and (p / "poses.csv").exists():
+            return  # a recorded run: its poses are read, checked below
+        csv = p / "commands.csv" if p.is_dir() else p
+        if not csv.is_file():
+            return  # load_sequence names what is missing
+        cmd_t, _ = from_commands_csv(csv)
+        span, n_cmds = float(cmd_t[-1] - cmd_t[0]), len(cmd_t)
+        n_poses = sizes.samples(span, args.pose_rate)
+        what = (f"--pose-rate {sizes.number(args.pose_rate)} Hz over the {sizes.number(span)} s of "
+                f"{csv} is {sizes.samples_text(span, args.pose_rate)} planned poses")
+        fix = "lower --pose-rate"
+    else:
+        span = float(seq.pose_t[-1] - seq.pose_t[0]) if len(seq.pose_t) else 0.0
+        n_cmds, n_poses = len(seq.cmd_t), float(len(seq.pose_t))
+        what = f"{args.run_dir} holds {n_poses:.0f} poses over {sizes.number(span)} s"
+        fix = "restrict it with --window"
+    segments = sizes.crlb_segments(n_poses, n_cmds, span)
+    n_bytes, seconds = sizes.crlb_cost(segments, n_params)
+    sizes.refuse_if_too_big(what, n_bytes, fix)
+    if seq is not None:
+        sizes.announce(seconds, f"the bound over {n_poses:.0f} poses")
+
+
+def _check_design_size(args: argparse.Namespace) -> None:
+    """Refuse a design that will not fit in memory (one candidate's bound, and every scored
+    candidate's trajectory, which the search keeps), naming the options; announce a long one."""
+    from tpods.cli import sizes
+
+    n_poses = sizes.samples(args.duration, args.pose_rate)
+    n_cmds = sizes.samples(args.duration, args.cmd_rate)
+    evals = 1 + args.candidates + args.refine * args.refine_evals + len(args.compare)
+    one_bytes, one_s = sizes.crlb_cost(sizes.crlb_segments(n_poses, n_cmds, args.duration), 2)
+    kept = evals * sizes.DESIGN_KEPT_BYTES_PER_POSE * n_poses
+    span = (f"--duration {sizes.number(args.duration)} s at --pose-rate "
+            f"{sizes.number(args.pose_rate)} Hz and --cmd-rate {sizes.number(args.cmd_rate)} Hz")
+    # one candidate (its bound and what the search keeps of it), then all of them
+    sizes.refuse_if_too_big(
+        f"{span} is {sizes.samples_text(args.duration, args.pose_rate)} poses and "
+        f"{sizes.samples_text(args.duration, args.cmd_rate)} command rows per candidate",
+        one_bytes + kept / evals, "lower --duration, --pose-rate or --cmd-rate")
+    sizes.refuse_if_too_big(
+        f"{evals} candidates (1 + --candidates {args.candidates} + --refine {args.refine} "
+        f"x --refine-evals {args.refine_evals}"
+        f"{f' + {len(args.compare)} --compare' if args.compare else ''}) of "
+        f"{sizes.samples_text(args.duration, args.pose_rate)} "
+        f"poses each ({span})",
+        one_bytes + kept, "lower --candidates, --refine-evals, --duration or --pose-rate")
+    sizes.announce(evals * one_s, f"scoring {evals} candidates")
+
+
     if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
         raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
     if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
@@ -342,6 +405,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
         try:
             compared.append(evaluate_commands(cmd_t, duty, table, settings, spec))
+    _check_design_size(args)
         except UserError as exc:
             raise UserError(f"{spec}: {exc}") from None
     total = 1 + args.candidates + args.refine * args.refine_evals

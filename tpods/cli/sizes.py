@@ -28,7 +28,7 @@ SIM_S_PER_CMD = 2e-5
 # the CRLB (estimate crlb, each design candidate): per grid segment (a pose, a command
 # switch or a 10 ms step), for n = 6 + estimated parameters, about n^2 doubles several times
 CRLB_BYTES_PER_SEGMENT_N2 = 60.0
-CRLB_S_PER_SEGMENT_N2 = 5e-7
+CRLB_S_PER_SEGMENT_N2 = 2e-7
 CRLB_MAX_STEP_S = 0.01  # estimator.batch.crlb.DEFAULT_MAX_STEP_S (not imported: heavy)
 # tpods design keeps every scored candidate's trajectory and sensitivities
 DESIGN_KEPT_BYTES_PER_POSE = 450.0

@@ -111,3 +111,31 @@ def test_run_play_checks_duties_before_opening_the_valves(tpods_exe, tmp_path):
     # /dev/null is never opened: the duties are refused first
     line = _one_error_line(run(tpods_exe, "run", "play", "--valves", "/dev/null", "--amplitude", "45"))
     assert "--amplitude 45" in line and "--duty-limits 10,90" in line and "--amplitude 40 or less" in line
+
+
+def test_crlb_refuses_planned_poses_that_will_not_fit(tpods_exe, tmp_path):
+    """Was a silent hang (or a MemoryError traceback) at --pose-rate 1e7."""
+    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
+    line = _one_error_line(run(tpods_exe, "estimate", "crlb", str(tmp_path / "r" / "commands.csv"),
+                               "--pose-rate", "1e7", timeout=60))
+    assert "--pose-rate 1e7 Hz over the 3 s of" in line and "3e7 planned poses" in line
+    assert "lower --pose-rate" in line
+
+
+@pytest.mark.parametrize("args,needles", [
+    (("--duration", "1e9"), ("--duration 1e9 s", "per candidate", "lower --duration")),
+    (("--cmd-rate", "1e9"), ("--cmd-rate 1e9 Hz", "1.2e11 command rows per candidate")),
+    (("--candidates", "100000"), ("100121 candidates (1 + --candidates 100000", "lower --candidates")),
+])
+def test_design_refuses_what_will_not_fit(tpods_exe, tmp_path, args, needles):
+    line = _one_error_line(run(tpods_exe, "design", *args, "--out", str(tmp_path / "o"), timeout=60))
+    for n in needles:
+        assert n in line, line
+    assert not (tmp_path / "o").exists()
+
+
+def test_crlb_and_design_costs_scale_with_the_work():
+    small_b, small_s = sizes.crlb_cost(sizes.crlb_segments(14401, 6001, 120.0), 2)
+    big_b, big_s = sizes.crlb_cost(sizes.crlb_segments(144001, 6001, 120.0), 7)
+    assert 1e6 < small_b < 1e9 and small_s < sizes.ANNOUNCE_S  # the default bound is quick
+    assert big_b > 10 * small_b and big_s > 10 * small_s
