@@ -16,6 +16,28 @@ def positive_float(text: str) -> float:
     return v
 
 
+def float_between(lo: float, hi: float, unit: str = ""):
+    """An argparse type for a number in ``[lo, hi]`` (a plausibility range: a value outside
+    it is a typo or a unit mistake, and the numerics would overflow before saying so)."""
+    u = f" {unit}" if unit else ""
+
+    def parse(text: str) -> float:
+        v = positive_float(text) if lo > 0 else nonneg_float(text)
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must lie in {lo:g}..{hi:g}{u}, got {text!r}")
+        return v
+
+    return parse
+
+
+SIGMA_POS_M = float_between(1e-6, 1.0, "m")
+"""A pose position noise, m: 1 um (a laboratory interferometer) to 1 m (not motion capture)."""
+SIGMA_YAW_DEG = float_between(1e-4, 90.0, "deg")
+MASS_KG = float_between(1e-3, 1e4, "kg")
+"""A body on an air table, kg: from a gram to ten tonnes."""
+IZZ_KGM2 = float_between(1e-8, 1e5, "kg m^2")
+
+
 def nonneg_float(text: str) -> float:
     try:
         v = float(text)

@@ -550,9 +550,17 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
     params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
               **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
     model = model or DEFAULT_MODEL
-    c = crlb(pose_t, seq.cmd_t, seq.thrust_n, params, s0=s0, sigma_pos_m=sigma_pos_m,
-             sigma_yaw_rad=sigma_yaw_rad, keep_sensitivities=keep_sensitivities,
-             names=MODELS[model])
+    try:
+        with np.errstate(all="ignore"):
+            c = crlb(pose_t, seq.cmd_t, seq.thrust_n, params, s0=s0, sigma_pos_m=sigma_pos_m,
+                     sigma_yaw_rad=sigma_yaw_rad, keep_sensitivities=keep_sensitivities,
+                     names=MODELS[model])
+        if not np.all(np.isfinite(c.fisher)):
+            raise np.linalg.LinAlgError
+    except (np.linalg.LinAlgError, OverflowError, FloatingPointError, ValueError):
+        raise UserError(f"the bound cannot be computed: the predicted motion of a {mass:g} kg, "
+                        f"Izz {izz:g} kg m^2 body under these thrusts is not finite (check --mass "
+                        "and --izz, and the thrust table's unit)") from None
     out: dict[str, Any] = {
         "sequence": seq.kind, "path": str(path), "n_poses": c.n_poses,
         "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,

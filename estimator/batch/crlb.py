@@ -311,6 +311,8 @@ def crlb(pose_t, cmd_t, thrust_n, params: Mapping[str, float], *, s0=None,
     s0 = np.zeros(6) if s0 is None else np.asarray(s0, float)
     x, phi = trajectory_stm(s0, cmd_t, thrust_n, pose_t, params, names, max_step)
     F = fisher_information(phi, sigma_pos_m, sigma_yaw_rad)
+    if not np.all(np.isfinite(F)):  # the motion overflowed: LAPACK would print and fail
+        raise np.linalg.LinAlgError("the predicted trajectory is not finite")
     M, cov, sig, logdet = crlb_from_fisher(F, names)
     return CRLBResult(names, F, M, cov, sig, logdet, len(np.asarray(pose_t)),
                       x if keep_sensitivities else None,

@@ -18,7 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from common.argtypes import float_list, nonneg_float, positive_float, random_seed
+from common.argtypes import (
+    IZZ_KGM2,
+    MASS_KG,
+    SIGMA_POS_M,
+    SIGMA_YAW_DEG,
+    float_list,
+    nonneg_float,
+    positive_float,
+    random_seed,
+)
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, not_an_input, result_output
@@ -106,8 +115,8 @@ def register(sub, est, rep) -> None:
                     "(default the paper's 2.268 kg, 3.78e-3 kg m^2).")
     c.add_argument("run_dir", metavar="RUN_DIR", help="run folder, or commands-only folder/CSV")
     _common_model_options(c)
-    c.add_argument("--mass", type=positive_float, default=None, help="assumed mass, kg")
-    c.add_argument("--izz", type=positive_float, default=None, help="assumed Izz, kg m^2")
+    c.add_argument("--mass", type=MASS_KG, default=None, help="assumed mass, kg")
+    c.add_argument("--izz", type=IZZ_KGM2, default=None, help="assumed Izz, kg m^2")
     c.add_argument("--pose-rate", type=positive_float, default=120.0,
                    help="pose rate for a planned sequence, Hz (default 120)")
     c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
@@ -129,8 +138,8 @@ def register(sub, est, rep) -> None:
     d.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     d.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     d.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
-    d.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG, help="assumed mass, kg")
-    d.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
+    d.add_argument("--mass", type=MASS_KG, default=PAPER_MASS_KG, help="assumed mass, kg")
+    d.add_argument("--izz", type=IZZ_KGM2, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
     d.add_argument("--table-size", type=float_list(2), default=[2.0, 2.0], metavar="W,H",
                    help="table size in metres, module starting at its centre (default 2,2)")
     d.add_argument("--margin", type=nonneg_float, default=0.0,
@@ -176,9 +185,9 @@ def _common_model_options(p) -> None:
                    help="thrust table TOML (default: the paper's Table 2)")
     p.add_argument("--clamp", action="store_true",
                    help="clamp duties into the table's valid range instead of refusing")
-    p.add_argument("--sigma-pos", type=positive_float, default=0.01,
+    p.add_argument("--sigma-pos", type=SIGMA_POS_M, default=0.01,
                    help="position noise sigma, m (default 0.01)")
-    p.add_argument("--sigma-yaw-deg", type=positive_float, default=1.0,
+    p.add_argument("--sigma-yaw-deg", type=SIGMA_YAW_DEG, default=1.0,
                    help="yaw noise sigma, deg (default 1)")
 
 
@@ -281,7 +290,9 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")
     not_an_input(out_folder, args.run_dir, args.thrust_table)
     table = load_thrust_table(args.thrust_table)
+    _check_crlb_size(args)  # planned poses: before they are allocated
     seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate)
+    _check_crlb_size(args, seq)
     b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
                        izz_kgm2=args.izz, model=args.model, sigma_pos_m=args.sigma_pos,
                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
@@ -290,9 +301,7 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     out = b.to_dict()
     if out_folder is not None:
         from estimator.reports.plots_batch import plot_sensitivities
-    _check_crlb_size(args)  # planned poses: before they are allocated
 
-    _check_crlb_size(args, seq)
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             main.write_text(json.dumps(out, indent=2) + "\n")
             if d is not None:
@@ -320,15 +329,6 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_design(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from common.thrust_table import load_thrust_table
-    from estimator.batch.design import DesignSettings, evaluate_commands, search
-    from estimator.plant.inputs import make_input
-    from estimator.plant.model import PlantParams
-
-    out_folder = ResultFolder(args.out, force=args.force, command="tpods design")
 def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
     """Refuse a bound that will not fit in memory, naming --pose-rate (planned poses) or the
     run's size, and announce a long one. Without ``seq``: a planned sequence's poses from
@@ -390,12 +390,22 @@ def _check_design_size(args: argparse.Namespace) -> None:
     sizes.announce(evals * one_s, f"scoring {evals} candidates")
 
 
+def cmd_design(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.design import DesignSettings, evaluate_commands, search
+    from estimator.plant.inputs import make_input
+    from estimator.plant.model import PlantParams
+
+    out_folder = ResultFolder(args.out, force=args.force, command="tpods design")
     if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
         raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
     if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
         raise UserError("--omega-range must be LO,HI with 0 < LO < HI")
     if min(args.table_size) <= 2 * args.margin:
         raise UserError("--table-size must exceed twice the --margin")
+    _check_design_size(args)
     table = load_thrust_table(args.thrust_table)
     settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
                               math.radians(args.noise_yaw_deg), PlantParams(args.mass, args.izz),
@@ -405,7 +415,6 @@ def _check_design_size(args: argparse.Namespace) -> None:
         cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
         try:
             compared.append(evaluate_commands(cmd_t, duty, table, settings, spec))
-    _check_design_size(args)
         except UserError as exc:
             raise UserError(f"{spec}: {exc}") from None
     total = 1 + args.candidates + args.refine * args.refine_evals
