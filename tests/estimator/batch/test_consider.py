@@ -79,28 +79,36 @@ def test_sensitivities_are_the_integrators_derivatives(inp):
     assert checked >= 4
 
 
-def _perturbed_fit(run, cmd_t, sens, dc):
+def _perturbed_fit(run, cmd_t, sens, dc, names):
     thr = np.maximum(sens.thrust_n + sens.jacobian @ dc, 0.0)
-    return batch_ls(run.pose_t, run.pose, cmd_t, thr, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
+    return batch_ls(run.pose_t, run.pose, cmd_t, thr, names=names, sigma_pos_m=SIG_POS,
+                    sigma_yaw_rad=SIG_YAW)
 
 
-@pytest.mark.parametrize("kind", ["scale", "coefficients"])
-def test_consider_covariance_matches_refits_with_perturbed_tables(kind):
-    table = _table(0.01) if kind == "scale" else _table(0.0, 25 * _C)
+_FRICTION = {"ct": 0.03, "cr": 3e-4}
+
+
+@pytest.mark.parametrize("kind, model", [("scale", "ideal"), ("coefficients", "ideal"),
+                                         ("per-count scale", "friction")])
+def test_consider_covariance_matches_refits_with_perturbed_tables(kind, model):
+    table = {"scale": lambda: _table(0.01), "coefficients": lambda: _table(0.0, 25 * _C),
+             "per-count scale": lambda: _table(0.0, None, {1: 0.02, 2: 0.02})}[kind]()
+    names = ("mass", "izz") + (tuple(_FRICTION) if model == "friction" else ())
+    truth = PlantParams(2.3, 4e-3, **(_FRICTION if model == "friction" else {}))
     cmd_t, duty = make_input("translate-rotate", 20.0, 50.0, 30.0, 1.0)
     sens = thrust_sensitivity(table, duty)
-    run = simulate(cmd_t, duty, PlantParams(2.3, 4e-3), table,
+    run = simulate(cmd_t, duty, truth, table,
                    SimConfig(pose_rate_hz=60, noise_pos_m=SIG_POS, noise_yaw_rad=SIG_YAW, seed=4))
-    res = batch_ls(run.pose_t, run.pose, cmd_t, sens.thrust_n, sigma_pos_m=SIG_POS,
-                   sigma_yaw_rad=SIG_YAW)
+    res = batch_ls(run.pose_t, run.pose, cmd_t, sens.thrust_n, names=names,
+                   sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
     c = batch_consider(res, cmd_t, sens, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
     # brute force: the estimate's change per parameter from refits at +/- 1 sigma
     S = np.zeros((len(res.z0), len(sens.names)))
     for p in range(len(sens.names)):
         e = np.zeros(len(sens.names))
         e[p] = math.sqrt(sens.covariance[p, p])
-        S[:, p] = (_perturbed_fit(run, cmd_t, sens, e).z0 -
-                   _perturbed_fit(run, cmd_t, sens, -e).z0) / (2 * e[p])
+        S[:, p] = (_perturbed_fit(run, cmd_t, sens, e, names).z0 -
+                   _perturbed_fit(run, cmd_t, sens, -e, names).z0) / (2 * e[p])
     brute = np.sqrt(np.diag(S @ sens.covariance @ S.T))[6:]
     ours = np.sqrt(np.diag(c.cov_thrust))[6:]
     assert np.all(np.abs(ours / brute - 1) < 0.05), (ours, brute)
