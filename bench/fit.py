@@ -159,15 +159,67 @@ class ThrustFit:
         return ThrustTable(coeffs, "gf", (float(duties.min()), float(duties.max())), pressure_psi, extra)
 
 
+# steps.csv columns a fit reads: must be finite numbers on every line
+STEP_REQUIRED = ("n_open", "duty_pct", "thrust_gf")
+# columns that may be empty/NaN (a step of one reading has no std) but not text
+STEP_OPTIONAL = ("n", "std_gf", "sem_gf")
+
+
+def _line_numbers(path: str | None, n_rows: int) -> list[int]:
+    """File line of each data row of a CSV read by pandas (which skips blank lines)."""
+    lines = list(range(2, n_rows + 2))
+    if path is None:
+        return lines
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as f:
+            numbered = [i for i, ln in enumerate(f, 1) if ln.strip()][1:]  # after the header
+    except OSError:
+        return lines
+    return numbered[:n_rows] if len(numbered) >= n_rows else lines
+
+
+def check_steps(steps: pd.DataFrame, source: str = "steps table", path: str | None = None) -> pd.DataFrame:
+    """The steps table with its numeric columns as floats, or a UserError naming the
+    source, the line and the column of the first cell that is not a finite number (text,
+    an empty cell, NaN or infinity in ``n_open``, ``duty_pct``, ``thrust_gf``; text in
+    ``n``, ``std_gf``, ``sem_gf``). A damaged step is never dropped silently: delete its
+    line to leave it out of the fit. ``path``: the CSV, to count its lines exactly."""
+    missing = set(STEP_REQUIRED) - set(steps.columns)
+    if missing:
+        raise UserError(f"{source}: lacks column(s) {', '.join(sorted(missing))}")
+    out = steps.copy()
+    lines = None
+    for col in STEP_REQUIRED + tuple(c for c in STEP_OPTIONAL if c in steps.columns):
+        raw = steps[col]
+        num = pd.to_numeric(raw, errors="coerce").astype(float)
+        vals = num.to_numpy()
+        text = raw.notna().to_numpy() & np.isnan(vals)
+        bad = text | (~np.isfinite(vals) if col in STEP_REQUIRED else np.zeros(len(vals), bool))
+        if bad.any():
+            i = int(np.argmax(bad))
+            lines = lines or _line_numbers(path, len(steps))
+            cell = raw.iloc[i]
+            what = (f"{str(cell).strip()!r} is not a number" if text[i] else
+                    "empty or NaN" if pd.isna(cell) else f"{vals[i]:g} is not a finite number")
+            more = int(bad.sum()) - 1
+            raise UserError(f"{source}: line {lines[i]}: column {col}: {what}"
+                            + (f" ({more} more line(s) like it)" if more else "")
+                            + ("; delete the line to leave that step out of the fit"
+                               if col == "thrust_gf" else ""))
+        out[col] = num
+    return out
+
+
 def fit_steps(steps: pd.DataFrame, order: str | int = "auto", criterion: str = "aicc",
-              orders: Iterable[int] = ORDERS) -> ThrustFit:
+              orders: Iterable[int] = ORDERS, source: str = "steps table",
+              path: str | None = None) -> ThrustFit:
     """Fit per-step mean thrust (steps.csv columns ``n_open, duty_pct, thrust_gf``) per nozzle count.
 
-    ``order`` is ``"auto"`` (pick by ``criterion``) or a fixed order 1-4.
+    ``order`` is ``"auto"`` (pick by ``criterion``) or a fixed order 1-4. A cell that is
+    not a finite number is a UserError naming ``source`` (``path``), line and column
+    (:func:`check_steps`).
     """
-    missing = {"n_open", "duty_pct", "thrust_gf"} - set(steps.columns)
-    if missing:
-        raise UserError(f"steps table lacks column(s) {', '.join(sorted(missing))}")
+    steps = check_steps(steps, source, path)
     if order != "auto":
         try:
             order = int(order)
@@ -175,7 +227,7 @@ def fit_steps(steps: pd.DataFrame, order: str | int = "auto", criterion: str = "
             raise UserError(f"order must be auto or 1-4, not {order!r}") from None
         if order not in ORDERS:
             raise UserError(f"order must be auto or 1-4, not {order}")
-    good = steps[np.isfinite(steps["thrust_gf"].to_numpy(dtype=float))]
+    good = steps
     if good.empty:
         raise UserError("no completed duty steps to fit")
     fits, selected, data = {}, {}, {}

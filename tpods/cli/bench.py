@@ -176,7 +176,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     not_an_input(out_file, args.run_dir)
     out = out_file.main
     raw, steps = read_session(args.run_dir)
-    result = fit_steps(steps, args.order, args.criterion)
+    steps_csv = Path(args.run_dir) / "steps.csv"
+    from_file = steps_csv.is_file() and len(steps_csv.read_bytes().split(b"\n", 2)) > 2
+    result = fit_steps(steps, args.order, args.criterion,  # a damaged cell names its line
+                       source=str(steps_csv) if from_file else f"{args.run_dir}: steps from raw.csv",
+                       path=str(steps_csv) if from_file else None)
     table = result.table(args.pressure_psi, source=f"tpods bench fit {args.run_dir}")
     readings = raw["reading_gf"].to_numpy(dtype=float) if "reading_gf" in raw else None
     unc = table_uncertainty(steps, readings, linearity_g=args.balance_linearity_g,
