@@ -51,6 +51,14 @@ NX = 8
 NZ = 3
 TWO_PI = 2.0 * math.pi
 _dot = np.dot
+PARAM_FORMS = ("inverse", "direct")
+INV_IDX = (6, 7)
+"""Indices of mass and Izz in the 8-state filter (corrected as 1/m and 1/Izz)."""
+MIN_INV_RATIO = 0.05
+"""1/m and 1/Izz must stay positive: one update may shrink either at most to this fraction
+(m or Izz at most 20x larger). Only a correction that would make them negative is cut;
+a tighter bound distorts the update (seen in the sweep: a bound of 2x left Izz 20 sigma
+off after the first torque pulse from the default start)."""
 
 
 @cache
@@ -86,6 +94,9 @@ class EkfConfig:
             R^-1/2 H P H^T R^-1/2 exceeds this.
         max_step_s: longest RK4 step of the propagation, s.
         arm_m, ct, cr, kb, ax, ay: known plant terms (see :mod:`estimator.plant.model`).
+        param_form: ``"inverse"`` (default): the measurement update corrects 1/m and 1/Izz
+            (:func:`inverse_correction`); ``"direct"``: it corrects m and Izz (the paper's
+            filter, and this toolkit's before issue 17).
     """
 
     x0: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 5e-3)
@@ -102,6 +113,7 @@ class EkfConfig:
     kb: float = 0.0
     ax: float = 0.0
     ay: float = 0.0
+    param_form: str = "inverse"
 
     def __post_init__(self):
         for name, n in (("x0", NX), ("sigma0", NX), ("q_psd", NX), ("sigma_meas", NZ)):
@@ -116,6 +128,9 @@ class EkfConfig:
             raise ValueError("underweighting alpha must be >= 0")
         if self.max_step_s <= 0:
             raise ValueError("max_step_s must be positive")
+        if self.param_form not in PARAM_FORMS:
+            raise ValueError(f"param_form must be one of {', '.join(PARAM_FORMS)}")
+        object.__setattr__(self, "_inv", INV_IDX if self.param_form == "inverse" else ())
         object.__setattr__(self, "_q_nz", tuple((i, float(q)) for i, q in enumerate(self.q_psd)
                                                if q))
         object.__setattr__(self, "_plant", _known_plant(self.known, self.arm_m))
@@ -271,6 +286,45 @@ def _inv_sym3(a, b, c, d, e, f):
     return [[A * k, B * k, C * k], [B * k, D * k, E * k], [C * k, E * k, F * k]]
 
 
+def inverse_correction(z_prior, z, P, idx=INV_IDX) -> None:
+    """Turn an update of m and Izz into the update of 1/m and 1/Izz, in place.
+
+    Why: the thrust terms of the plant are ``F / m`` and ``Mz / Izz``, linear in ``b = 1/m``
+    and ``c = 1/Izz``; with the yaw known the poses are linear in (initial state, b, c), so
+    a filter on (state, b, c) is (nearly) a linear Kalman filter, whatever its start. The
+    filter keeps m, Izz and their covariance (what every caller reads); the prediction is
+    the same in either form (the parameters are constant over it, so the covariance maps
+    through the fixed Jacobian ``dm/db = -m^2``). Only the update differs: the correction
+    ``dm`` of the ordinary update becomes ``db = -dm / m^2``, so
+    ``m_new = m / (1 - dm / m)``, and the covariance rows and columns of m are rescaled by
+    ``(m_new / m)^2`` (the Jacobian at the new mean). Same for Izz. ``b_new / b`` is kept
+    above :data:`MIN_INV_RATIO` (b stays positive).
+
+    Args:
+        z_prior: the state before the update (its m and Izz). z, P: after the ordinary
+            update (modified). idx: indices of the parameters to treat.
+    """
+    g = []
+    for i in idx:
+        old = float(z_prior[i])
+        if not old > 0.0:
+            g.append(1.0)
+            continue
+        ratio = 1.0 - (float(z[i]) - old) / old  # b_new / b_old
+        if ratio < MIN_INV_RATIO:
+            ratio = MIN_INV_RATIO
+        z[i] = old / ratio
+        g.append(1.0 / (ratio * ratio))
+    if len(idx) == 2 and idx[1] == idx[0] + 1:  # the usual case: one slice each way
+        a = idx[0]
+        P[a:a + 2, :] *= np.array(g)[:, None]
+        P[:, a:a + 2] *= g
+    else:
+        for i, gi in zip(idx, g, strict=True):
+            P[i, :] *= gi
+            P[:, i] *= gi
+
+
 def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None,
                symmetrize: bool = True):
     """Joseph-form measurement update with the optional underweighting.
@@ -287,11 +341,13 @@ def ekf_update(z, P, meas, cfg: EkfConfig, R: np.ndarray | None = None,
         squared (with the plain S) and whether underweighting was active.
     """
     return _update(z, P, meas, cfg.R if R is None else R, cfg.underweight, cfg.uw_trigger,
-                   symmetrize)
+                   symmetrize, cfg._inv)
 
 
-def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bool = True):
-    """:func:`ekf_update` for any state size n >= 3 (H = [I3 0])."""
+def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bool = True,
+            inv=()):
+    """:func:`ekf_update` for any state size n >= 3 (H = [I3 0]); ``inv``: indices of the
+    parameters corrected in inverse form (:func:`inverse_correction`)."""
     rd = R.diagonal()
     r0, r1, r2 = rd.tolist()
     (a, d, e), (_, b, f), (_, _, c) = P[:NZ, :NZ].tolist()
@@ -312,9 +368,12 @@ def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bo
             g = 1.0 + underweight
             si = _inv_sym3(g * a + r0, g * b + r1, g * c + r2, g * d, g * e, g * f)
     K = _dot(P[:, :NZ], np.array(si))
-    z = z + _dot(K, np.array([y0, y1, y2]))
+    z1 = z + _dot(K, np.array([y0, y1, y2]))
     A = _eye(len(z)) - _dot(K, _h(len(z)))
     P = _dot(_dot(A, P), A.T) + _dot(K * rd, K.T)
+    if inv:
+        inverse_correction(z, z1, P, inv)
+    z = z1
     if symmetrize:
         P += P.T
         P *= 0.5
@@ -456,7 +515,7 @@ def run_ekf(pose_t, pose, cmd_t, thrust_n, cfg: EkfConfig = PAPER, x0=None, P0=N
     sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
     x, P = initial_estimate(cfg, x0, P0)
     h = run_filter(sched, pose, cfg.plant, x, P, cfg.R, cfg._q_nz, cfg.max_step_s,
-                   cfg.underweight, cfg.uw_trigger, use, keep_cov, progress)
+                   cfg.underweight, cfg.uw_trigger, use, keep_cov, progress, inv=cfg._inv)
     return EkfResult(sched.pose_t.copy(), h.x, h.sigma, h.P, h.updated, h.triggered, h.nis,
                      h.cov)
 
@@ -477,7 +536,7 @@ class FilterHistory:
 def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
                max_step_s: float = 0.01, underweight: float = 0.0, uw_trigger: float = 1.0,
                use=None, keep_cov: bool = False, progress=None, *, q_per_step: bool = False,
-               stop_on_blowup: bool = False) -> FilterHistory:
+               stop_on_blowup: bool = False, inv=()) -> FilterHistory:
     """The EKF loop for any model (the one filter behind :func:`run_ekf` and the extended
     filter of :mod:`estimator.filters.ekf_ext`).
 
@@ -492,6 +551,8 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
         keep_cov: keep every covariance. progress: callable(k) every 1000 poses.
         q_per_step: add the process noise after every RK4 step (else once per interval).
         stop_on_blowup: a prediction that overflows ends the filter: NaN from there on.
+        inv: state indices of mass and Izz to correct as 1/m and 1/Izz
+            (:func:`inverse_correction`); empty: corrected directly.
     """
     pose = np.asarray(pose, dtype=float)
     n = len(sched.pose_t)
@@ -521,7 +582,7 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
                                    max_step_s, q_per_step)
         if use[k]:
             x, P, (nis[k], trig[k]) = _update(x, P, meas[k], R, underweight, uw_trigger,
-                                              (k & 15) == 0)
+                                              (k & 15) == 0, inv)
         xs[k] = x
         sig[k] = P.diagonal()
         if keep_cov:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.filters.ekf import _update, filter_plant, make_schedule, run_filter
+from estimator.filters.ekf import PARAM_FORMS, _update, filter_plant, make_schedule, run_filter
 from estimator.plant.model import ARM_M, PARAM_NAMES, STATE_NAMES
 
 SIGMA0 = {"x": 0.1, "y": 0.1, "psi": math.radians(5.0), "u": 0.1, "v": 0.1,
@@ -47,6 +47,9 @@ class ExtEkfConfig:
         q_psd: process-noise spectral density per state or parameter name, units^2/s
             (default none: the parameters are constants).
         max_step_s: longest propagation step, s.
+        param_form: ``"inverse"`` (default): the update corrects 1/m and 1/Izz, as the
+            8-state filter does (:func:`estimator.filters.ekf.inverse_correction`);
+            ``"direct"``: m and Izz.
     """
 
     names: tuple[str, ...] = ("mass", "izz", "ct", "cr", "kb")
@@ -54,8 +57,11 @@ class ExtEkfConfig:
     sigma_meas: tuple[float, float, float] = (0.01, 0.01, math.radians(1.0))
     q_psd: Mapping[str, float] = field(default_factory=dict)
     max_step_s: float = 0.01
+    param_form: str = "inverse"
 
     def __post_init__(self):
+        if self.param_form not in PARAM_FORMS:
+            raise ValueError(f"param_form must be one of {', '.join(PARAM_FORMS)}")
         bad = [n for n in self.names if n not in PARAM_NAMES]
         if bad or len(set(self.names)) != len(self.names):
             raise ValueError(f"names must be distinct parameters from {PARAM_NAMES}")
@@ -191,8 +197,10 @@ def run_ext_ekf(pose_t, pose, cmd_t, thrust_n, cfg: ExtEkfConfig, x0=None, P0=No
     sched = make_schedule(pose_t, cmd_t, thrust_n, base["arm"])
     q_nz = tuple((i, float(cfg.q_psd[lab])) for i, lab in enumerate(cfg.labels)
                  if cfg.q_psd.get(lab, 0.0))
+    inv = ((6 + names.index("mass"), 6 + names.index("izz")) if cfg.param_form == "inverse"
+           else ())
     h = run_filter(sched, pose, plant, z, P, cfg.R, q_nz, cfg.max_step_s, use=use,
-                   progress=progress, q_per_step=True, stop_on_blowup=True)
+                   progress=progress, q_per_step=True, stop_on_blowup=True, inv=inv)
     return ExtEkfResult(names, pose_t.copy(), h.x, h.sigma, h.P, h.updated, h.nis)
 
 

@@ -7,8 +7,9 @@ Propagation is :func:`estimator.plant.propagate.propagate_stm_batch`: the plant 
 :mod:`estimator.plant.model` compiled for arrays (the right-hand side and the Jacobian entries
 of each RK4 stage for all runs in one pass) and the transition matrix assembled from the
 four stage Jacobians, the same RK4 as :func:`estimator.plant.propagate.rk4_stm`. The update is
-the same Joseph-form, optionally underweighted update as :func:`estimator.filters.ekf.ekf_update`,
-written on batched matrices.
+the same Joseph-form, optionally underweighted update as :func:`estimator.filters.ekf.ekf_update`
+(with the correction of 1/m and 1/Izz when ``param_form`` is ``inverse``), written on
+batched matrices.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.filters.ekf import NX, NZ, PAPER, EkfConfig, filter_plant
+from estimator.filters.ekf import MIN_INV_RATIO, NX, NZ, PAPER, EkfConfig, filter_plant
 from estimator.plant.model import ALL_EFFECTS, PARAM_NAMES, array_function, jacobian_pattern, wrench
 from estimator.plant.propagate import propagate_stm_batch, segment_thrust, zoh_segments
 
@@ -157,6 +158,17 @@ class VecEKF:
         A = np.broadcast_to(np.eye(NX), P.shape).copy()
         A[:, :, :NZ] -= K
         Pn = A @ P @ np.swapaxes(A, -1, -2) + (K * np.diag(R)) @ np.swapaxes(K, -1, -2)
+        if cfg._inv:
+            # correct 1/m and 1/Izz (estimator.filters.ekf.inverse_correction, batched)
+            for i in cfg._inv:
+                old = x[:, i]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    ratio = np.maximum(1.0 - (xn[:, i] - old) / old, MIN_INV_RATIO)
+                ratio = np.where(old > 0.0, ratio, 1.0)
+                xn[:, i] = np.where(old > 0.0, old / ratio, xn[:, i])
+                g = 1.0 / (ratio * ratio)
+                Pn[:, i, :] *= g[:, None]
+                Pn[:, :, i] *= g[:, None]
         Pn = 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
         self.x = np.where(mask[:, None], xn, x)
         self.P = np.where(mask[:, None, None], Pn, P)

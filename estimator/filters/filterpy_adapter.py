@@ -19,6 +19,7 @@ from estimator.filters.ekf import (
     EkfConfig,
     EkfResult,
     initial_estimate,
+    inverse_correction,
     make_schedule,
     uw_ratio,
     wrap_residual,
@@ -64,6 +65,18 @@ class TpodsEKF(ExtendedKalmanFilter):
         self.Q = np.diag(np.asarray(self.cfg.q_psd) * float(sum(seg_dt)))
 
     def update_pose(self, pose) -> None:
+        """Pose update; with ``cfg.param_form == "inverse"`` the correction of m and Izz is
+        made on 1/m and 1/Izz (:func:`estimator.filters.ekf.inverse_correction`)."""
+        prior = self.x.ravel().copy()
+        self._update_pose(pose)
+        if self.cfg._inv:
+            x = self.x.ravel().copy()
+            P = np.array(self.P, dtype=float)
+            inverse_correction(prior, x, P, self.cfg._inv)
+            self.x = x.reshape(NX, 1)
+            self.P = P
+
+    def _update_pose(self, pose) -> None:
         zc = np.asarray(pose, dtype=float).reshape(NZ, 1)
         cfg = self.cfg
         self.triggered = cfg.underweight > 0.0 and uw_ratio(self.P, self.R) > cfg.uw_trigger

@@ -173,8 +173,9 @@ def _prior(scale):
 def test_underweighting_changes_the_update_only_while_triggered():
     z = np.array([0.0, 0.0, 0.1, 0.0, 0.0, 0.0, 2.0, 4e-3])
     meas = [0.01, -0.02, 0.12]
-    on = PAPER.with_(underweight=0.5, uw_trigger=1.0)
-    off = PAPER.with_(underweight=0.0)
+    # the additive (direct) form: the closed-form check below is of the gain itself
+    on = PAPER.with_(underweight=0.5, uw_trigger=1.0, param_form="direct")
+    off = PAPER.with_(underweight=0.0, param_form="direct")
     small, large = _prior(1.0), _prior(1e4)
     assert uw_ratio(small, PAPER.R) < 1.0 < uw_ratio(large, PAPER.R)
     # the closed-form trigger equals the eigenvalue definition
@@ -284,11 +285,16 @@ def test_extended_filter_that_blows_up_stops_with_nan_not_a_traceback():
     cmd_t, duty = translate_rotate(10.0, 50.0)
     sim = simulate(cmd_t, duty, PlantParams(0.35, 8e-4, ct=0.1, cr=3e-4, kb=1e-3),
                    config=SimConfig(noise_pos_m=0.001, noise_yaw_rad=math.radians(0.3), seed=3))
+    # the direct form (m, Izz corrected additively) blows up here; the inverse form, the
+    # default since issue 17, stays finite but is still flagged diverged
     cfg = ExtEkfConfig(names=("mass", "izz", "ct", "cr", "kb", "ax", "ay"),
-                       sigma_meas=(0.001, 0.001, math.radians(0.3)))
+                       sigma_meas=(0.001, 0.001, math.radians(0.3)), param_form="direct")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         r = run_ext_ekf(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n, cfg)
+        inv = run_ext_ekf(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n,
+                          ExtEkfConfig(names=cfg.names, sigma_meas=cfg.sigma_meas))
     assert r.diverged and r.to_dict()["diverged"] is True
     assert np.isnan(r.x[-1]).all()
     assert np.isfinite(r.x[0]).all()  # the start is kept
+    assert inv.diverged and np.isfinite(inv.x[-1]).all()
