@@ -89,12 +89,27 @@ def add_batch_options(parser) -> None:
     _filter_options(parser, "paper")
 
 
+def ls_window_warning(ls_window_s: float, span_s: float, what: str = "the run") -> str | None:
+    """The warning line when ``--ls-window`` covers all of ``span_s`` seconds of poses (the LS
+    start then uses every pose and the filter has nothing left to add), else None."""
+    if ls_window_s < span_s:
+        return None
+    return (f"tpods: warning: --ls-window {ls_window_s:g} s covers all of {what} ({span_s:.3g} s "
+            f"of poses): the LS start uses every pose and the filter adds nothing to it; give "
+            f"--ls-window below {span_s:.3g} s, or use --method ls")
+
+
 def report_filter(est, args) -> int:
     """Write and print ``tpods estimate batch --method ekf|ls-ekf`` (the ideal model)."""
     from estimator.filters.ekf import STATE_NAMES
 
     fe, run, out, has_truth = est.filter, est.run, est.to_dict(), est.has_truth
     r = fe.result
+    if fe.ls is not None and len(r.t):
+        line = ls_window_warning(args.ls_window, float(r.t[-1] - r.t[0]),
+                                 "the run" if args.window is None else "the --window")
+        if line:
+            print(line, file=sys.stderr)
     out_folder = getattr(args, "out_folder", None)
     if out_folder is not None:
         from estimator.reports.plots_ekf import plot_error_bounds

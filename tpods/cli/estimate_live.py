@@ -65,6 +65,10 @@ def cmd_live(args: argparse.Namespace) -> int:
     from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
     from tpods.cli.estimate_ekf import _filter_config
 
+    if args.method == "ls-ekf" and args.duration is not None and args.ls_window >= args.duration:
+        raise UserError(f"--ls-window {args.ls_window:g} s is not shorter than --duration "
+                        f"{args.duration:g} s: the LS start would never run; give --ls-window "
+                        f"below {args.duration:g} s")
     table = load_thrust_table(args.thrust_table)
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
@@ -112,6 +116,11 @@ def cmd_live(args: argparse.Namespace) -> int:
             (Path(args.out) / "estimate.json").write_text(
                 json.dumps(summary, indent=2, default=str) + "\n")
     c = summary["counters"]
+    span = est.hist_t[-1] - est.hist_t[0] if est.hist_t else 0.0
+    if args.method == "ls-ekf" and est.hist_t and "ls" not in summary and "ls_error" not in summary \
+            and span < args.ls_window:
+        print(f"tpods: warning: the LS start never ran: the poses span {span:.3g} s, less than "
+              f"--ls-window {args.ls_window:g} s; the estimate is the plain EKF's", file=sys.stderr)
     if summary.get("diverged"):
         print("tpods: warning: the live filter diverged (non-physical mass or Izz, or innovations "
               "far larger than their covariance); do not use this estimate. Late commands: "

@@ -139,3 +139,21 @@ def test_crlb_and_design_costs_scale_with_the_work():
     big_b, big_s = sizes.crlb_cost(sizes.crlb_segments(144001, 6001, 120.0), 7)
     assert 1e6 < small_b < 1e9 and small_s < sizes.ANNOUNCE_S  # the default bound is quick
     assert big_b > 10 * small_b and big_s > 10 * small_s
+
+
+def test_ls_window_longer_than_the_run_warns_naming_both(tpods_exe, tmp_path):
+    assert run(tpods_exe, "sim", "--duration", "4", "--out", str(tmp_path / "r")).returncode == 0
+    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "500")
+    assert r.returncode == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning: --ls-window")]
+    assert warn == ["tpods: warning: --ls-window 500 s covers all of the run (4 s of poses): the LS start "
+                    "uses every pose and the filter adds nothing to it; give --ls-window below 4 s, or "
+                    "use --method ls"], r.stderr
+    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "2")
+    assert r.returncode == 0 and "--ls-window" not in r.stderr, r.stderr
+
+
+def test_live_ls_window_not_shorter_than_duration_is_refused_before_listening(tpods_exe):
+    line = _one_error_line(run(tpods_exe, "estimate", "live", "--method", "ls-ekf", "--duration", "5",
+                               "--ls-window", "10"))
+    assert "--ls-window 10 s is not shorter than --duration 5 s" in line
