@@ -222,12 +222,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
         bridge = Bridge(session)
         bridge_thread = threading.Thread(target=bridge.run, args=(source, stop), daemon=True)
     elif args.mocap.startswith("udp:"):
-        host, _, port = args.mocap[4:].rpartition(":")
-        try:
-            sink = udp_sink((host or "127.0.0.1", int(port)), args.body,
-                            args.udp_block_size or None)
-        except ValueError:
-            raise UserError(f"--mocap udp:HOST:PORT, got {args.mocap!r}") from None
+        sink = udp_sink(udp_target(args.mocap), args.body, args.udp_block_size or None)
     else:
         raise UserError(f"--mocap must be zenoh or udp:HOST:PORT, got {args.mocap!r}")
     plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
@@ -242,8 +237,12 @@ def cmd_plant(args: argparse.Namespace) -> int:
         print(f"valves: {server.path}", flush=True)
         print(f"plant: m {args.mass:g} kg, Izz {args.izz:g} kg m^2, {args.pose_rate:g} Hz poses "
               f"of {args.body} ({args.mocap}); Ctrl-C to stop", file=sys.stderr, flush=True)
-        try:
-            stop.wait(args.duration)
+        try:  # until --duration, Ctrl-C/SIGTERM, or the plant loop stops on an error
+            deadline = None if args.duration is None else time.monotonic() + args.duration
+            while plant.error is None and not stop.wait(
+                    0.2 if deadline is None else max(0.0, min(0.2, deadline - time.monotonic()))):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
         except KeyboardInterrupt:
             pass
     finally:
@@ -268,4 +267,29 @@ def cmd_plant(args: argparse.Namespace) -> int:
                     fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
     print(f"plant: {plant.frames} poses ({plant.occluded} occluded), {len(plant.switches)} valve "
           f"changes, {valves.watchdog_trips} watchdog trip(s)", file=sys.stderr)
+    if plant.error is not None:
+        raise UserError(f"the simulated module stopped after {plant.frames} poses: {plant.error}")
     return 0
+
+
+def udp_target(spec: str) -> tuple[str, int]:
+    """``udp:HOST:PORT`` (HOST may be empty: 127.0.0.1) as a resolved (address, port), or
+    one UserError naming --mocap and what is wrong, before anything starts."""
+    import socket
+
+    host, sep, port_text = spec[4:].rpartition(":")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = None
+    if not sep or port is None:
+        raise UserError(f"--mocap must be udp:HOST:PORT, got {spec!r}")
+    if not 1 <= port <= 65535:
+        raise UserError(f"--mocap {spec}: port {port} is out of range (1-65535)")
+    host = host or "127.0.0.1"
+    try:
+        addr = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
+    except (socket.gaierror, UnicodeError) as exc:
+        raise UserError(f"--mocap {spec}: cannot resolve host {host!r} "
+                        f"({getattr(exc, 'strerror', None) or exc})") from None
+    return addr, port

@@ -157,3 +157,33 @@ def test_live_ls_window_not_shorter_than_duration_is_refused_before_listening(tp
     line = _one_error_line(run(tpods_exe, "estimate", "live", "--method", "ls-ekf", "--duration", "5",
                                "--ls-window", "10"))
     assert "--ls-window 10 s is not shorter than --duration 5 s" in line
+
+
+@pytest.mark.parametrize("spec,needle", [
+    ("udp:127.0.0.1:99999", "--mocap udp:127.0.0.1:99999: port 99999 is out of range (1-65535)"),
+    ("udp:127.0.0.1:0", "port 0 is out of range"),
+    ("udp:127.0.0.1", "--mocap must be udp:HOST:PORT"),
+    ("udp:no-such-host.invalid:5000", "cannot resolve host 'no-such-host.invalid'"),
+])
+def test_run_plant_refuses_a_bad_udp_target_before_the_run(tpods_exe, spec, needle):
+    """Was: status 0 and 'plant: 1 poses' (the sender's error swallowed in its thread)."""
+    r = run(tpods_exe, "run", "plant", "--mocap", spec, "--duration", "1", timeout=30)
+    line = _one_error_line(r)
+    assert needle in line and "valves:" not in r.stdout
+
+
+def test_run_plant_reports_a_plant_loop_error(monkeypatch, capsys):
+    """An error inside the plant loop's thread ends the run at once with one line, status 2."""
+    import tpods.plant_loop as pl
+    from tpods.cli import main
+
+    def broken_sink(*a, **k):
+        def sink(*_a):
+            raise OSError("network is unreachable")
+        sink.close = lambda: None
+        return sink
+
+    monkeypatch.setattr(pl, "udp_sink", broken_sink)
+    assert main(["run", "plant", "--mocap", "udp:127.0.0.1:5000", "--duration", "30"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "tpods: error: the simulated module stopped after 1 poses: network is unreachable"
