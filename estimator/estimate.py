@@ -328,6 +328,60 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
     return est
 
 
+def filter_thrust_budget(out: dict[str, Any], run: Run, table: ThrustTable, *, clamp: bool,
+                         names: Sequence[str], fixed: Mapping[str, float],
+                         final: Mapping[str, float], sigma_pos_m: float,
+                         sigma_yaw_rad: float) -> BatchResult | None:
+    """Make a filter's ``mass_sigma_kg``/``izz_sigma_kgm2`` in ``out`` the TOTAL (noise +
+    thrust table), with the budget keys of a batch estimate beside them.
+
+    The thrust part is the batch consider covariance (:mod:`estimator.batch.consider`) of
+    the same poses and commands, linearised at the least-squares optimum reached from the
+    filter's final estimate ``final``: a filter's constant-parameter estimate is, to first
+    order, the least-squares estimate of the data it has seen, so a thrust-table error
+    moves both alike (exactly so for a common scale error, which moves m and Izz by the
+    same fraction whatever the weighting of the data). The noise part stays the filter's
+    own. Returns the fit used, or None when the table states no uncertainty or thrusts.csv
+    gives the thrusts (``out["thrust_uncertainty"]["note"]`` then says so).
+    """
+    from estimator.batch.consider import NO_UNCERTAINTY, THRUSTS_GIVEN
+
+    out["mass_sigma_noise_kg"] = out.get("mass_sigma_kg")
+    out["izz_sigma_noise_kgm2"] = out.get("izz_sigma_kgm2")
+    out["mass_sigma_thrust_kg"] = 0.0
+    out["izz_sigma_thrust_kgm2"] = 0.0
+    note = (THRUSTS_GIVEN if run.thrust_n is not None else
+            NO_UNCERTAINTY if not table.states_uncertainty else "")
+    res = None
+    if not note:
+        start = {k: float(v) for k, v in final.items()
+                 if k in names and math.isfinite(v) and (k not in ("mass", "izz") or v > 0)}
+        try:
+            res = least_squares_run(run, table, (None, None), clamp=clamp, names=tuple(names),
+                                    fixed=dict(fixed), initial=start, sigma_pos_m=sigma_pos_m,
+                                    sigma_yaw_rad=sigma_yaw_rad)
+        except UserError as exc:
+            note = f"the thrust part could not be computed ({exc}); sigma covers noise only"
+        else:
+            if res.cov_thrust is None or not res.converged:
+                note = ("the thrust part could not be computed (the least-squares fit at the "
+                        "filter's estimate did not converge); sigma covers noise only")
+                res = None
+    if res is not None:
+        st = res.sigma_thrust
+        for name, unit in (("mass", "kg"), ("izz", "kgm2")):
+            if name in res.names and out.get(f"{name}_sigma_{unit}") is not None:
+                t = float(st[6 + res.names.index(name)])
+                out[f"{name}_sigma_thrust_{unit}"] = t
+                out[f"{name}_sigma_{unit}"] = math.hypot(out[f"{name}_sigma_noise_{unit}"], t)
+        note = (res.thrust_note + "; the thrust part from the least-squares linearisation of "
+                "the same data")
+    out["thrust_uncertainty"] = {"included": res is not None,
+                                 "terms": list(res.thrust_terms) if res is not None else [],
+                                 "note": note}
+    return res
+
+
 def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial,
                   sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection, note) -> Estimate:
     if names != ("mass", "izz"):
@@ -370,6 +424,9 @@ def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial
     r = fe.result
     out: dict[str, Any] = {"run": str(run.path)}
     out.update(fe.to_dict())
+    filter_thrust_budget(out, run, table, clamp=clamp, names=("mass", "izz"), fixed=fixed,
+                         final={"mass": r.mass_kg, "izz": r.izz_kgm2}, sigma_pos_m=sigma_pos_m,
+                         sigma_yaw_rad=sigma_yaw_rad)
     out["settings"] = {"preset": opts.preset, "q_psd": list(cfg.q_psd),
                        "sigma0": list(cfg.sigma0), "x0": x0.tolist(),
                        "sigma_meas": list(cfg.sigma_meas), "underweight": cfg.underweight,
@@ -414,6 +471,9 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
                          ls_kwargs=ls_kwargs)
     out: dict[str, Any] = {"method": method, "model": model, "run": str(run.path)}
     out.update(r.to_dict())
+    final = dict(zip(cfg.labels, np.asarray(r.x[-1], float).tolist(), strict=False))
+    filter_thrust_budget(out, run, table, clamp=clamp, names=names, fixed=fixed, final=final,
+                         sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     if ls is not None:
         out["ls"] = {"mass_kg": ls.mass_kg, "mass_sigma_kg": ls.mass_sigma_kg,
                      "izz_kgm2": ls.izz_kgm2, "izz_sigma_kgm2": ls.izz_sigma_kgm2,

@@ -282,6 +282,16 @@ def budget_lines(budget: dict[str, tuple[float, float, float]]) -> list[str]:
     return lines
 
 
+def filter_budget(out: dict[str, Any]) -> dict[str, tuple[float, float, float]]:
+    """The budget of a filter estimate's JSON object (keys of ``filter_thrust_budget``)."""
+    b = {}
+    for name, unit in (("mass", "kg"), ("izz", "kgm2")):
+        if f"{name}_sigma_noise_{unit}" in out and out[f"{name}_sigma_{unit}"] is not None:
+            b[name] = (out[f"{name}_sigma_noise_{unit}"], out[f"{name}_sigma_thrust_{unit}"],
+                       out[f"{name}_sigma_{unit}"])
+    return b
+
+
 def cmd_crlb(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
     from estimator.estimate import bound_sequence, load_sequence

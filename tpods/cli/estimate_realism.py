@@ -74,7 +74,11 @@ def report_ext(est, args: argparse.Namespace) -> int:
     print(f"{args.method} with --model {est.model} on {run.path} ({len(r.t)} poses)")
     for n in r.names:
         v, s = r.final(n)
-        print(f"  {n:<5} = {v:.6g} +/- {s:.3g} (1 sigma; prior sigma {SIGMA0[n]:g})")
+        print(f"  {n:<5} = {v:.6g} +/- {s:.3g} (1 sigma, noise; prior sigma {SIGMA0[n]:g})")
+    from tpods.cli.estimate_batch import budget_lines, filter_budget
+
+    for line in budget_lines(filter_budget(out)):
+        print(line)
     if "truth_mass_kg" in out:
         print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
               f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")

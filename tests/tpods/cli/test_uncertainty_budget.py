@@ -105,3 +105,25 @@ def test_bad_uncertainty_sections_are_one_line_errors(run_and_tables, tmp_path, 
     assert main(["estimate", "batch", str(run), "--thrust-table", str(base)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("tpods: error: ") and needle in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("method", ["ekf", "ls-ekf"])
+def test_filters_report_the_total_and_agree_with_batch_ls(run_and_tables, capsys, method):
+    """Issue 17 item 3: a filter's sigma carries the thrust part too; without process noise
+    on the parameters its total agrees with batch LS on the same run within 10 %."""
+    run, table = run_and_tables
+    capsys.readouterr()
+    assert main(["estimate", "batch", str(run), "--thrust-table", str(table), "--json"]) == 0
+    ls = json.loads(capsys.readouterr().out)
+    assert main(["estimate", "batch", str(run), "--thrust-table", str(table), "--json",
+                 "--method", method, "--preset", "no-process-noise"]) == 0
+    f = json.loads(capsys.readouterr().out)
+    assert f["thrust_uncertainty"]["included"]
+    for name, unit in (("mass", "kg"), ("izz", "kgm2")):
+        assert f[f"{name}_sigma_{unit}"] == pytest.approx(
+            math.hypot(f[f"{name}_sigma_noise_{unit}"], f[f"{name}_sigma_thrust_{unit}"]))
+        assert f[f"{name}_sigma_{unit}"] == pytest.approx(ls[f"{name}_sigma_{unit}"], rel=0.10)
+    assert main(["estimate", "batch", str(run), "--thrust-table", str(table),
+                 "--method", method]) == 0
+    assert any(line.split()[-3:] == ["noise", "thrust", "total"]
+               for line in capsys.readouterr().out.splitlines())
