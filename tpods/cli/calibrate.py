@@ -402,3 +402,57 @@ def cmd_thrust(args: argparse.Namespace) -> int:
           f"yaw {math.degrees(rms[2]):.3f} deg")
     print(f"  wrote {out.main}" + (", calibration.json" if out.is_folder else ""))
     return 0
+
+
+def design_calibration(args: argparse.Namespace, table, settings, out_folder) -> int:
+    """``tpods design --for thrust-calibration``: the D-optimal gated sine for the factors
+    ``--per`` (m and Izz known: ``--mass``, ``--izz``), written as commands.csv and
+    design.json into ``out_folder`` (a checked :class:`common.outputs.ResultFolder`)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from estimator.batch.calibration_design import evaluate_calibration, search_calibration
+    from estimator.plant.inputs import make_input
+
+    compared = []
+    for spec in ["phase-sine", "translate-rotate", *args.compare]:
+        cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
+        try:
+            compared.append(evaluate_calibration(cmd_t, duty, table, settings, args.per, label=spec))
+        except UserError as exc:
+            raise UserError(f"{spec}: {exc}") from None
+    total = args.candidates + args.refine * args.refine_evals
+    with tqdm(total=total, desc="design", unit="eval", file=sys.stderr, leave=False,
+              disable=None) as bar:
+        res = search_calibration(table, settings, per=args.per, n_random=args.candidates,
+                                 n_refine=args.refine, refine_evals=args.refine_evals,
+                                 omega_range=tuple(args.omega_range), seed=args.seed,
+                                 progress=bar.update)
+    best = res.best
+    doc = {"for": "thrust-calibration", "per": args.per, "best": best.to_dict(),
+           "compared": [e.to_dict() for e in compared], "evaluated": res.evaluated,
+           "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
+                        "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
+                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
+                        "mass_kg": args.mass, "izz_kgm2": args.izz},
+           "commands_csv": str(out_folder.path / "commands.csv")}
+    with out_folder.writing() as d:
+        np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
+                   header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
+        (d / "design.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    if args.json:
+        _print_json(doc)
+        return 0
+    print(f"D-optimal thrust-calibration input over {args.duration:g} s (--per {args.per}, "
+          f"m = {args.mass:g} kg and Izz = {args.izz:g} kg m^2 known; {res.evaluated} sequences)")
+    print(f"  {'input':<44} {'log det':>9} {'max sd':>8} {'counts open':>12} {'excursion x,y m':>16}  fits")
+    for e in [*compared, best]:
+        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
+        sd = f"{e.sigma.max():8.2g}" if e.sigma.size and np.all(np.isfinite(e.sigma)) else f"{'-':>8}"
+        counts = ",".join(str(k) for k in sorted(e.counts_s))
+        print(f"  {lab:<44} {e.logdet:9.3f} {sd} {counts:>12} {e.excursion_m[0]:7.2f},"
+              f"{e.excursion_m[1]:7.2f}  {'yes' if e.feasible else 'NO: ' + e.reason}")
+    print(f"  best: {best.spec.describe()}")
+    print(f"  wrote {out_folder.path / 'commands.csv'} (play it or simulate it with tpods sim "
+          "--input), design.json")
+    return 0

@@ -162,6 +162,14 @@ def register(sub, est, rep) -> None:
     d.add_argument("--out", required=True, metavar="DIR",
                    help="write commands.csv (the best input), design.json and figures here")
     add_force(d)
+    d.add_argument("--for", dest="design_for", choices=("mass-izz", "thrust-calibration"),
+                   default="mass-izz",
+                   help="mass-izz: phase-shifted sines, D-optimal for m and Izz (default); "
+                        "thrust-calibration: gated sines that open the thrusters in different "
+                        "numbers, D-optimal for the thrust table's in-situ factors with m and "
+                        "Izz known (for tpods calibrate thrust)")
+    d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
+                   help="--for thrust-calibration: the factors to design for (default both)")
     d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     d.set_defaults(func=cmd_design)
 
@@ -420,6 +428,10 @@ def cmd_design(args: argparse.Namespace) -> int:
     settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
                               math.radians(args.noise_yaw_deg), PlantParams(args.mass, args.izz),
                               tuple(args.table_size), args.margin, args.max_yaw_rate)
+    if args.design_for == "thrust-calibration":
+        from tpods.cli.calibrate import design_calibration
+
+        return design_calibration(args, table, settings, out_folder)
     compared = []
     for spec in args.compare:
         cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)

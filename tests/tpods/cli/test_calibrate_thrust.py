@@ -109,3 +109,21 @@ def test_refusals_are_one_line(tmp_path, capsys, case, msg):
                       else "thruster", "--out", str(out), "--force"], capsys)
     assert rc == 2 and len(err) == 1 and err[0].startswith("tpods: error: ") and msg in err[0], err
     assert not (tmp_path / "new.toml").exists()
+
+
+def test_design_for_thrust_calibration(tmp_path, capsys):
+    out = tmp_path / "des"
+    argv = ["design", "--for", "thrust-calibration", "--duration", "20", "--candidates", "6",
+            "--refine", "0", "--out", str(out), "--json"]
+    rc, text, err = _rc(argv, capsys)
+    assert rc == 0, err
+    d = json.loads(text)
+    assert d["for"] == "thrust-calibration" and d["best"]["feasible"]
+    assert len(d["best"]["nozzle_counts_s"]) >= 2
+    sine = next(e for e in d["compared"] if e["label"] == "phase-sine")
+    assert not sine["feasible"] and "confounded" in sine["reason"]
+    cmd = np.loadtxt(out / "commands.csv", delimiter=",", skiprows=1)
+    open_ = cmd[:, 1:][cmd[:, 1:] > 0]
+    assert np.all((open_ >= 10) & (open_ <= 90))
+    rc, _, err = _rc(argv, capsys)  # an existing design needs --force
+    assert rc == 2 and len(err) == 1 and "--force" in err[0]
