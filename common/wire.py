@@ -211,7 +211,9 @@ def estimate_key(body: str, prefix: str = DEFAULT_PREFIX) -> str:
 
 EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d,"t_pub":%r,'
             '"method":"%s","phase":"%s","mass_kg":%r,"mass_sigma_kg":%r,"izz_kgm2":%r,'
-            '"izz_sigma_kgm2":%r,"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
+            '"izz_sigma_kgm2":%r,"mass_sigma_noise_kg":%r,"mass_sigma_thrust_kg":%r,'
+            '"izz_sigma_noise_kgm2":%r,"izz_sigma_thrust_kgm2":%r,'
+            '"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
             '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
             '"nis":%s,"diverged":%s,"inconsistent":%s}')
 

@@ -157,6 +157,7 @@ class LiveEstimator(LsEkfRestart):
         self._rewind_t: float | None = None
         self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
         _nis_limits()  # scipy.stats now, not in the middle of a stream
+        self._init_thrust_part()
 
     # ------------------------------------------------------------------ input
     def command(self, d: dict[str, Any]) -> bool:
@@ -271,7 +272,8 @@ class LiveEstimator(LsEkfRestart):
             if self.recorder is not None:
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
                 self.recorder.estimate(p.t, p.frame, self.phase, self.z,
-                                       np.sqrt(np.maximum(self.P.diagonal(), 0.0)))
+                                       np.sqrt(np.maximum(self.P.diagonal(), 0.0)),
+                                       self.thrust_rel)
             if self.config.publish_rate_hz == 0:
                 self._publish(now)
         if self.config.method == "ls-ekf":
@@ -346,6 +348,82 @@ class LiveEstimator(LsEkfRestart):
             return False
         return bool(mean > _nis_limits()[len(self._nis_recent)])
 
+    # ------------------------------------------------------ thrust uncertainty
+    def _init_thrust_part(self) -> None:
+        """The thrust table's part of the sigma, as fractions of m and Izz (issue 17).
+
+        Until a consider covariance has been computed on this run's data it is the table's
+        common ``scale_rel`` (exact for a common scale error: m and Izz move by the same
+        fraction); the ls-ekf LS window and the end of the run (:meth:`finish`) replace it
+        with the full consider covariance of the data so far, whose fractions are carried
+        forward. A table without uncertainty gives 0 and ``thrust_note`` says so."""
+        from estimator.batch.consider import NO_UNCERTAINTY
+
+        t = self.table
+        unc = getattr(t, "uncertainty", None)
+        r = float(unc.scale_rel) if unc is not None else 0.0
+        self.thrust_rel = (r, r)
+        if not getattr(t, "states_uncertainty", False):
+            self.thrust_note = NO_UNCERTAINTY
+        elif r > 0:
+            self.thrust_note = ("thrust part: the table's common scale_rel until a consider "
+                                "covariance is computed on this run (LS window, end of run)")
+        else:
+            self.thrust_note = ("thrust part: none until a consider covariance is computed on "
+                                "this run (LS window, end of run)")
+
+    def _thrust_sensitivity(self, duty):
+        """The table's thrust sensitivity of ``duty`` rows, or None without uncertainty."""
+        if not getattr(self.table, "states_uncertainty", False):
+            return None
+        from common.thrust_uncertainty import thrust_sensitivity
+
+        return thrust_sensitivity(self.table, duty, clamp=True)
+
+    def _set_thrust_rel(self, res, where: str) -> None:
+        """Carry a batch fit's thrust part forward as fractions of its m and Izz."""
+        st = res.sigma_thrust
+        im, ii = 6 + res.names.index("mass"), 6 + res.names.index("izz")
+        rel = (float(st[im] / res.z0[im]), float(st[ii] / res.z0[ii]))
+        if all(math.isfinite(v) and v >= 0 for v in rel):
+            self.thrust_rel = rel
+            self.thrust_note = (f"{res.thrust_note}; the thrust part from the consider covariance "
+                                f"of {where}, as fractions of m and Izz")
+
+    def final_thrust_part(self) -> None:
+        """The consider covariance of the whole run at its end: batch LS from the filter's
+        estimate on every pose and command seen, then the table's consider term."""
+        if self.z is None or not getattr(self.table, "states_uncertainty", False) \
+                or len(self.hist_t) < 10:
+            return
+        from estimator.batch.consider import batch_consider
+        from estimator.batch.least_squares import batch_ls
+
+        cmd_t, duty = self.aligner.commands()
+        sens = self._thrust_sensitivity(duty)
+        cfg = self.config.ekf
+        kw = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2]}
+        try:
+            res = batch_ls(np.asarray(self.hist_t), np.asarray(self.hist_pose), cmd_t,
+                           sens.thrust_n, fixed={"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr,
+                                                 "kb": cfg.kb, "ax": cfg.ax, "ay": cfg.ay},
+                           initial={"mass": float(self.z[6]), "izz": float(self.z[7])},
+                           **kw)
+            if not res.converged:
+                return
+            c = batch_consider(res, cmd_t, sens, **kw)
+        except Exception:  # the end of a run never fails on this; the last fractions stay
+            return
+        if np.all(np.isfinite(c.cov_thrust)):
+            res.add_thrust_covariance(c.cov_thrust, c.names)
+            res.thrust_note = "sigma = measurement noise + thrust table uncertainty"
+            self._set_thrust_rel(res, "the whole run")
+
+    def _sigmas(self, m: float, sm: float, izz: float, si: float) -> tuple[float, ...]:
+        """(mass total, izz total, mass noise, mass thrust, izz noise, izz thrust) sigmas."""
+        tm, ti = abs(m) * self.thrust_rel[0], abs(izz) * self.thrust_rel[1]
+        return math.hypot(sm, tm), math.hypot(si, ti), sm, tm, si, ti
+
     # ---------------------------------------------------------------- output
     def estimate(self, now: float | None = None) -> dict[str, Any] | None:
         """The current estimate message (None before the first update)."""
@@ -353,13 +431,16 @@ class LiveEstimator(LsEkfRestart):
             return None
         z = self.z
         sig = np.sqrt(np.maximum(self.P.diagonal(), 0.0))
+        sm, si, nm, tm, ni, ti = self._sigmas(float(z[6]), float(sig[6]), float(z[7]), float(sig[7]))
         return {
             "schema": EST_SCHEMA, "body": self.body, "seq": self._seq,
             "t": self.t_last, "frame": self.frame_last,
             "t_pub": time.time() if now is None else now,
             "method": self.config.method, "phase": self.phase,
-            "mass_kg": float(z[6]), "mass_sigma_kg": float(sig[6]),
-            "izz_kgm2": float(z[7]), "izz_sigma_kgm2": float(sig[7]),
+            "mass_kg": float(z[6]), "mass_sigma_kg": sm,
+            "izz_kgm2": float(z[7]), "izz_sigma_kgm2": si,
+            "mass_sigma_noise_kg": nm, "mass_sigma_thrust_kg": tm,
+            "izz_sigma_noise_kgm2": ni, "izz_sigma_thrust_kgm2": ti,
             "state": dict(zip(STATE_NAMES[:6], z[:6].tolist(), strict=True)),
             "state_sigma": dict(zip(STATE_NAMES[:6], sig[:6].tolist(), strict=True)),
             "n_updates": self.counters.updates,
@@ -390,8 +471,9 @@ class LiveEstimator(LsEkfRestart):
         d = self.P.diagonal().tolist()
         sg = [math.sqrt(v) if v > 0 else 0.0 for v in d]
         nis = "null" if math.isnan(self.last_nis) else repr(float(self.last_nis))
+        sm, si, nm, tm, ni, ti = self._sigmas(z[6], sg[6], z[7], sg[7])
         return (_EST_FMT % (self._body_json, self._seq, self.t_last, self.frame_last, time.time(),
-                            self.config.method, self.phase, z[6], sg[6], z[7], sg[7],
+                            self.config.method, self.phase, z[6], sm, z[7], si, nm, tm, ni, ti,
                             *z[:6], *sg[:6], self.counters.updates, nis,
                             "true" if self.diverged else "false",
                             "true" if self.inconsistent else "false")).encode()
@@ -405,6 +487,7 @@ class LiveEstimator(LsEkfRestart):
                 self._start_ls()
             self._ls_tick(block=True)
             self.close_pool()
+        self.final_thrust_part()
         self._publish(time.time())
         return self.estimate()
 
@@ -418,8 +501,12 @@ class LiveEstimator(LsEkfRestart):
         """Final estimate, phase, LS details and counters (JSON-ready)."""
         est = self.estimate() or {}
         out = {k: est.get(k) for k in ("method", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2",
-                                       "izz_sigma_kgm2", "state", "state_sigma", "n_updates",
-                                       "diverged", "inconsistent")}
+                                       "izz_sigma_kgm2", "mass_sigma_noise_kg",
+                                       "mass_sigma_thrust_kg", "izz_sigma_noise_kgm2",
+                                       "izz_sigma_thrust_kgm2", "state", "state_sigma",
+                                       "n_updates", "diverged", "inconsistent")}
+        out["thrust_uncertainty"] = {"included": bool(getattr(self.table, "states_uncertainty", False)),
+                                     "note": self.thrust_note}
         out["t_last_lab"] = self.t_last
         out["restart_t_lab"] = self.restart_t
         if self.ls_result is not None:

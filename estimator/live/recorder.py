@@ -16,9 +16,12 @@ from estimator.filters.ekf import STATE_NAMES
 POSE_COLUMNS = ("t", "x", "y", "psi")
 POSE_FORMATS = ("%.9f", "%.12g", "%.12g", "%.12g")
 ESTIMATE_COLUMNS = ("t", "frame", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2",
-                    *STATE_NAMES[:6], *(f"sigma_{n}" for n in STATE_NAMES[:6]))
+                    *STATE_NAMES[:6], *(f"sigma_{n}" for n in STATE_NAMES[:6]),
+                    "mass_sigma_noise_kg", "mass_sigma_thrust_kg", "izz_sigma_noise_kgm2",
+                    "izz_sigma_thrust_kgm2")
+"""``mass_sigma_kg``/``izz_sigma_kgm2`` are the total (noise + thrust table); the parts last."""
 ESTIMATE_FORMATS = ("%.9f", "%d", "%s", "%.10g", "%.6g", "%.10g", "%.6g",
-                    *["%.10g"] * 6, *["%.6g"] * 6)
+                    *["%.10g"] * 6, *["%.6g"] * 6, *["%.6g"] * 4)
 
 
 class LiveRecorder:
@@ -101,9 +104,14 @@ class LiveRecorder:
             del self._pending[:n]
             self._pose.write_many(rows)
 
-    def estimate(self, t: float, frame: int, phase: str, z: np.ndarray, sig: np.ndarray) -> None:
+    def estimate(self, t: float, frame: int, phase: str, z: np.ndarray, sig: np.ndarray,
+                 thrust_rel: tuple[float, float] = (0.0, 0.0)) -> None:
+        """One estimates.csv row; ``thrust_rel``: the thrust table's sigma as fractions of m
+        and Izz (added in quadrature to the filter's noise sigma ``sig``)."""
         t0 = self.t0 if self.t0 is not None else t
-        self._est.write(t - t0, frame, phase, z[6], sig[6], z[7], sig[7], *z[:6], *sig[:6])
+        tm, ti = abs(z[6]) * thrust_rel[0], abs(z[7]) * thrust_rel[1]
+        self._est.write(t - t0, frame, phase, z[6], math.hypot(sig[6], tm), z[7],
+                        math.hypot(sig[7], ti), *z[:6], *sig[:6], sig[6], tm, sig[7], ti)
         self.counts["estimates"] += 1
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:

@@ -82,11 +82,14 @@ class LsEkfRestart:
                         "ax": cfg.ax, "ay": cfg.ay}}
         self._ls_n = n
         self.phase = "ls-running"
+        sens = self._thrust_sensitivity(duty)
         try:
-            self._ls_future = self._executor().submit(live_worker.ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
+            self._ls_future = self._executor().submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
+                                                      thrust, kw, sens)
         except Exception:  # a broken process pool: fall back to a thread
             self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
-            self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0, thrust, kw)
+            self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
+                                                thrust, kw, sens)
 
     def _ls_done(self) -> None:
         try:
@@ -106,7 +109,12 @@ class LsEkfRestart:
                   "continuing with the EKF alone", file=sys.stderr)
             return
         res = self.ls_result
-        z0, P0 = np.array(res.z0, float), 0.5 * (res.cov + res.cov.T)
+        if res.cov_thrust is not None:  # the window's thrust part, relative, carried forward
+            self._set_thrust_rel(res, "the LS window")
+            cov = res.cov_noise  # the filter carries the noise part; the thrust part is added
+        else:
+            cov = res.cov
+        z0, P0 = np.array(res.z0, float), 0.5 * (cov + cov.T)
         self._cu = {"z": z0, "P": P0, "z0": z0, "P0": P0, "i": 0, "t": None, "n_win": self._ls_n,
                     "ck": [], "rewind": None}
         self.phase = "catching-up"

@@ -21,6 +21,9 @@ Estimate payload (JSON), schema ``tpods.estimate/1`` (:mod:`common.wire`)::
      "t_pub": 1763770012.502,  # host time of publishing, s
      "method": "ls-ekf", "phase": "ls-ekf",   # ekf | ls-running | catching-up | ls-ekf | ls-failed
      "mass_kg": 2.27, "mass_sigma_kg": 0.01, "izz_kgm2": 0.00378, "izz_sigma_kgm2": 4e-6,
+     # the sigmas are the TOTAL; their parts (root-sum-square = total):
+     "mass_sigma_noise_kg": .., "mass_sigma_thrust_kg": ..,
+     "izz_sigma_noise_kgm2": .., "izz_sigma_thrust_kgm2": ..,
      "state": {"x": .., "y": .., "psi": .., "u": .., "v": .., "r": ..},
      "state_sigma": {...}, "n_updates": 1499}
 """

@@ -22,11 +22,20 @@ def warm() -> None:
     import estimator.batch.least_squares  # noqa: F401  # lazy: after init() lowered the priority
 
 
-def ls_job(pose_t, pose, cmd_t, thrust_n, kw):
-    """Batch LS on the first window. Returns ``(BatchResult, seconds)``."""
+def ls_job(pose_t, pose, cmd_t, thrust_n, kw, sens=None):
+    """Batch LS on the first window. Returns ``(BatchResult, seconds)``; with ``sens`` (the
+    thrust table's :class:`~common.thrust_uncertainty.ThrustSensitivity` of the commands)
+    the result carries the table's consider covariance too (total sigma)."""
     from estimator.batch.least_squares import batch_ls  # lazy: after init() lowered the priority
 
     t_a = time.perf_counter()
     res = batch_ls(pose_t, pose, cmd_t, thrust_n, **kw)
+    if sens is not None and res.converged:
+        from estimator.batch.consider import batch_consider
+
+        c = batch_consider(res, cmd_t, sens, sigma_pos_m=kw["sigma_pos_m"],
+                           sigma_yaw_rad=kw["sigma_yaw_rad"])
+        if all(c.cov_thrust.ravel() == c.cov_thrust.ravel()):  # no NaN
+            res.add_thrust_covariance(c.cov_thrust, c.names)
     res.fisher = None  # not needed by the live estimator
     return res, time.perf_counter() - t_a

@@ -130,6 +130,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         print("tpods: warning: the live filter's recent innovations are larger than its covariance "
               "allows (mean NIS above the chi-square bound): its sigma understates the error",
               file=sys.stderr)
+    if not summary.get("thrust_uncertainty", {}).get("included", True):
+        print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return 0
@@ -139,6 +141,10 @@ def cmd_live(args: argparse.Namespace) -> int:
     print(f"live {status} ({summary['phase']}, {summary['n_updates']} updates)")
     print(f"  mass = {summary['mass_kg']:.6g} kg      +/- {summary['mass_sigma_kg']:.3g} (1 sigma)")
     print(f"  Izz  = {summary['izz_kgm2']:.6g} kg m^2  +/- {summary['izz_sigma_kgm2']:.3g} (1 sigma)")
+    from tpods.cli.estimate_batch import budget_lines, filter_budget
+
+    for line in budget_lines(filter_budget(summary)):
+        print(line)
     if "ls" in summary:
         ls = summary["ls"]
         print(f"  LS start on the first {ls['window_s']:g} s: mass {ls['mass_kg']:.6g} kg, "

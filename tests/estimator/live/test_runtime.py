@@ -213,3 +213,52 @@ def test_config_refusals():
                {"ls_start": "x"}, {"ls_window_s": 0}, {"rewind_s": -1}):
         with pytest.raises(UserError):
             LiveConfig(**kw)
+
+
+# issue 17: the live estimate's sigma is the total (noise + the thrust table's uncertainty)
+def _uncertain_table() -> ThrustTable:
+    d = TABLE.to_dict()
+    d["uncertainty"] = {"scale_rel": 0.01}
+    return ThrustTable.from_dict(d)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ls-ekf"])
+def test_live_sigma_is_the_total_and_agrees_with_batch_ls(sim, method):
+    from common.thrust_uncertainty import thrust_sensitivity
+    from estimator.batch.consider import batch_consider
+    from estimator.batch.least_squares import batch_ls
+    from estimator.filters.ekf import PRESETS
+
+    table = _uncertain_table()
+    cfg = LiveConfig(method=method, ls_window_s=10.0, publish_rate_hz=0, ls_in_process=False,
+                     ekf=PRESETS["no-process-noise"])
+    est = LiveEstimator(table, cfg)
+    payloads: list[bytes] = []
+    est.publish_bytes = payloads.append
+    _feed(est, sim)
+    s = est.summary()
+    for name, unit in (("mass", "kg"), ("izz", "kgm2")):
+        assert s[f"{name}_sigma_{unit}"] == pytest.approx(
+            math.hypot(s[f"{name}_sigma_noise_{unit}"], s[f"{name}_sigma_thrust_{unit}"]))
+        # a common 1 % scale error: 1 % of the value
+        assert s[f"{name}_sigma_thrust_{unit}"] == pytest.approx(0.01 * s[f"{name}_{unit}"], rel=0.02)
+    # the published payloads carry the same split (the fast path)
+    d = decode_estimate(payloads[-1])
+    for k in ("mass_sigma_kg", "mass_sigma_noise_kg", "mass_sigma_thrust_kg", "izz_sigma_kgm2"):
+        assert d[k] == pytest.approx(s[k], rel=1e-9), k
+    # batch LS with the consider term on the same data: total sigma within 10 %
+    sens = thrust_sensitivity(table, sim.duty_pct)
+    res = batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sens.thrust_n)
+    c = batch_consider(res, sim.cmd_t, sens, sigma_pos_m=0.01, sigma_yaw_rad=math.radians(1.0))
+    res.add_thrust_covariance(c.cov_thrust, c.names)
+    assert s["mass_sigma_kg"] == pytest.approx(res.mass_sigma_kg, rel=0.10)
+    assert s["izz_sigma_kgm2"] == pytest.approx(res.izz_sigma_kgm2, rel=0.10)
+
+
+def test_live_with_a_bare_table_says_its_sigma_is_noise_only(sim):
+    est = LiveEstimator(TABLE, LiveConfig(publish_rate_hz=0))
+    _feed(est, sim)
+    s = est.summary()
+    assert s["mass_sigma_thrust_kg"] == 0.0 and s["mass_sigma_kg"] == s["mass_sigma_noise_kg"]
+    assert s["thrust_uncertainty"]["included"] is False
+    assert "no uncertainty" in s["thrust_uncertainty"]["note"]
