@@ -26,6 +26,7 @@ its display more slowly answers repeated ``IP`` with repeated samples, so set
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -44,14 +45,23 @@ from bench.ohaus_lines import (
 from bench.serial_link import SerialLink
 from common.errors import DeviceError, UserError
 
-__all__ = ["ACQUISITION_MODES", "GROSS", "NET", "TO_GRAMS", "LineResult", "NotALoadReading",
-           "OhausScout", "Reading", "parse_line", "parse_weight_line"]
+__all__ = ["ACQUISITION_MODES", "GROSS", "NET", "TO_GRAMS", "LineResult", "NotABalance",
+           "NotALoadReading", "OhausScout", "Reading", "parse_line", "parse_weight_line"]
 
 
 class NotALoadReading(DeviceError):
     """The balance printed only lines that are not the load on the pan (tare, preset tare,
     totals, or the other legend than the one being acquired)."""
 
+
+class NotABalance(NotALoadReading):
+    """The device on the balance's port answers like another device (the TPODS valve
+    controller): no reading will ever come, so the caller stops at once."""
+
+
+# what a TPODS valve controller (protocol v1, docs/valve-protocol.md) answers: an OHAUS
+# balance never sends these lines
+_VALVE_REPLY = re.compile(rb"^(ERR( |$)|TPODS-VALVES |STATE( |$)|PONG$|OK$)")
 
 _UNSET = object()
 
@@ -180,6 +190,11 @@ class OhausScout:
         self.link.write(cmd.encode("ascii") + b"\r\n")
 
     def _garbage(self, raw: bytes, reason: str = "") -> None:
+        if _VALVE_REPLY.match(raw.strip()):
+            raise NotABalance(
+                f"the device at {self.url} (--scale) does not answer like an OHAUS balance: it answered "
+                f"{raw.strip()[:60].decode('ascii', 'replace')!r}, a TPODS valve controller's reply "
+                "(are the valve controller's and the balance's ports swapped?)")
         self.n_garbage += 1
         self.last_error = reason or "not a weight line"
         if len(self.garbage_examples) < 5:
@@ -295,7 +310,7 @@ class OhausScout:
             text = raw.decode("ascii", "replace").strip()
             if text == "ES":
                 raise DeviceError(f"OHAUS balance refused {cmd!r} (ES)")
-            if text and text != "OK!" and text.isprintable():
+            if text and text != "OK!" and text.isprintable() and not _VALVE_REPLY.match(raw.strip()):
                 return text
             self._garbage(raw)
 

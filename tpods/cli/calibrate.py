@@ -11,7 +11,7 @@ from pathlib import Path
 
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
-from common.errors import UserError
+from common.errors import DeviceError, UserError
 from common.outputs import add_force, result_output
 
 
@@ -83,8 +83,22 @@ def _scale_readings(args) -> tuple[list[float], int]:
                     stable_timeout=args.timeout) as scale, \
             tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
                  disable=args.json or None) as bar:
-        return take_readings(lambda: scale.read(mode="SP"), args.readings, progress=bar.update,
-                             fatal=(NotALoadReading,))
+        def read():
+            try:
+                return scale.read(mode="SP")
+            except NotALoadReading:
+                raise
+            except DeviceError:  # only lines that are not weight lines, twice: not a balance
+                if scale.n_readings == 0 and scale.n_garbage >= 2:
+                    ex = scale.garbage_examples[-1].decode("ascii", "replace").strip()
+                    raise NotALoadReading(
+                        f"the device at {args.scale} (--scale) does not answer like an OHAUS "
+                        f"balance: {scale.n_garbage} replies that are not weight lines, the last "
+                        f"{ex!r} (is it the balance, at --baudrate {args.baudrate}, "
+                        f"--bytesize {args.bytesize}, --parity {args.parity}?)") from None
+                raise
+
+        return take_readings(read, args.readings, progress=bar.update, fatal=(NotALoadReading,))
 
 
 def cmd_mass(args: argparse.Namespace) -> int:
