@@ -476,7 +476,10 @@ class CalibrationFit:
             return math.inf, None, None
         params, grid, fjac = self.setup(z)
         with np.errstate(all="ignore"):
-            states = reference_states(z[:6], grid, params)
+            try:
+                states = reference_states(z[:6], grid, params)
+            except (OverflowError, ValueError):  # the scalar RK4 loop's math errors
+                return math.inf, None, None
         if not np.all(np.isfinite(states)):
             return math.inf, None, None
         res = self.pose - states[grid.node_pos, :3]
@@ -687,7 +690,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         cov_table = S @ Pc @ S.T
         if kept:
             idx = [table_terms.index(n) for n in kept]
-            kept_cross = (S @ Pc)[:, idx]
+            # errors as stated - true: a kept factor stated too high makes the fit
+            # lower the estimated ones (the factors' error is -S times the kept error)
+            kept_cross = -(S @ Pc)[:, idx]
     cov_noise = cov_all[sl, sl]
     cov = cov_noise + cov_mass + cov_izz + cov_table
     ex_sig = np.sqrt(np.maximum(np.diag(cov_all)[6:ne], 0.0))

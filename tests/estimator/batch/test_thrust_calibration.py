@@ -218,3 +218,23 @@ def test_design_for_calibration_prefers_mixed_counts():
     lo, hi = tab.duty_range
     open_ = d.best.duty_pct[d.best.duty_pct > 0]
     assert np.all((open_ >= lo) & (open_ <= hi))
+
+
+def test_kept_factors_and_friction_model():
+    """A table already calibrated per thruster, re-calibrated per nozzle count: the kept
+    efficiencies stay with their covariance, and the cross-covariance is negative (a kept
+    level stated too high makes the fit lower the nozzle scale); --model friction fits."""
+    cmd_t, duty = translate_rotate(14.0)
+    s = _sim(cmd_t, duty, KNOWN)
+    kw = dict(mass_kg=0.72, izz_kgm2=0.0062, mass_sigma_kg=1.4e-3, izz_sigma_kgm2=6e-5)
+    first = calibrate_thrust(s.pose_t, s.pose, s.cmd_t, s.duty_pct, _table(), **kw)
+    cal = first.new_table(_table())
+    r = calibrate_thrust(s.pose_t, s.pose, s.cmd_t, s.duty_pct, cal, per="nozzles",
+                         model="friction", **kw)
+    assert r.converged and set(r.extras) == {"ct", "cr", "kb"}
+    assert r.kept_names == EFF and np.all(r.kept_cross < 0)
+    assert r.values[0] == pytest.approx(1.0, abs=3 * r.sigma[0])  # the level is in the kept effs
+    new = r.new_table(cal)
+    assert new.calibration.parameters == ("nozzle_scale.2", *EFF)
+    assert np.allclose(new.calibration.efficiency, cal.calibration.efficiency)
+    assert np.min(np.linalg.eigvalsh(new.calibration.covariance)) > -1e-12
