@@ -220,6 +220,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
         tol=args.tol, max_iter=args.max_iter, select_alpha=args.select_alpha,
         filter_options=cli_ekf.filter_options(args), log=cli_realism.selection_log(args))
+    body_lines = _warn_implausible_body(est, args)
     if est.ext is not None:
         return cli_realism.report_ext(est, args)
     if est.filter is not None:
@@ -227,6 +228,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     res = est.batch
     run = est.run
     out = est.to_dict()
+    if body_lines:
+        out["warnings"] = [*out.get("warnings", []), *body_lines]
     if args.out_folder is not None:
         from estimator.reports.plots_batch import plot_residuals
 
@@ -298,6 +301,29 @@ def filter_budget(out: dict[str, Any]) -> dict[str, tuple[float, float, float]]:
             b[name] = (out[f"{name}_sigma_noise_{unit}"], out[f"{name}_sigma_thrust_{unit}"],
                        out[f"{name}_sigma_{unit}"])
     return b
+
+
+def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
+    """One stderr line (and, for ls, an entry in the JSON's warnings) when the estimated
+    mass or Izz is implausible for an air-table body, naming the thrust table's unit."""
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.least_squares import body_warnings
+
+    fit = est.batch if est.batch is not None else (est.filter.result if est.filter is not None
+                                                   else est.ext)
+    if fit is None or (est.batch is not None and not est.batch.converged and
+                       "no information" in est.batch.message):
+        return []  # an uninformative fit is reported as such
+    if est.run.thrust_n is not None:
+        source, unit = f"{est.run.path / 'thrusts.csv'} (in N)", None
+    elif args.thrust_table:
+        source, unit = args.thrust_table, load_thrust_table(args.thrust_table).unit
+    else:
+        source, unit = "the built-in Table 2", "gf"
+    lines = body_warnings(fit.mass_kg, fit.izz_kgm2, source, unit)
+    for w in lines:
+        print(f"tpods: warning: {w}", file=sys.stderr)
+    return lines
 
 
 def cmd_crlb(args: argparse.Namespace) -> int:
