@@ -140,11 +140,13 @@ class Estimate:
 
     @property
     def converged(self) -> bool:
-        """False when the batch fit did not converge or a filter diverged."""
+        """False when the batch fit did not converge, a filter diverged or a filter's
+        parameter learnt nothing from the run."""
         if self.batch is not None:
             return bool(self.batch.converged)
-        r = self.filter.result if self.filter is not None else self.ext
-        return not r.diverged
+        if self.filter is not None:
+            return self.filter.converged
+        return not self.ext.diverged
 
 
 def as_window(window: Window | str | None) -> Window:
@@ -272,7 +274,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
         return _ideal_filter(inputs, method=method, model=model, window=window, clamp=clamp,
                              names=names, fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
                              sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter, opts=opts,
-                             selection=selection, note=note)
+                             selection=selection, note=note, log=log)
     return _least_squares(inputs, model=model, window=window, clamp=clamp, names=names,
                           fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
                           sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter,
@@ -383,7 +385,8 @@ def filter_thrust_budget(out: dict[str, Any], run: Run, table: ThrustTable, *, c
 
 
 def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial,
-                  sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection, note) -> Estimate:
+                  sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection, note,
+                  log=None) -> Estimate:
     if names != ("mass", "izz"):
         raise UserError("the filters estimate exactly mass and izz (drop --estimate or use "
                         "--method ls)")
@@ -422,6 +425,9 @@ def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial
     except ValueError as exc:
         raise UserError(str(exc)) from None
     r = fe.result
+    if log is not None:  # plausibility (issue 16): as after a batch fit
+        for w in ([fe.no_information + "; not converged"] if fe.no_information else []) + fe.warnings:
+            log(f"tpods: warning: {w}")
     out: dict[str, Any] = {"run": str(run.path)}
     out.update(fe.to_dict())
     filter_thrust_budget(out, run, table, clamp=clamp, names=("mass", "izz"), fixed=fixed,

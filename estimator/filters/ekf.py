@@ -54,11 +54,16 @@ _dot = np.dot
 PARAM_FORMS = ("inverse", "direct")
 INV_IDX = (6, 7)
 """Indices of mass and Izz in the 8-state filter (corrected as 1/m and 1/Izz)."""
+NIS_BLOCK = 120
+"""Updates per block of :attr:`EkfResult.nis_block_excess` (1 s at 120 Hz)."""
 MIN_INV_RATIO = 0.05
 """1/m and 1/Izz must stay positive: one update may shrink either at most to this fraction
-(m or Izz at most 20x larger). Only a correction that would make them negative is cut;
-a tighter bound distorts the update (seen in the sweep: a bound of 2x left Izz 20 sigma
-off after the first torque pulse from the default start)."""
+(m or Izz at most 20x larger); the correction is cut there, never elsewhere. A far start
+needs the room (from 1 +/- 1 kg a 2.4 kg module asks for b < 0 at about 1 s; made as an
+ordinary additive step there instead, m overshot to 18 kg and ended 10 sigma off); a
+bound on the other side distorts the update too (a 2x bound left Izz 20 sigma off after
+the first torque pulse). Data the model cannot explain (commands all 30 ms late) can
+still drive m up by this factor per update until it overflows: diverged, as before."""
 
 
 @cache
@@ -298,7 +303,7 @@ def inverse_correction(z_prior, z, P, idx=INV_IDX) -> None:
     ``dm`` of the ordinary update becomes ``db = -dm / m^2``, so
     ``m_new = m / (1 - dm / m)``, and the covariance rows and columns of m are rescaled by
     ``(m_new / m)^2`` (the Jacobian at the new mean). Same for Izz. ``b_new / b`` is kept
-    above :data:`MIN_INV_RATIO` (b stays positive).
+    at or above :data:`MIN_INV_RATIO` (b stays positive).
 
     Args:
         z_prior: the state before the update (its m and Izz). z, P: after the ordinary
@@ -311,7 +316,7 @@ def inverse_correction(z_prior, z, P, idx=INV_IDX) -> None:
             g.append(1.0)
             continue
         ratio = 1.0 - (float(z[i]) - old) / old  # b_new / b_old
-        if ratio < MIN_INV_RATIO:
+        if not ratio >= MIN_INV_RATIO:  # (NaN too) see MIN_INV_RATIO
             ratio = MIN_INV_RATIO
         z[i] = old / ratio
         g.append(1.0 / (ratio * ratio))
@@ -434,7 +439,9 @@ class EkfResult:
         nis = self.nis[self.updated]
         if len(nis) == 0:
             return math.nan
-        return float(np.nanmean(nis[-max(1, len(nis) // 10):]))
+        tail = nis[-max(1, len(nis) // 10):]
+        tail = tail[~np.isnan(tail)]  # a filter that blew up: NaN
+        return float(tail.mean()) if len(tail) else math.nan
 
     @property
     def inconsistent(self) -> bool:
@@ -451,7 +458,30 @@ class EkfResult:
 
         n = max(1, int(self.updated.sum()) // 10)
         tail = self.nis_tail_mean
-        return bool(tail > max(4.0, float(chi2.ppf(0.999, 3 * n)) / n))
+        if tail > max(4.0, float(chi2.ppf(0.999, 3 * n)) / n):
+            return True
+        return self.nis_block_excess > 1.0
+
+    @property
+    def nis_block_excess(self) -> float:
+        """The largest mean NIS over blocks of :data:`NIS_BLOCK` consecutive updates,
+        relative to its chi-square limit at a false-alarm rate of 1e-4 per run (Bonferroni
+        over the blocks). Above 1: somewhere in the run the innovations were far larger
+        than the covariance allowed, and a filter that was inconsistent once does not
+        recover its consistency with constant parameters (it may end with a normal tail
+        NIS but a collapsed covariance around a wrong value: seen in the issue-17 sweep,
+        Izz 25 sigma off with a tail NIS of 4.8, after block means of 11-15). NaN without a
+        full block."""
+        from scipy.stats import chi2
+
+        nis = self.nis[self.updated]
+        nis = nis[~np.isnan(nis)]
+        nb = len(nis) // NIS_BLOCK
+        if nb < 1:
+            return math.nan
+        means = nis[:nb * NIS_BLOCK].reshape(nb, NIS_BLOCK).mean(axis=1)
+        limit = float(chi2.isf(1e-4 / nb, 3 * NIS_BLOCK)) / NIS_BLOCK
+        return float(means.max() / limit)
 
     def rmse(self, mass_kg: float, izz_kgm2: float, t_from: float | None = None) -> tuple[float, float]:
         """RMS error of m and Izz over every pose time (from ``t_from``), kg and kg m^2."""
@@ -594,6 +624,109 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
 
 
 # --------------------------------------------------------------------------------------
+# Plausibility after a filter run (issue 16)
+
+INFO_FRACTION = 0.5
+"""A parameter whose final sigma is above this fraction of its initial sigma has learnt
+(almost) nothing from the run: the estimate is mostly the starting guess, and the fit is
+not called converged."""
+
+
+def residual_rms(t, x, updated, pose, tail: float = 0.5) -> np.ndarray:
+    """(3,) RMS of the post-update pose residuals (x, y m; yaw rad, wrapped) over the last
+    ``tail`` of the updated poses (after the start-up transient)."""
+    idx = np.flatnonzero(np.asarray(updated, bool))
+    if len(idx) == 0:
+        return np.full(3, math.nan)
+    idx = idx[int(len(idx) * (1.0 - tail)):]
+    d = np.asarray(pose, float)[idx] - np.asarray(x, float)[idx, :NZ]
+    d[:, 2] = (d[:, 2] + math.pi) % TWO_PI - math.pi
+    return np.sqrt(np.mean(d**2, axis=0))
+
+
+def pose_scatter(t, pose) -> np.ndarray:
+    """(3,) the poses' own noise level (x, y m; yaw rad): RMS of second differences of
+    evenly spaced triples over sqrt(6) (white noise; motion adds ~a dt^2, negligible at
+    mocap rates). NaN without such triples."""
+    t = np.asarray(t, float)
+    p = np.asarray(pose, float).copy()
+    p[:, 2] = np.unwrap(p[:, 2])
+    if len(t) < 3:
+        return np.full(3, math.nan)
+    h1, h2 = np.diff(t)[:-1], np.diff(t)[1:]
+    even = np.abs(h2 - h1) <= 1e-6 * np.maximum(h1, h2)
+    if not even.any():
+        return np.full(3, math.nan)
+    d2 = (p[2:] - 2.0 * p[1:-1] + p[:-2])[even]
+    return np.sqrt(np.mean(d2**2, axis=0) / 6.0)
+
+
+def filter_plausibility(t, x, sigma, updated, pose, sigma_meas, sigma0, seg_w,
+                        names: Sequence[str] = ("mass", "izz"), first: int = 6
+                        ) -> tuple[str, list[str], np.ndarray]:
+    """What a filter's result says about itself, as batch least squares reports it.
+
+    Args:
+        t, x, sigma, updated: the filter's history (N,), (N, n), (N, n), (N,).
+        pose: (N, 3) the measured poses. sigma_meas: (3,) the stated pose noise.
+        sigma0: (n,) initial standard deviations. seg_w: per pose interval, the body
+            wrenches (Fx, Fy, Mz) of its hold segments (:class:`Schedule`).
+        names, first: the parameters and the state index of the first one.
+
+    Returns:
+        ``(no_info, warnings, rms)``: ``no_info`` is '' when every parameter learnt from
+        the run, else which did not and why (no thrust, no net force, no torque, or a final
+        sigma above :data:`INFO_FRACTION` of the initial one); ``warnings`` one line per
+        post-update residual whose RMS is more than 10x off the stated noise, naming the
+        likely causes (:func:`estimator.batch.least_squares.residual_warnings`: millimetres,
+        degrees, the thrust table's unit, another body); ``rms`` the (3,) residual RMS.
+        When the filter did not finish (NaN: it blew up, e.g. on poses in millimetres),
+        the poses' own scatter (:func:`pose_scatter`) is compared with the stated noise
+        instead.
+    """
+    # lazy: the batch module is needed only after a whole-run fit, not by the live filter
+    from estimator.batch.least_squares import residual_warnings
+
+    w = [wi for seg in seg_w for wi in seg]
+    force = any(abs(a) > 0.0 or abs(b) > 0.0 for a, b, _ in w)
+    torque = any(abs(c) > 0.0 for _, _, c in w)
+    why = {}
+    if not force and not torque:
+        why = {n: "no thrust: every valve is closed in every command (or the thrust table "
+                  "gives 0 N)" for n in names if n in ("mass", "izz")}
+    else:
+        if not force and "mass" in names:
+            why["mass"] = "no net force (the thrusts cancel)"
+        if not torque and "izz" in names:
+            why["izz"] = "no torque (the commands never turn the module)"
+    s0 = np.asarray(sigma0, float)
+    s1 = np.asarray(sigma, float)[-1]
+    for j, n in enumerate(names):
+        i = first + j
+        if n in why or not (s0[i] > 0 and math.isfinite(s0[i])) or not math.isfinite(s1[i]):
+            continue  # (a filter that blew up is diverged, not uninformed)
+        if not s1[i] <= INFO_FRACTION * s0[i]:  # NaN too
+            why[n] = (f"little information: its sigma went from {s0[i]:.3g} to {s1[i]:.3g}, "
+                      "the estimate is mostly the starting guess")
+    no_info = ""
+    if why:
+        bad = list(why)
+        no_info = (f"{', '.join(bad)} {'has' if len(bad) == 1 else 'have'} no information in "
+                   f"this run: " + "; ".join(f"{n}: {why[n]}" for n in bad))
+    rms = residual_rms(t, x, updated, pose)
+    warnings = []
+    if np.all(np.isfinite(rms)):
+        warnings = [f"the filter's {line}" for line in
+                    residual_warnings(rms, float(sigma_meas[0]), float(sigma_meas[2]))]
+    else:
+        sc = pose_scatter(t, pose)
+        if np.all(np.isfinite(sc)):
+            warnings = [f"the filter did not finish; the poses' own scatter: {line}" for line in
+                        residual_warnings(sc, float(sigma_meas[0]), float(sigma_meas[2]))]
+    return no_info, warnings, rms
+
+
+# --------------------------------------------------------------------------------------
 # Methods on a whole run: EKF alone, LS-initialised EKF
 
 FILTER_METHODS = ("ekf", "ls-ekf")
@@ -609,6 +742,16 @@ class FilterEstimate:
     ls: object | None = None
     ls_window_s: float | None = None
     ls_start: str | None = None
+    no_information: str = ""
+    """'' or which parameter learnt nothing from the run, and why (:func:`filter_plausibility`)."""
+    warnings: list[str] = field(default_factory=list)
+    """Post-update residuals far from the stated noise (:func:`filter_plausibility`)."""
+    rms_residuals: np.ndarray | None = None
+
+    @property
+    def converged(self) -> bool:
+        """Not diverged, and every parameter learnt from the run."""
+        return not self.result.diverged and not self.no_information
 
     def to_dict(self) -> dict:
         r = self.result
@@ -631,7 +774,16 @@ class FilterEstimate:
             "diverged": r.diverged,
             "nis_tail_mean": r.nis_tail_mean if r.updated.any() else None,
             "inconsistent": r.inconsistent,
+            "nis_block_excess": r.nis_block_excess if r.updated.any() else None,
+            "converged": self.converged,
         }
+        if self.no_information:
+            d["message"] = "not converged: " + self.no_information
+        if self.rms_residuals is not None:
+            rx, ry, rw = (float(v) for v in self.rms_residuals)
+            d.update({"rms_residual_x_m": rx, "rms_residual_y_m": ry, "rms_residual_yaw_rad": rw})
+        if self.warnings:
+            d["warnings"] = list(self.warnings)
         if self.ls is not None:
             d["ls_window_s"] = self.ls_window_s
             d["ls_start"] = self.ls_start
@@ -660,7 +812,13 @@ def estimate_filter(pose_t, pose, cmd_t, thrust_n, method: str = "ekf", cfg: Ekf
     if method not in FILTER_METHODS:
         raise ValueError(f"method must be one of {', '.join(FILTER_METHODS)}")
     if method == "ekf":
-        return FilterEstimate(method, run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, x0, P0))
+        x, P = initial_estimate(cfg, x0, P0)
+        sched = make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m)
+        # a filter that blows up (poses in mm, yaw in degrees) overflows: flagged diverged
+        # and explained by the plausibility check, not numpy warnings on the terminal
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, x, P)
+        return _checked(FilterEstimate(method, res), pose, cfg, np.sqrt(np.diag(P)), sched)
     if ls_start not in LS_STARTS:
         raise ValueError(f"ls_start must be one of {', '.join(LS_STARTS)}")
     from estimator.batch.least_squares import batch_ls
@@ -688,8 +846,21 @@ def estimate_filter(pose_t, pose, cmd_t, thrust_n, method: str = "ekf", cfg: Ekf
                         "--method ls")
     cov = 0.5 * (ls.cov + ls.cov.T)
     use = None if ls_start == "reuse" else ~win
-    res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, cov, use=use)
-    return FilterEstimate(method, res, ls, ls_window_s, ls_start)
+    with np.errstate(over="ignore", invalid="ignore"):  # flagged, as above
+        res = run_ekf(pose_t, pose, cmd_t, thrust_n, cfg, ls.z0, cov, use=use)
+    # the information check of the filter is against the prior sigma (the LS start has
+    # already refused a window without information)
+    return _checked(FilterEstimate(method, res, ls, ls_window_s, ls_start), pose, cfg,
+                    np.full(NX, math.inf), make_schedule(pose_t, cmd_t, thrust_n, cfg.arm_m))
+
+
+def _checked(fe: FilterEstimate, pose, cfg: EkfConfig, sigma0, sched: Schedule
+             ) -> FilterEstimate:
+    """``fe`` with its plausibility (:func:`filter_plausibility`) filled in."""
+    r = fe.result
+    fe.no_information, fe.warnings, fe.rms_residuals = filter_plausibility(
+        r.t, r.x, r.sigma, r.updated, pose, cfg.sigma_meas, sigma0, sched.seg_w)
+    return fe
 
 
 def initial_rates(pose_t, pose, span_s: float = 0.25) -> tuple[np.ndarray, np.ndarray]:

@@ -163,9 +163,10 @@ class VecEKF:
             for i in cfg._inv:
                 old = x[:, i]
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    ratio = np.maximum(1.0 - (xn[:, i] - old) / old, MIN_INV_RATIO)
-                ratio = np.where(old > 0.0, ratio, 1.0)
-                xn[:, i] = np.where(old > 0.0, old / ratio, xn[:, i])
+                    ratio = 1.0 - (xn[:, i] - old) / old
+                ok = old > 0.0
+                ratio = np.where(ok, np.maximum(ratio, MIN_INV_RATIO), 1.0)
+                xn[:, i] = np.where(ok, old / ratio, xn[:, i])
                 g = 1.0 / (ratio * ratio)
                 Pn[:, i, :] *= g[:, None]
                 Pn[:, :, i] *= g[:, None]

@@ -123,7 +123,9 @@ def test_commands_arriving_after_their_poses_rewind_the_filter(sim, method):
     _feed(off, sim, cmd_delay_s=0.03)
     o = off.summary()
     assert o["counters"]["align_cmds_late"] > 500 and o["counters"]["rewinds"] == 0
-    assert abs(o["mass_kg"] - b["mass_kg"]) > 3 * b["mass_sigma_kg"]
+    # spoiled: far off, or (the 1/m form, issue 17) run away to overflow; flagged either way
+    assert not abs(o["mass_kg"] - b["mass_kg"]) <= 3 * b["mass_sigma_kg"]
+    assert o["diverged"]
 
 
 def test_a_diverged_filter_says_so(sim):
