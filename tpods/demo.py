@@ -1,6 +1,7 @@
 """``tpods demo``: the whole lab day on emulated devices, no hardware needed.
 
-Stages (each writes into the report folder ``runs/demo-<timestamp>/``):
+Stages (each writes into the report folder ``runs/demo-<timestamp>/``); the simulated
+module's thruster 3 gives 4 % less thrust than the bench's nozzle (:func:`tpods.demo_stages.plant_table`):
 
 1. **bench**: an emulated valve controller and OHAUS Scout (truth: the paper's Table 2)
    on pseudo-terminals; a characterisation session (:func:`bench.session.run_session`,
@@ -8,15 +9,19 @@ Stages (each writes into the report folder ``runs/demo-<timestamp>/``):
 2. **mass**: the module weighed on the emulated balance (:mod:`calibration.mass`).
 3. **bifilar**: an emulated bifilar swing of the module and its Izz from the trace
    (:func:`calibration.bifilar.swing_and_estimate`).
-4. **run**: the simulated module (:class:`tpods.plant_loop.SimulatedModule`: emulated
+4. **calibration**: the module as the known body (the balance's mass, the bifilar Izz): a
+   translate-rotate run over Zenoh and ``calibrate thrust`` (per-thruster efficiencies) ->
+   ``calibration/thrust_table.toml``.
+5. **run**: the simulated module (:class:`tpods.plant_loop.SimulatedModule`: emulated
    valves on a pty, exact plant, 1 cm / 1 deg mocap noise, poses through the bridge over
-   Zenoh); ``tpods estimate live`` (with the FITTED thrust table, while the plant blows
-   Table 2) and ``tpods run play --input phase-sine`` as subprocesses, faster than real
-   time on a shared lab clock (``--time-scale``).
-5. **batch**: batch least squares on the run the live estimator recorded.
+   Zenoh); ``tpods estimate live`` (with the calibrated table) and ``tpods run play
+   --input phase-sine`` as subprocesses, faster than real time on a shared lab clock
+   (``--time-scale``).
+6. **batch**: batch least squares on the run the live estimator recorded, with the bench
+   table (before calibration), the calibrated table (after) and the true table (check).
 
-It ends with a summary table (truth, balance/bifilar, live EKF, batch LS with sigma and
-error) and ``report.md`` with the figures of every stage. The folder's ``run.json`` says
+It ends with a summary table (truth, balance/bifilar, live EKF, batch LS before and after
+calibration; noise, thrust and total sigma, the error in total sigmas) and ``report.md`` with the figures of every stage. The folder's ``run.json`` says
 ``running`` until then and ``complete`` at the end (``aborted`` on Ctrl-C, ``failed`` on an
 error: a partial lab day, see docs/run-format.md).
 
@@ -101,32 +106,43 @@ def _stages(args: argparse.Namespace, out: Path) -> int:
     t_all = time.monotonic()
     # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)
     from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
-    from tpods.demo_stages import stage_batch, stage_bench, stage_bifilar, stage_mass, stage_run
+    from tpods.demo_stages import (
+        stage_batch,
+        stage_bench,
+        stage_bifilar,
+        stage_calibrate,
+        stage_mass,
+        stage_run,
+    )
 
     timings: dict[str, float] = {}
     print(f"TPODS lab day on emulated devices -> {out}")
 
-    t = _stage("1/5 thrust characterisation (emulated valve controller + OHAUS Scout)")
+    t = _stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)")
     bench = stage_bench(out, args.seed, args.quick)
     timings["characterisation + fit"] = _done(t, "bench")
 
-    t = _stage("2/5 mass on the balance")
+    t = _stage("2/6 mass on the balance")
     mass = stage_mass(args.mass, args.seed)
     timings["mass"] = _done(t, "mass")
 
-    t = _stage("3/5 bifilar pendulum")
+    t = _stage("3/6 bifilar pendulum")
     bif = stage_bifilar(out, mass, args.izz, args.seed)
     timings["bifilar"] = _done(t, "bifilar")
 
-    t = _stage("4/5 simulated module run over Zenoh, estimated live")
-    live = stage_run(out, args, bench["table_path"])
+    t = _stage("4/6 in-situ thrust calibration: the module as the known body")
+    cal = stage_calibrate(out, args, bench, mass, bif)
+    timings["calibration run + fit"] = _done(t, "calibration")
+
+    t = _stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)")
+    live = stage_run(out, args, cal["table_path"])
     print(f"   live {live.get('method')} ({live.get('phase')}): m = {live['mass_kg']:.5f} +- "
           f"{live['mass_sigma_kg']:.2g} kg, Izz = {live['izz_kgm2']:.6g} +- "
-          f"{live['izz_sigma_kgm2']:.2g} kg m^2")
+          f"{live['izz_sigma_kgm2']:.2g} kg m^2 (total sigma)")
     timings["module run (live)"] = _done(t, "run")
 
-    t = _stage("5/5 batch least squares on the recorded run")
-    batch = stage_batch(out, bench["table"])
+    t = _stage("6/6 batch least squares on the recorded run, before and after calibration")
+    batch = stage_batch(out, bench["table"], cal["table"])
     timings["batch"] = _done(t, "batch")
 
     t = time.monotonic()
@@ -135,9 +151,10 @@ def _stages(args: argparse.Namespace, out: Path) -> int:
     rows = summary_rows(truth, mass, bif, live, batch)
     timings["figures"] = time.monotonic() - t
     timings["total"] = time.monotonic() - t_all
-    report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, timings)
-    write_summary(out, args, rows, bench, live, batch, timings)
-    print("\n== summary (truth: the simulated module; estimators use the fitted thrust table)\n")
+    report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, timings, cal)
+    write_summary(out, args, rows, bench, live, batch, timings, cal)
+    print("\n== summary (truth: the simulated module; sigma = total: noise + thrust table; "
+          "error in total sigmas)\n")
     for line in table_lines(rows):
         print("  " + line)
     print(f"\nsimulated run: {args.duration:g} s of lab time at time scale {args.time_scale:g}; "

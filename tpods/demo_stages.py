@@ -13,6 +13,7 @@ returns what the summary and the report need.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import signal
@@ -27,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-from bench.fit import fit_steps, max_error_pct_full_scale
+from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
 from bench.ohaus import OhausScout
 from bench.plots import plot_fit_orders, plot_time_series
 from bench.session import SessionConfig, read_session, run_session
@@ -47,6 +48,20 @@ from tpods.clock import LabClock
 from tpods.plant_loop import MocapNoise, SimulatedModule
 
 BODY = "tpods1"
+
+WEAK_THRUSTER = 3
+WEAK_EFFICIENCY = 0.96
+"""The module's nozzle 3 gives 4 % less thrust than the bench's nozzle (a pinched tube): the
+bench characterises one nozzle and cannot see it; the calibration stage does."""
+
+
+def plant_table() -> ThrustTable:
+    """The simulated module's TRUE thrust: Table 2 with one weak thruster."""
+    eff = [1.0] * 4
+    eff[WEAK_THRUSTER - 1] = WEAK_EFFICIENCY
+    d = ThrustTable.default().to_dict()
+    d["calibration"] = {"efficiency": eff, "source": "tpods demo: the module's true thrusters"}
+    return ThrustTable.from_dict(d)
 
 
 def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
@@ -72,6 +87,9 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
     raw, steps = read_session(d)
     fit = fit_steps(steps, 3 if quick else "auto")  # 5 duty steps are too few for AICc
     table = fit.table(60.0, source="tpods demo: emulated characterisation")
+    # what `tpods bench fit` states: the fits' covariance and the balance's linearity
+    unc = table_uncertainty(steps, raw["reading_gf"].to_numpy(dtype=float))
+    table = dataclasses.replace(table, uncertainty=unc)
     table_path = d / "thrust_table.toml"
     table.save(table_path)
     grid = np.arange(10.0, 90.01, 0.5)
@@ -83,6 +101,8 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
           f"{dict(sorted(fit.selected.items()))}")
     print("   max |fit - Table 2|, % of full scale: "
           + ", ".join(f"{k} nozzle(s) {v:.2f}" for k, v in errs.items()))
+    print(f"   table uncertainty: each fit's coefficient covariance, scale_rel "
+          f"{unc.scale_rel:.2%} ({unc.sources['scale_rel'].split(';')[0]})")
     return {"table_path": table_path, "table": table, "errors_pct_fs": errs, "figures": figs,
             "steps": len(res.steps), "readings": res.n_readings, "status": res.status,
             "orders": {int(k): int(v) for k, v in fit.selected.items()}}
@@ -141,9 +161,12 @@ def _tpods_exe() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "tpods.cli"]
 
 
-def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str, Any]:
-    """Simulated module + live estimator + player over Zenoh; returns the live summary."""
-    d = out / "run"
+def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
+              input_name: str = "phase-sine", duration: float | None = None) -> dict[str, Any]:
+    """Simulated module (one weak thruster: :func:`plant_table`) + live estimator + player
+    over Zenoh, into ``out/name``; returns the live summary."""
+    duration = args.duration if duration is None else duration
+    d = out / name
     d.mkdir(parents=True, exist_ok=True)
     own = not (args.connect or args.listen or args.zenoh_config)
     ep = None
@@ -161,7 +184,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
     procs: dict[str, subprocess.Popen] = {}
     logs = {}
     try:
-        module = SimulatedModule(session, params, ThrustTable.default(), clock=clock, body=BODY,
+        module = SimulatedModule(session, params, plant_table(), clock=clock, body=BODY,
                                  noise=MocapNoise(0.01, math.radians(1.0)), seed=args.seed)
         with module:
             logs["live"] = (d / "live.log").open("w")
@@ -180,25 +203,26 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
             probe.undeclare()
             time.sleep(0.3)
             print(f"   module: emulated valves on {module.valves_path}, truth m = {args.mass:g} kg, "
-                  f"Izz = {args.izz:g} kg m^2, thrust truth Table 2, poses 120 Hz (1 cm, 1 deg)")
-            print(f"   live estimator ({args.method}, fitted thrust table) and player running; "
-                  f"{args.duration:g} s of lab time at time scale {args.time_scale:g} "
-                  f"({args.duration / args.time_scale:.0f} s real)")
+                  f"Izz = {args.izz:g} kg m^2, thrust truth Table 2 with thruster {WEAK_THRUSTER} "
+                  f"at {WEAK_EFFICIENCY:.0%}, poses 120 Hz (1 cm, 1 deg)")
+            print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
+                  f"running; {duration:g} s of lab time at time scale {args.time_scale:g} "
+                  f"({duration / args.time_scale:.0f} s real)")
             logs["play"] = (d / "play.log").open("w")
             procs["play"] = subprocess.Popen(
-                exe + ["run", "play", "--valves", module.valves_path, "--input", "phase-sine",
-                       "--duration", f"{args.duration:g}", "--body", BODY, "--out", str(d / "play"),
+                exe + ["run", "play", "--valves", module.valves_path, "--input", input_name,
+                       "--duration", f"{duration:g}", "--body", BODY, "--out", str(d / "play"),
                        "--time-scale", f"{args.time_scale:g}", "--clock-origin", repr(clock.origin),
                        "--no-progress", *zargs],
                 stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
-            bar = tqdm(total=round(args.duration), desc="module run (lab time)", file=sys.stderr,
+            bar = tqdm(total=round(duration), desc=f"{name} (lab time)", file=sys.stderr,
                        mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
                                                    "[{elapsed}<{remaining}]")
             t_real0 = time.monotonic()
             while procs["play"].poll() is None:
                 time.sleep(0.25)
                 el = (time.monotonic() - t_real0) * args.time_scale
-                bar.update(max(0, min(args.duration, el) - bar.n))
+                bar.update(max(0, min(duration, el) - bar.n))
             bar.close()
             if procs["play"].returncode != 0:
                 raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
@@ -235,23 +259,78 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path) -> dict[str
         session.close()
 
 
-def stage_batch(out: Path, table) -> dict[str, Any]:
-    """Batch least squares on the run the live estimator recorded (fitted, then true table)."""
+def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
+                    mass: dict[str, Any], bif: dict[str, Any]) -> dict[str, Any]:
+    """The module as the known body: a translate-rotate run (every thruster opens alone with
+    its partner, so each one's efficiency is seen), then ``tpods calibrate thrust`` with the
+    balance's mass and the bifilar Izz -> ``calibration/thrust_table.toml``."""
+    from estimator.batch.thrust_calibration import calibrate_run
+
+    duration = 28.0 if args.quick else 42.0  # two or three 14 s cycles
+    live = stage_run(out, args, bench["table_path"], name="calibration",
+                     input_name="translate-rotate", duration=duration)
+    d = out / "calibration"
+    run = read_run(d / "live")
+    res = calibrate_run(run, bench["table"], mass_kg=mass["mass_kg"], mass_sigma_kg=mass["sigma_kg"],
+                        izz_kgm2=bif["izz_kgm2"], izz_sigma_kgm2=bif["sigma_kgm2"], per="thruster",
+                        clamp=True)
+    table = res.new_table(bench["table"], source="tpods demo: calibrate thrust",
+                          run=str(d / "live"))
+    path = d / "thrust_table.toml"
+    table.save(path)
+    (d / "calibration.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
+    sig = res.sigma
+    truth = [1.0] * 4
+    truth[WEAK_THRUSTER - 1] = WEAK_EFFICIENCY
+    factors = []
+    for j, name in enumerate(res.names):
+        k = int(name.split(".")[1]) - 1
+        factors.append({"name": name, "value": float(res.values[j]), "sigma": float(sig[j]),
+                        "truth": truth[k]})
+        print(f"   {name} = {res.values[j]:.4f} +- {sig[j]:.2g} (truth {truth[k]:.2f}: "
+              f"{(res.values[j] - truth[k]) / sig[j]:+.1f} sigma)")
+    print(f"   calibrated table: {path} (the bench coefficients, these factors and their covariance)")
+    return {"table_path": path, "table": table, "factors": factors, "live": live,
+            "converged": res.converged}
+
+
+def _batch_row(run, table) -> dict[str, Any]:
+    res = estimate_run(run, table, clamp=True).batch  # the use case of `tpods estimate batch`
+    b = res.budget()
+    return {"res": res, "mass_kg": res.mass_kg, "izz_kgm2": res.izz_kgm2,
+            "mass_sigma_kg": res.mass_sigma_kg, "izz_sigma_kgm2": res.izz_sigma_kgm2,
+            "mass_sigma_noise_kg": b["mass"][0], "mass_sigma_thrust_kg": b["mass"][1],
+            "izz_sigma_noise_kgm2": b["izz"][0], "izz_sigma_thrust_kgm2": b["izz"][1],
+            "converged": res.converged, "thrust_note": res.thrust_note}
+
+
+def stage_batch(out: Path, bench_table, calibrated_table=None) -> dict[str, Any]:
+    """Batch least squares on the run the live estimator recorded: with the bench table
+    (before calibration), the calibrated table (after) and the plant's true table (check)."""
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
-    res = estimate_run(run, table, clamp=True).batch  # the use case of `tpods estimate batch`
+    before = _batch_row(run, bench_table)
+    after = _batch_row(run, calibrated_table) if calibrated_table is not None else None
+    res = (after or before)["res"]
     (d / "estimate.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
+    if after is not None:
+        (d / "estimate_before_calibration.json").write_text(
+            json.dumps(before["res"].to_dict(), indent=2, default=str) + "\n")
     fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
                          title="Batch LS on the recorded run: residuals")
-    print(f"   batch LS on {len(run.pose_t)} recorded poses: m = {res.mass_kg:.5f} +- "
-          f"{res.mass_sigma_kg:.2g} kg, Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} "
-          f"kg m^2 ({'converged' if res.converged else 'NOT converged'}, {res.elapsed_s:.1f} s)")
+    for label, r in (("bench table (before calibration)", before), ("calibrated table", after)):
+        if r is None:
+            continue
+        print(f"   batch LS, {label}: m = {r['mass_kg']:.5f} +- {r['mass_sigma_kg']:.2g} kg "
+              f"(noise {r['mass_sigma_noise_kg']:.2g}, thrust {r['mass_sigma_thrust_kg']:.2g}), "
+              f"Izz = {r['izz_kgm2']:.6g} +- {r['izz_sigma_kgm2']:.2g} kg m^2 "
+              f"({'converged' if r['converged'] else 'NOT converged'})")
     # the same fit with the plant's true thrust table: what is left is not calibration
-    chk = estimate_run(run, ThrustTable.default(), clamp=True).batch
-    print(f"   check with the TRUE thrust table (Table 2): m = {chk.mass_kg:.5f} +- "
-          f"{chk.mass_sigma_kg:.2g} kg, Izz = {chk.izz_kgm2:.6g} +- {chk.izz_sigma_kgm2:.2g} kg m^2")
-    return {"mass_kg": res.mass_kg, "mass_sigma_kg": res.mass_sigma_kg, "izz_kgm2": res.izz_kgm2,
-            "izz_sigma_kgm2": res.izz_sigma_kgm2, "converged": res.converged, "figures": [fig],
-            "true_table": {"mass_kg": chk.mass_kg, "mass_sigma_kg": chk.mass_sigma_kg,
-                           "izz_kgm2": chk.izz_kgm2, "izz_sigma_kgm2": chk.izz_sigma_kgm2}}
+    chk = _batch_row(run, plant_table())
+    print(f"   check with the TRUE thrust table: m = {chk['mass_kg']:.5f} +- "
+          f"{chk['mass_sigma_kg']:.2g} kg, Izz = {chk['izz_kgm2']:.6g} +- "
+          f"{chk['izz_sigma_kgm2']:.2g} kg m^2 (noise only: the true table states no uncertainty)")
+    strip = lambda r: None if r is None else {k: v for k, v in r.items() if k != "res"}  # noqa: E731
+    return {**strip(after or before), "before": strip(before), "after": strip(after),
+            "figures": [fig], "true_table": strip(chk)}

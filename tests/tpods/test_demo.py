@@ -1,4 +1,4 @@
-"""``tpods demo --quick``: the whole lab day end to end (about 45 s)."""
+"""``tpods demo --quick``: the whole lab day end to end (about 65 s)."""
 
 from __future__ import annotations
 
@@ -22,6 +22,17 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     chk = rows["batch LS, true table (check)"]
     assert abs(chk["mass_error_pct"]) < 1 and abs(chk["izz_error_pct"]) < 1
     assert s["live"]["play"]["valves_closed_confirmed"] is True
+    # issue 17: the calibration finds the weak thruster, and after it the batch estimate's
+    # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
+    factors = {f["name"]: f for f in s["calibration"]["factors"]}
+    assert set(factors) == {f"efficiency.{j}" for j in range(1, 5)}
+    for f in factors.values():
+        assert abs(f["value"] - f["truth"]) < 3 * f["sigma"], f
+    assert factors["efficiency.3"]["value"] < min(factors[f"efficiency.{j}"]["value"] for j in (1, 2, 4))
+    after = rows["batch LS (recorded run)"]
+    assert after["converged"] and after["mass_sigma_thrust_kg"] > after["mass_sigma_noise_kg"]
+    assert abs(after["mass_error_sigmas"]) < 3 and abs(after["izz_error_sigmas"]) < 3
+    assert any(src.startswith("batch LS, bench table (before calibration)") for src in rows)
     report = (out / "report.md").read_text()
     figs = [line.split("(")[1].rstrip(")") for line in report.splitlines() if line.startswith("![")]
     assert len(figs) >= 6 and all((out / f).is_file() for f in figs)
