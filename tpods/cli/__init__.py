@@ -85,7 +85,35 @@ def glue_negative_values(argv: list[str], value_options: set[str]) -> list[str]:
     return out
 
 
+# a Rust source location that zenoh appends to its errors: " at /root/.cargo/.../lib.rs:62."
+_RUST_AT = re.compile(r"\s*at /\S+\.rs:\d+\.?")
+
+
+def user_message(exc: BaseException) -> str:
+    """The one line a user sees for ``exc``: its text without internal source locations."""
+    text = _RUST_AT.sub("", str(exc)).strip()
+    text = re.sub(r"\[?Single\(([^()]*)\)\]?", r"\1", text)  # a Rust enum's Debug form
+    text = re.sub(r"\bKeyError: ('[^']*')", r"missing key \1", text)  # Python's exception names
+    text = re.sub(r"\((ValueError|TypeError): ", "(", text)
+    return text.replace("!)", ")").replace(" )", ")")
+
+
+def quiet_expected_warnings() -> None:
+    """Numerical RuntimeWarnings (overflow, invalid value, division by zero) of the toolkit's
+    own computations are expected on bad inputs, whose results the commands check and report
+    in words (non-finite trajectory, implausible mass, ...): not shown, unless the user asked
+    for warnings (python -W / PYTHONWARNINGS)."""
+    import warnings
+
+    if sys.warnoptions:
+        return
+    warnings.filterwarnings("ignore", message=r"(overflow|invalid value|divide by zero) encountered",
+                            category=RuntimeWarning,
+                            module=r"(estimator|calibration|bench|common|mocap_bridge|tpods)(\.|$)")
+
+
 def main(argv: list[str] | None = None) -> int:
+    quiet_expected_warnings()
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(glue_negative_values(argv, _value_options(parser)))
@@ -96,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(func(args) or 0)
     except UserError as exc:
-        print(f"tpods: error: {exc}", file=sys.stderr)
+        print(f"tpods: error: {user_message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("tpods: interrupted", file=sys.stderr)

@@ -1,0 +1,61 @@
+"""Issue 16: no internal names in messages (Rust source paths, Rust enum reprs, Python
+exception names) and no RuntimeWarnings on the terminal where they are expected."""
+
+from __future__ import annotations
+
+import warnings
+
+from common.errors import UserError
+from tests.support.cli import run
+from tpods.cli import quiet_expected_warnings, user_message
+
+
+def test_user_message_drops_internal_names():
+    assert user_message(UserError(
+        "cannot open the zenoh session (invalid port value at "
+        "/root/.cargo/git/checkouts/zenoh-9c599d5ef3e0480e/cc83980/io/zenoh-link-commons/src/lib.rs:62.)")) == \
+        "cannot open the zenoh session (invalid port value)"
+    assert user_message(UserError(
+        "cannot open the zenoh session (Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at "
+        "/root/.cargo/git/x/zenoh/src/net/runtime/orchestrator.rs:447.)")) == \
+        "cannot open the zenoh session (Unable to connect to any of tcp/127.0.0.1:1)"
+    assert user_message(UserError("t.toml: malformed thrust table (KeyError: 'nozzles')")) == \
+        "t.toml: malformed thrust table (missing key 'nozzles')"
+    assert user_message(UserError("t.toml: malformed thrust table (ValueError: could not convert)")) == \
+        "t.toml: malformed thrust table (could not convert)"
+    plain = "runs/x: no such run folder"
+    assert user_message(UserError(plain)) == plain
+
+
+def test_cli_bad_zenoh_listen_port_is_plain(tpods_exe):
+    r = run(tpods_exe, "estimate", "live", "--listen", "tcp/127.0.0.1:99999", "--duration", "1", timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip() == "tpods: error: cannot open the zenoh session (invalid port value)", r.stderr
+
+
+def test_cli_thrust_table_without_nozzles(tpods_exe, tmp_path):
+    t = tmp_path / "t.toml"
+    t.write_text('unit = "gf"\n')
+    r = run(tpods_exe, "sim", "--duration", "1", "--thrust-table", str(t), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "KeyError" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_expected_numeric_warnings_are_quiet_on_the_terminal(tpods_exe, tmp_path):
+    """An absurd initial guess overflows inside the fit; the command says so in words."""
+    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
+    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--initial", "m=1e-300")
+    assert r.returncode == 2
+    assert "RuntimeWarning" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert r.stderr.startswith("tpods: error: the initial guess gives a non-finite trajectory")
+
+
+def test_quiet_filter_spares_other_warnings():
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        quiet_expected_warnings()
+        warnings.warn_explicit("overflow encountered in square", RuntimeWarning, "x.py", 1,
+                               module="estimator.batch.least_squares")
+        warnings.warn_explicit("overflow encountered in square", RuntimeWarning, "x.py", 1,
+                               module="someone_else")
+        warnings.warn_explicit("a real problem", RuntimeWarning, "x.py", 1, module="estimator.x")
+    assert [str(w.message) for w in got] == ["overflow encountered in square", "a real problem"]
