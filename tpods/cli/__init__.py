@@ -89,13 +89,18 @@ def glue_negative_values(argv: list[str], value_options: set[str]) -> list[str]:
 _RUST_AT = re.compile(r"\s*at /\S+\.rs:\d+\.?")
 
 
-def user_message(exc: BaseException) -> str:
-    """The one line a user sees for ``exc``: its text without internal source locations."""
+def user_message(exc: BaseException, clamp: bool | None = None) -> str:
+    """The one line a user sees for ``exc``: its text without internal source locations;
+    the thrust table's "clamp option" named as ``--clamp`` when the command has it
+    (``clamp`` True), left out when it has not (False)."""
     text = _RUST_AT.sub("", str(exc)).strip()
+    if clamp is not None:
+        text = text.replace("(use the clamp option to saturate)",
+                            "(add --clamp to saturate)" if clamp else "")
     text = re.sub(r"\[?Single\(([^()]*)\)\]?", r"\1", text)  # a Rust enum's Debug form
     text = re.sub(r"\bKeyError: ('[^']*')", r"missing key \1", text)  # Python's exception names
     text = re.sub(r"\((ValueError|TypeError): ", "(", text)
-    return text.replace("!)", ")").replace(" )", ")")
+    return text.replace("!)", ")").replace(" )", ")").strip()
 
 
 def quiet_expected_warnings() -> None:
@@ -124,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(func(args) or 0)
     except UserError as exc:
-        print(f"tpods: error: {user_message(exc)}", file=sys.stderr)
+        print(f"tpods: error: {user_message(exc, clamp=hasattr(args, 'clamp'))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("tpods: interrupted", file=sys.stderr)

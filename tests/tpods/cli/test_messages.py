@@ -59,3 +59,23 @@ def test_quiet_filter_spares_other_warnings():
                                module="someone_else")
         warnings.warn_explicit("a real problem", RuntimeWarning, "x.py", 1, module="estimator.x")
     assert [str(w.message) for w in got] == ["overflow encountered in square", "a real problem"]
+
+
+def test_clamp_option_named_where_the_command_has_it():
+    exc = UserError("c.csv: duty 64 % is outside the thrust table's valid range 40-60 % "
+                    "(use the clamp option to saturate)")
+    assert user_message(exc, clamp=True).endswith("40-60 % (add --clamp to saturate)")
+    assert user_message(exc, clamp=False).endswith("40-60 %")
+
+
+def test_cli_estimate_names_clamp(tpods_exe, tmp_path):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    assert run(tpods_exe, "sim", "--duration", "2", "--out", str(tmp_path / "r")).returncode == 0
+    t = tmp_path / "narrow.toml"
+    t.write_text((root / "common" / "data" / "table2_60psi.toml").read_text()
+                 .replace("duty_range = [10.0, 90.0]", "duty_range = [40.0, 60.0]"))
+    for cmd in (("estimate", "batch"), ("estimate", "crlb")):
+        r = run(tpods_exe, *cmd, str(tmp_path / "r"), "--thrust-table", str(t))
+        assert r.returncode == 2 and r.stderr.strip().endswith("(add --clamp to saturate)"), r.stderr
