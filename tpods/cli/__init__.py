@@ -105,7 +105,7 @@ def user_message(exc: BaseException, clamp: bool | None = None) -> str:
 
 def quiet_expected_warnings() -> None:
     """Numerical RuntimeWarnings (overflow, invalid value, division by zero) of the toolkit's
-    own computations are expected on bad inputs, whose results the commands check and report
+    own computations (numpy's and scipy's Python-level functions included) are expected on bad inputs, whose results the commands check and report
     in words (non-finite trajectory, implausible mass, ...): not shown, unless the user asked
     for warnings (python -W / PYTHONWARNINGS)."""
     import warnings
@@ -114,7 +114,7 @@ def quiet_expected_warnings() -> None:
         return
     warnings.filterwarnings("ignore", message=r"(overflow|invalid value|divide by zero) encountered",
                             category=RuntimeWarning,
-                            module=r"(estimator|calibration|bench|common|mocap_bridge|tpods)(\.|$)")
+                            module=r"(estimator|calibration|bench|common|mocap_bridge|tpods|numpy|scipy)(\.|$)")
 
 
 def main(argv: list[str] | None = None) -> int:
