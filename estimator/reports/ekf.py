@@ -155,6 +155,11 @@ def markdown(report: dict, figs: dict | None = None) -> str:
         "",
         f"RMSE = {sc['rmse']}.",
         "",
+        "Uncertainty budget: the runs are simulated with the estimators' own thrust table "
+        "(the paper's Table 2, exact here), so every sigma below is measurement noise and "
+        "process noise only; the thrust part is 0. On a real run the table's uncertainty adds "
+        "to it (`tpods estimate batch --method ekf|ls-ekf` prints the budget).",
+        "",
         "| method | RMSE m [kg] | paper | RMSE Izz [kg m^2] | paper | final rel. err m | paper "
         "| final rel. err Izz | paper | final inside 3 sigma |",
         "|---|---|---|---|---|---|---|---|---|---|",

@@ -283,6 +283,10 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
            "(`estimator.plant.inputs.translate_rotate`), Table 2 thrusts, 120 Hz poses with 1 cm / 1 deg "
            "noise. Every estimate is the batch least-squares fit (`tpods estimate batch --method ls "
            "--model ...`) from the paper's initial guess (m = 1 kg, Izz = 5e-3 kg m^2, friction 0).", "",
+           "Uncertainty budget: the runs are simulated with the estimators' own thrust table "
+           "(Table 2, exact here), so every sigma in this report is the measurement-noise part "
+           "and the thrust part is 0; on a real run the table's stated uncertainty adds to it "
+           "(`tpods estimate batch` prints the budget, docs/estimators.md).", "",
            "## Plant values and why", "",
            "| term | value | reasoning |", "|---|---|---|",
            f"| ct | {FRICTION['ct']} N s/m | time constant m/ct = {MASS_KG / FRICTION['ct']:.1f} s: "
