@@ -433,6 +433,8 @@ def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial
     filter_thrust_budget(out, run, table, clamp=clamp, names=("mass", "izz"), fixed=fixed,
                          final={"mass": r.mass_kg, "izz": r.izz_kgm2}, sigma_pos_m=sigma_pos_m,
                          sigma_yaw_rad=sigma_yaw_rad)
+    if log is not None and not out["thrust_uncertainty"]["included"]:
+        log(f"tpods: warning: {out['thrust_uncertainty']['note']}")
     out["settings"] = {"preset": opts.preset, "q_psd": list(cfg.q_psd),
                        "sigma0": list(cfg.sigma0), "x0": x0.tolist(),
                        "sigma_meas": list(cfg.sigma_meas), "underweight": cfg.underweight,
