@@ -24,6 +24,7 @@ from estimator.batch.least_squares import batch_ls
 from estimator.plant.inputs import make_input
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate
+from estimator.reports.thrust_coverage import coverage
 
 SIG_POS = 0.003
 SIG_YAW = math.radians(0.5)
@@ -115,37 +116,10 @@ def test_consider_covariance_matches_refits_with_perturbed_tables(kind, model):
     assert np.all(ours > 0.5 * res.sigma[6:])  # the check is not about a negligible term
 
 
-def _coverage(table, runs: int, seed: int):
-    """Fractions of final (m, Izz) errors within 2 total and within 2 noise sigma."""
-    rng = np.random.default_rng(seed)
-    inside_total = np.zeros(2)
-    inside_noise = np.zeros(2)
-    inputs = {name: make_input(name, 15.0, 50.0, 30.0, 1.0) for name in ("phase-sine", "translate-rotate")}
-    sens_of = {name: thrust_sensitivity(table, duty) for name, (_, duty) in inputs.items()}
-    for i in range(runs):
-        name = ("phase-sine", "translate-rotate")[i % 2]
-        cmd_t, duty = inputs[name]
-        sens = sens_of[name]
-        L = np.linalg.cholesky(sens.covariance + 1e-30 * np.eye(len(sens.names)))
-        true_thrust = np.maximum(sens.thrust_n + sens.jacobian @ (L @ rng.standard_normal(len(sens.names))), 0)
-        m, izz = rng.uniform(0.8, 4.0), rng.uniform(2e-3, 1e-2)
-        run = simulate(cmd_t, duty, PlantParams(m, izz), table,
-                       SimConfig(pose_rate_hz=30, noise_pos_m=SIG_POS, noise_yaw_rad=SIG_YAW,
-                                 seed=int(rng.integers(1 << 30))), thrust_n=true_thrust)
-        res = batch_ls(run.pose_t, run.pose, cmd_t, sens.thrust_n, sigma_pos_m=SIG_POS,
-                       sigma_yaw_rad=SIG_YAW)
-        assert res.converged
-        c = batch_consider(res, cmd_t, sens, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
-        err = res.z0[6:] - np.array([m, izz])
-        total = np.sqrt(res.sigma[6:] ** 2 + np.diag(c.cov_thrust)[6:])
-        inside_total += np.abs(err) < 2 * total
-        inside_noise += np.abs(err) < 2 * res.sigma[6:]
-    return inside_total / runs, inside_noise / runs
-
-
 @pytest.mark.parametrize("kind", ["scale_rel", "coefficient covariance"])
 def test_total_sigma_covers_errors_from_a_drawn_thrust_table(kind):
     table = _table(0.01) if kind == "scale_rel" else _table(0.0, 9 * _C)
-    total, noise = _coverage(table, 200, seed=17)
-    assert np.all(np.abs(total - 0.95) <= 0.03), total
-    assert np.all(noise < 0.85), noise  # the noise sigma alone would not cover these errors
+    cov = coverage(table, 200, seed=17, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
+    assert cov.not_converged == 0
+    assert np.all(np.abs(cov.total - 0.95) <= 0.03), cov.total
+    assert np.all(cov.noise < 0.85), cov.noise  # the noise sigma alone would not cover these errors
