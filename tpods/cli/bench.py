@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -113,6 +114,30 @@ def _serial_format(text: str) -> dict:
     return {"bytesize": int(t[0]), "parity": t[1], "stopbits": int(t[2])}
 
 
+MAX_VALVES = 4
+"""Valves of a TPODS module's controller (the session checks the device's own count too)."""
+
+SESSION_FILES = ("raw.csv", "steps.csv", "run.json")
+
+
+def _drop_if_no_readings(out: Path) -> None:
+    """A session that failed before its first reading (a device that does not answer, an
+    option the controller refuses) holds nothing to keep: remove its files (and the folder
+    when that leaves it empty), so re-running into the same --out needs no --force."""
+    raw = out / "raw.csv"
+    try:
+        with raw.open() as fh:
+            has_data = sum(1 for _ in zip(range(2), fh, strict=False)) > 1
+    except OSError:
+        has_data = False
+    if has_data:
+        return
+    for name in SESSION_FILES:
+        (out / name).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        out.rmdir()
+
+
 def cmd_characterize(args: argparse.Namespace) -> int:
     from bench.ohaus import OhausScout
     from bench.session import (
@@ -136,6 +161,9 @@ def cmd_characterize(args: argparse.Namespace) -> int:
         watchdog_ms=args.watchdog_ms)
     if not 1 <= cfg.pwm_hz <= 100:
         raise UserError(f"--pwm-hz must be 1-100, got {cfg.pwm_hz:g}")
+    if max(cfg.nozzles) > MAX_VALVES:
+        raise UserError(f"--nozzles {args.nozzles}: a TPODS module has {MAX_VALVES} valves; "
+                        f"cannot open {max(cfg.nozzles)} at once")
     fmt = _serial_format(args.scale_format)
     out = stream_folder(args.out, force=args.force, command="tpods bench characterize")
     hs = args.scale_handshake
@@ -148,6 +176,9 @@ def cmd_characterize(args: argparse.Namespace) -> int:
                             acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
                             **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
+        except UserError:
+            _drop_if_no_readings(out)
+            raise
         except Terminated:
             print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
             return 143
