@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
+import json
 import sys
 from pathlib import Path
 
@@ -120,22 +120,27 @@ MAX_VALVES = 4
 SESSION_FILES = ("raw.csv", "steps.csv", "run.json")
 
 
-def _drop_if_no_readings(out: Path) -> None:
+def _replace_empty_failed_session(out: str | Path | None) -> None:
     """A session that failed before its first reading (a device that does not answer, an
-    option the controller refuses) holds nothing to keep: remove its files (and the folder
-    when that leaves it empty), so re-running into the same --out needs no --force."""
-    raw = out / "raw.csv"
+    option the controller refuses) holds nothing to keep but its run.json, which says why.
+    Re-running into the same --out replaces it without --force, saying so on stderr."""
+    if not out:
+        return
+    out = Path(out)
     try:
-        with raw.open() as fh:
+        names = {p.name for p in out.iterdir()}
+        meta = json.loads((out / "run.json").read_text())
+        with (out / "raw.csv").open() as fh:
             has_data = sum(1 for _ in zip(range(2), fh, strict=False)) > 1
-    except OSError:
-        has_data = False
-    if has_data:
+    except (OSError, ValueError):
+        return
+    if not names <= set(SESSION_FILES) or has_data or not isinstance(meta, dict) \
+            or meta.get("status") != "failed":
         return
     for name in SESSION_FILES:
         (out / name).unlink(missing_ok=True)
-    with contextlib.suppress(OSError):
-        out.rmdir()
+    print(f"tpods: replacing {out}: a failed session without readings "
+          f"({str(meta.get('error') or '')[:80]})", file=sys.stderr)
 
 
 def cmd_characterize(args: argparse.Namespace) -> int:
@@ -165,6 +170,7 @@ def cmd_characterize(args: argparse.Namespace) -> int:
         raise UserError(f"--nozzles {args.nozzles}: a TPODS module has {MAX_VALVES} valves; "
                         f"cannot open {max(cfg.nozzles)} at once")
     fmt = _serial_format(args.scale_format)
+    _replace_empty_failed_session(args.out)
     out = stream_folder(args.out, force=args.force, command="tpods bench characterize")
     hs = args.scale_handshake
     with sigterm_raises():
@@ -176,9 +182,6 @@ def cmd_characterize(args: argparse.Namespace) -> int:
                             acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
                             **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
-        except UserError:
-            _drop_if_no_readings(out)
-            raise
         except Terminated:
             print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
             return 143

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import re
 from pathlib import Path
 
@@ -157,15 +158,21 @@ SEE_ROWS = [
 OPEN_ROWS: list[tuple[str, str]] = []
 
 
-def test_a_failed_characterize_leaves_nothing_that_blocks_a_rerun(tmp_path):
+def test_a_failed_characterize_does_not_block_a_rerun(tmp_path):
     """A session that fails before its first reading (here: a valve controller that never
-    answers) leaves no folder behind, so the same --out works again without --force."""
+    answers) keeps its run.json (status failed, why), and the same --out works again
+    without --force, saying what it replaces; a session with readings is still protected."""
     out = tmp_path / "ch"
-    for _ in range(2):
-        rc, _, stderr = check(["bench", "characterize", "--valves", "loop://", "--scale",
-                               "loop://", "--out", str(out)], tmp_path, out, "fresh")
-        assert rc == 2 and "sent nothing" in stderr and "already holds" not in stderr
-        assert not out.exists()
+    argv = ["bench", "characterize", "--valves", "loop://", "--scale", "loop://", "--out", str(out)]
+    for i in range(2):
+        rc, _, stderr = check(argv, tmp_path, out, "fresh")
+        lines = stderr.strip().splitlines()
+        assert rc == 2 and "sent nothing" in lines[-1] and "already holds" not in stderr
+        assert json.loads((out / "run.json").read_text())["status"] == "failed"
+        assert ("replacing" in stderr) == (i == 1)
+    (out / "raw.csv").write_text((out / "raw.csv").read_text() + "0.1,0,zero,-1,0,0,0.01,1\n")
+    rc, _, stderr = check(argv, tmp_path, out, "existing")
+    assert rc == 2 and "already holds" in stderr
 
 
 @pytest.fixture(scope="module")
