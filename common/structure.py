@@ -1,0 +1,454 @@
+"""Rigid structures moved by several TPODS modules (issue 18): ``structure.toml``.
+
+A structure is one rigid body whose pose motion capture reports (the *tracked frame*,
+origin O, axes xs/ys) carrying N modules. Module m sits at ``position_m`` (its centre, m,
+in the tracked frame) with its x axis turned ``yaw_deg`` (counter-clockwise seen from
+above) from xs; its four thrusters have the paper's geometry about the module centre
+(docs/run-format.md, "Thruster geometry"). Each module has its own thrust table and its
+own valve block: the per-nozzle thrust of module m uses module m's table with ``k`` = the
+number of open valves OF THAT MODULE (each module has its own accumulator).
+
+The file (docs/run-format.md, "Structure runs")::
+
+    name = "truss"
+    [[modules]]
+    name = "tpods1"
+    position_m = [-0.25, 0.0]
+    yaw_deg = 0.0
+    thrust_table = "tpods1_table.toml"   # optional, relative to this file; default Table 2
+    mass_kg = 0.72                       # optional, known module mass
+    izz_kgm2 = 1.2e-3                    # optional, known module Izz (about its centre)
+    [[modules]]
+    ...
+    [body]                               # optional: known values or priors of the whole
+    mass_kg = 1.9                        # body; a value with a sigma is a prior
+    mass_sigma_kg = 0.01
+    izz_kgm2 = 0.05
+    izz_sigma_kgm2 = 0.005
+    com_m = [0.03, 0.0]                  # centre of mass in the tracked frame, m
+    com_sigma_m = 0.01                   # one number, or [sx, sy]
+
+The plant (:mod:`estimator.plant.model`) takes the thrusts of ONE module at the tracked
+origin with yaw 0; a structure passes *virtual* thrusts (:meth:`Structure.virtual_thrust`):
+the four numbers whose wrench about the tracked origin equals the sum of every module's
+wrench (the minimum-norm solution; they may be negative). A single module at the origin
+with yaw 0 gives exactly its table's thrusts.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from common.constants import ARM_M
+from common.errors import UserError
+from common.thrust_table import ThrustTable, load_thrust_table
+from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
+
+TOP_KEYS = ("name", "modules", "body")
+MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "mass_kg", "izz_kgm2")
+BODY_KEYS = ("mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "com_m", "com_sigma_m")
+_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
+
+_S = math.sqrt(0.5)
+
+
+def module_wrench_1(arm_m: float = ARM_M) -> np.ndarray:
+    """(3, 4) wrench matrix of one module in its own frame: rows Fx (N), Fy (N), Mz (N m
+    about the module centre) per thruster newton (docs/run-format.md, "Thruster geometry")."""
+    return np.array([[-_S, _S, _S, -_S],
+                     [_S, _S, -_S, -_S],
+                     [arm_m, -arm_m, arm_m, -arm_m]])
+
+
+def _pinv_w1(arm_m: float = ARM_M) -> np.ndarray:
+    """(4, 3) pseudo-inverse of :func:`module_wrench_1`: its rows are orthogonal, so
+    ``pinv = W1^T diag(1/|row|^2)`` (exact; no SVD)."""
+    w1 = module_wrench_1(arm_m)
+    return w1.T / np.sum(w1 * w1, axis=1)
+
+
+def _nearest(key: str, valid: tuple[str, ...]) -> str:
+    near = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
+    return f" (did you mean {near[0]!r}?)" if near else ""
+
+
+def _check_keys(data: Mapping[str, Any], valid: tuple[str, ...], where: str) -> None:
+    for key in data:
+        if key not in valid:
+            raise UserError(f"{where}unknown key {key!r}{_nearest(key, valid)}; valid: "
+                            f"{', '.join(valid)}")
+
+
+def _num(x: Any, what: str, *, positive: bool = False, nonneg: bool = False) -> float:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise UserError(f"{what} must be a finite number, got {x!r}")
+    if positive and x <= 0:
+        raise UserError(f"{what} must be positive, got {x!r}")
+    if nonneg and x < 0:
+        raise UserError(f"{what} must be >= 0, got {x!r}")
+    return float(x)
+
+
+def _pair(x: Any, what: str) -> tuple[float, float]:
+    if not isinstance(x, list | tuple) or len(x) != 2:
+        raise UserError(f"{what} must be two numbers [x, y], got {x!r}")
+    return _num(x[0], what), _num(x[1], what)
+
+
+@dataclass(frozen=True)
+class Module:
+    """One module of a structure.
+
+    Attributes:
+        name: identifier (letters, digits, ``_``, ``-``): its valve block and Zenoh key.
+        position_m: (x, y) of the module centre in the tracked frame, m.
+        yaw_deg: module x axis relative to the tracked x axis, degrees, counter-clockwise.
+        table: its thrust table.
+        table_path: the file the table came from, or None for the default (Table 2).
+        mass_kg, izz_kgm2: known mass and Izz about the module centre, or None.
+    """
+
+    name: str
+    position_m: tuple[float, float] = (0.0, 0.0)
+    yaw_deg: float = 0.0
+    table: ThrustTable = field(default_factory=ThrustTable.default)
+    table_path: Path | None = None
+    mass_kg: float | None = None
+    izz_kgm2: float | None = None
+
+    def wrench_matrix(self, arm_m: float = ARM_M) -> np.ndarray:
+        """(3, 4): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton of
+        each of the module's thrusters: the module force turned by ``yaw_deg``, the moment
+        the module's own plus ``position x force``."""
+        w1 = module_wrench_1(arm_m)
+        a = math.radians(self.yaw_deg)
+        c, s = math.cos(a), math.sin(a)
+        fx = c * w1[0] - s * w1[1]
+        fy = s * w1[0] + c * w1[1]
+        x, y = self.position_m
+        mz = w1[2] + x * fy - y * fx
+        return np.vstack([fx, fy, mz])
+
+
+@dataclass(frozen=True)
+class Body:
+    """``[body]``: known values or priors of the whole structure (None: unknown).
+
+    A value without a sigma (or with sigma 0) is known; with a sigma it is a prior.
+    Units: kg, kg m^2 (about the centre of mass), m (centre of mass in the tracked frame).
+    """
+
+    mass_kg: float | None = None
+    mass_sigma_kg: float | None = None
+    izz_kgm2: float | None = None
+    izz_sigma_kgm2: float | None = None
+    com_m: tuple[float, float] | None = None
+    com_sigma_m: tuple[float, float] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k in BODY_KEYS:
+            v = getattr(self, k)
+            if v is not None:
+                out[k] = list(v) if isinstance(v, tuple) else v
+        return out
+
+
+@dataclass(frozen=True)
+class Structure:
+    """A rigid structure and its modules (see the module doc).
+
+    Attributes:
+        name: the structure's name.
+        modules: the modules, in valve-channel order (module 1's four duties first).
+        body: known values or priors of the whole body.
+        source: the file it was read from (for messages), or a description.
+        arm_m: thruster moment arm about each module's centre, m.
+    """
+
+    name: str
+    modules: tuple[Module, ...]
+    body: Body = field(default_factory=Body)
+    source: str = "structure"
+    arm_m: float = ARM_M
+
+    def __post_init__(self) -> None:
+        if not self.modules:
+            raise UserError(f"{self.source}: a structure needs at least one [[modules]] entry")
+        seen = set()
+        for m in self.modules:
+            if m.name in seen:
+                raise UserError(f"{self.source}: module name {m.name!r} appears twice")
+            seen.add(m.name)
+
+    # ---------------------------------------------------------------- build
+    @classmethod
+    def single_module(cls, table: ThrustTable | None = None, name: str = "module") -> Structure:
+        """One module at the tracked origin, yaw 0: today's isolated module. Its
+        :meth:`virtual_thrust` is exactly ``table.thrust_n`` (default Table 2)."""
+        table = table if table is not None else load_thrust_table(None)
+        return cls(name, (Module(name, (0.0, 0.0), 0.0, table),), source="single module")
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "structure.toml",
+                  base_dir: Path | None = None) -> Structure:
+        """A structure from parsed TOML; UserError naming ``source`` on any problem.
+        ``thrust_table`` paths are relative to ``base_dir``."""
+        try:
+            return cls._from_dict(data, source, base_dir)
+        except UserError as exc:
+            msg = str(exc)
+            raise UserError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+    @classmethod
+    def _from_dict(cls, data: Mapping[str, Any], source: str, base_dir: Path | None) -> Structure:
+        _check_keys(data, TOP_KEYS, "")
+        name = data.get("name")
+        if not isinstance(name, str) or not name.strip():
+            raise UserError('no name: add name = "..." (the structure\'s name)')
+        raw = data.get("modules")
+        if not isinstance(raw, list) or not raw:
+            raise UserError("no modules: add one [[modules]] entry per module")
+        cache: dict[Path, ThrustTable] = {}
+        modules = []
+        for i, m in enumerate(raw, start=1):
+            where = f"[[modules]] #{i}: "
+            if not isinstance(m, Mapping):
+                raise UserError(f"{where}must be a table")
+            _check_keys(m, MODULE_KEYS, where)
+            mname = m.get("name")
+            if not isinstance(mname, str) or not _NAME.match(mname):
+                raise UserError(f"{where}name must be letters, digits, '_' or '-', got {mname!r}")
+            where = f"[[modules]] {mname!r}: "
+            if "position_m" not in m:
+                raise UserError(f"{where}no position_m: add position_m = [x, y] (m)")
+            pos = _pair(m["position_m"], f"{where}position_m")
+            yaw = _num(m.get("yaw_deg", 0.0), f"{where}yaw_deg")
+            tpath = None
+            table = None
+            if "thrust_table" in m:
+                if not isinstance(m["thrust_table"], str) or not m["thrust_table"]:
+                    raise UserError(f"{where}thrust_table must be a file name")
+                tpath = Path(m["thrust_table"])
+                if not tpath.is_absolute() and base_dir is not None:
+                    tpath = base_dir / tpath
+                if tpath not in cache:
+                    try:
+                        cache[tpath] = load_thrust_table(tpath)
+                    except UserError as exc:
+                        raise UserError(f"{where}thrust_table: {exc}") from None
+                table = cache[tpath]
+            mass = m.get("mass_kg")
+            izz = m.get("izz_kgm2")
+            mass = None if mass is None else _num(mass, f"{where}mass_kg", positive=True)
+            izz = None if izz is None else _num(izz, f"{where}izz_kgm2", positive=True)
+            modules.append(Module(mname, pos, yaw, table if table is not None else
+                                  load_thrust_table(None), tpath, mass, izz))
+        body = Body()
+        if "body" in data:
+            b = data["body"]
+            if not isinstance(b, Mapping):
+                raise UserError("[body] must be a table")
+            _check_keys(b, BODY_KEYS, "[body]: ")
+            kw: dict[str, Any] = {}
+            for k in ("mass_kg", "izz_kgm2"):
+                if k in b:
+                    kw[k] = _num(b[k], f"[body] {k}", positive=True)
+            for k in ("mass_sigma_kg", "izz_sigma_kgm2"):
+                if k in b:
+                    kw[k] = _num(b[k], f"[body] {k}", nonneg=True)
+            if "com_m" in b:
+                kw["com_m"] = _pair(b["com_m"], "[body] com_m")
+            if "com_sigma_m" in b:
+                s = b["com_sigma_m"]
+                sx, sy = (s, s) if not isinstance(s, list | tuple) else _pair(s, "[body] com_sigma_m")
+                kw["com_sigma_m"] = (_num(sx, "[body] com_sigma_m", nonneg=True),
+                                     _num(sy, "[body] com_sigma_m", nonneg=True))
+            for v, s in (("mass_kg", "mass_sigma_kg"), ("izz_kgm2", "izz_sigma_kgm2"),
+                         ("com_m", "com_sigma_m")):
+                if s in kw and v not in kw:
+                    raise UserError(f"[body] {s} given without {v}")
+            body = Body(**kw)
+        return cls(name.strip(), tuple(modules), body, source)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Structure:
+        """Read ``structure.toml``; UserError naming the file on any problem."""
+        path = Path(path)
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            raise UserError(f"{path}: structure file not found") from None
+        except OSError as exc:
+            raise UserError(f"{path}: cannot read the structure file ({exc.strerror or exc})") from None
+        try:
+            data = tomllib.loads(raw.decode("utf-8-sig"))
+        except UnicodeDecodeError:
+            raise UserError(f"{path}: not UTF-8 text (save it as UTF-8)") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise UserError(f"{path}: not valid TOML ({exc})") from None
+        return cls.from_dict(data, str(path), path.parent)
+
+    def write(self, folder: str | Path) -> Path:
+        """Write ``folder/structure.toml`` self-contained: a module with its own table gets
+        it saved beside as ``<module>_thrust_table.toml``. Returns the TOML's path."""
+        folder = Path(folder)
+        mods = []
+        for m in self.modules:
+            d: dict[str, Any] = {"name": m.name, "position_m": list(m.position_m),
+                                 "yaw_deg": m.yaw_deg}
+            if m.table_path is not None:
+                fname = f"{m.name}_thrust_table.toml"
+                m.table.save(folder / fname)
+                d["thrust_table"] = fname
+            if m.mass_kg is not None:
+                d["mass_kg"] = m.mass_kg
+            if m.izz_kgm2 is not None:
+                d["izz_kgm2"] = m.izz_kgm2
+            mods.append(d)
+        out: dict[str, Any] = {"name": self.name, "modules": mods}
+        if self.body.to_dict():
+            out["body"] = self.body.to_dict()
+        path = folder / "structure.toml"
+        path.write_text(tomli_w.dumps(out))
+        return path
+
+    def with_table(self, table: ThrustTable) -> Structure:
+        """A copy in which every module whose entry names no ``thrust_table`` uses ``table``
+        instead of the default (what ``--thrust-table`` means for a structure run)."""
+        if all(m.table_path is not None for m in self.modules):
+            raise UserError(f"{self.source}: every module names its own thrust_table; "
+                            "--thrust-table would be ignored (drop it)")
+        return replace(self, modules=tuple(m if m.table_path is not None else replace(m, table=table)
+                                           for m in self.modules))
+
+    # ---------------------------------------------------------------- shape
+    @property
+    def n_modules(self) -> int:
+        return len(self.modules)
+
+    @property
+    def n_channels(self) -> int:
+        """Valve channels: 4 per module."""
+        return 4 * len(self.modules)
+
+    @property
+    def is_single_at_origin(self) -> bool:
+        """One module at the tracked origin with yaw 0 (today's isolated module)."""
+        m = self.modules[0]
+        return len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
+
+    def command_columns(self) -> tuple[str, ...]:
+        """Header of a structure's commands.csv: ``t, d1 .. d{4N}``."""
+        return ("t",) + tuple(f"d{i}" for i in range(1, self.n_channels + 1))
+
+    def thrust_columns(self) -> tuple[str, ...]:
+        """Header of a structure's thrusts.csv: ``t, T1 .. T{4N}``."""
+        return ("t",) + tuple(f"T{i}" for i in range(1, self.n_channels + 1))
+
+    def module_wrench_matrix(self) -> np.ndarray:
+        """(3, 4N): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton
+        of every thruster, module 1's four columns first."""
+        return np.hstack([m.wrench_matrix(self.arm_m) for m in self.modules])
+
+    def virtual_matrix(self) -> np.ndarray:
+        """(4, 4N) ``pinv(W1) @ module_wrench_matrix()``: physical thrusts to the virtual
+        thrusts of one module at the tracked origin with the same wrench."""
+        return _pinv_w1(self.arm_m) @ self.module_wrench_matrix()
+
+    def _check_duty(self, duty_pct: np.ndarray) -> np.ndarray:
+        d = np.asarray(duty_pct, dtype=float)
+        if d.ndim == 0 or d.shape[-1] != self.n_channels:
+            raise UserError(f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
+                            f"columns (d1..d{self.n_channels}), got "
+                            f"{d.shape[-1] if d.ndim else 0}")
+        return d
+
+    # ---------------------------------------------------------------- thrust
+    def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
+        """(..., 4N) thrust per physical thruster, N, from duty (..., 4N) in percent: module
+        m's four columns through module m's table with k = open valves of module m."""
+        d = self._check_duty(duty_pct)
+        out = np.empty_like(d)
+        for i, m in enumerate(self.modules):
+            try:
+                out[..., 4 * i:4 * i + 4] = m.table.thrust_n(d[..., 4 * i:4 * i + 4], clamp=clamp)
+            except UserError as exc:
+                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
+        return out
+
+    def virtual_from_thrust(self, thrust_n: np.ndarray) -> np.ndarray:
+        """(..., 4) virtual thrusts, N, of physical thrusts (..., 4N) (min-norm, may be
+        negative). Exactly ``thrust_n`` for a single module at the origin."""
+        t = np.asarray(thrust_n, dtype=float)
+        if t.shape[-1] != self.n_channels:
+            raise UserError(f"{self.source}: need {self.n_channels} thrust columns, got {t.shape[-1]}")
+        if self.is_single_at_origin:
+            return t
+        return t @ self.virtual_matrix().T
+
+    def virtual_thrust(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
+        """(..., 4) virtual thrusts, N, for duty rows (..., 4N) in percent: what the plant
+        takes as ``thrust_n`` (its wrench about the tracked origin is the structure's).
+        A single module at the origin gives exactly ``table.thrust_n(duty)``."""
+        if self.is_single_at_origin:
+            d = self._check_duty(duty_pct)
+            return self.modules[0].table.thrust_n(d, clamp=clamp)
+        return self.virtual_from_thrust(self.thrust_n(duty_pct, clamp=clamp))
+
+    def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
+        """The thrust-table uncertainty of every module mapped to the virtual thrusts:
+        ``thrust_n`` (..., 4), ``jacobian`` (..., 4, P) = ``pinv(W1) @ W_m`` applied to
+        module m's per-thruster jacobian, parameter names prefixed ``<module>:``
+        (``tpods1:scale``), covariance block-diagonal (modules' tables independent).
+        A single module at the origin gives :func:`thrust_sensitivity` of its table."""
+        d = self._check_duty(duty_pct)
+        if self.is_single_at_origin:
+            return thrust_sensitivity(self.modules[0].table, d, clamp=clamp)
+        pinv = _pinv_w1(self.arm_m)
+        thrust = np.zeros(d.shape[:-1] + (4,))
+        jacs, names, blocks = [], [], []
+        for i, m in enumerate(self.modules):
+            try:
+                s = thrust_sensitivity(m.table, d[..., 4 * i:4 * i + 4], clamp=clamp)
+            except UserError as exc:
+                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
+            p = pinv @ m.wrench_matrix(self.arm_m)  # (4, 4)
+            thrust = thrust + s.thrust_n @ p.T
+            jacs.append(np.einsum("ij,...jp->...ip", p, s.jacobian))
+            names.extend(f"{m.name}:{n}" for n in s.names)
+            blocks.append(s.covariance)
+        n = len(names)
+        cov = np.zeros((n, n))
+        j = 0
+        for b in blocks:
+            cov[j:j + len(b), j:j + len(b)] = b
+            j += len(b)
+        jac = np.concatenate(jacs, axis=-1) if jacs else np.zeros(thrust.shape + (0,))
+        return ThrustSensitivity(thrust, jac, tuple(names), cov)
+
+    @property
+    def states_uncertainty(self) -> bool:
+        """True when any module's table states an uncertainty."""
+        return any(m.table.states_uncertainty for m in self.modules)
+
+    def describe(self) -> list[str]:
+        """One line per module (for summaries)."""
+        return [f"{m.name}: position ({m.position_m[0]:g}, {m.position_m[1]:g}) m, yaw "
+                f"{m.yaw_deg:g} deg, table {m.table_path or 'Table 2 (default)'}"
+                for m in self.modules]
+
+
+def load_structure(path: str | Path | None) -> Structure | None:
+    """The structure at ``path`` (None: None)."""
+    return None if path is None else Structure.load(path)
