@@ -8,6 +8,9 @@ A run is a folder holding (see docs/run-format.md):
   instead of commands.csv + thrust table when present.
 - ``poses.csv``     ``t,x,y,psi``: metres and radians, lab frame; psi may be wrapped.
 - ``run.json``      optional metadata (truth for simulated runs; a recorder's ``status``).
+- ``structure.toml`` optional: the run is a structure run (:mod:`common.structure`):
+  commands.csv holds ``t,d1..d{4N}`` (module 1's four duties, then module 2's, ...),
+  thrusts.csv ``t,T1..T{4N}``, and poses.csv is the tracked structure frame.
 
 Readers validate and refuse bad input with one :class:`UserError` line naming the
 file and the row. A run whose ``run.json`` (or, for a body folder of ``tpods mocap
@@ -36,7 +39,9 @@ import pandas as pd
 
 from common.errors import UserError
 from common.runwriter import CsvLog, write_json_atomic
+from common.structure import Structure
 from common.thrust_table import load_thrust_table
+from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -68,6 +73,9 @@ class Run:
         pose_t: (N,) pose times, s.
         pose: (N, 3) x (m), y (m), psi (rad, as recorded: may be wrapped).
         meta: run.json contents ({} when absent).
+        structure: the structure of a structure run (``structure.toml`` in the folder or
+            given to :func:`read_run`), else None. Then duty_pct is (Nc, 4N) and
+            thrust_n (Nc', 4N), module 1's four channels first.
     """
 
     path: Path
@@ -78,6 +86,7 @@ class Run:
     thrust_t: np.ndarray | None = None
     thrust_n: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    structure: Structure | None = None
 
     @property
     def truth(self) -> dict[str, Any] | None:
@@ -85,16 +94,52 @@ class Run:
         return self.meta.get("truth")
 
     def thrust_profile(self, table=None, clamp: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Switch times (Nc,) and thrusts (Nc, 4) in newtons.
+        """Switch times (Nc,) and thrusts (Nc, 4) in newtons: what the plant takes.
 
         thrusts.csv wins when present; otherwise commands.csv is mapped through
-        ``table`` (default: the paper's Table 2).
+        ``table`` (default: the paper's Table 2). For a structure run the thrusts are the
+        structure's VIRTUAL thrusts (:meth:`common.structure.Structure.virtual_thrust`:
+        one module at the tracked origin with the structure's wrench; may be negative),
+        and ``table``, when given, replaces the default Table 2 for the modules whose
+        entry names no ``thrust_table`` (modules with their own table keep it).
         """
+        if self.structure is not None:
+            s = self.structure_for(table)
+            if self.thrust_n is not None:
+                return self.thrust_t, s.virtual_from_thrust(self.thrust_n)
+            try:
+                return self.cmd_t, s.virtual_thrust(self.duty_pct, clamp=clamp)
+            except UserError as exc:
+                raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
         if self.thrust_n is not None:
             return self.thrust_t, self.thrust_n
         table = table if table is not None else load_thrust_table(None)
         try:
             return self.cmd_t, table.thrust_n(self.duty_pct, clamp=clamp)
+        except UserError as exc:
+            raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
+
+    def structure_for(self, table=None) -> Structure | None:
+        """The run's structure with ``table`` for the modules without their own (None:
+        as read), or None for a single-module run."""
+        if self.structure is None or table is None:
+            return self.structure
+        return self.structure.with_table(table)
+
+    def thrust_sensitivity(self, table=None, clamp: bool = False) -> ThrustSensitivity | None:
+        """The thrust table's uncertainty at this run's commands (the consider input):
+        :func:`common.thrust_uncertainty.thrust_sensitivity` of ``table`` (default Table 2),
+        or for a structure run every module's, mapped to the virtual thrusts
+        (:meth:`common.structure.Structure.virtual_sensitivity`). None when thrusts.csv
+        gives the thrusts or no table states an uncertainty."""
+        if self.thrust_n is not None:
+            return None
+        try:
+            if self.structure is not None:
+                s = self.structure_for(table)
+                return s.virtual_sensitivity(self.duty_pct, clamp=clamp) if s.states_uncertainty else None
+            table = table if table is not None else load_thrust_table(None)
+            return thrust_sensitivity(table, self.duty_pct, clamp=clamp) if table.states_uncertainty else None
         except UserError as exc:
             raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
 
@@ -106,7 +151,7 @@ class Run:
         if keep.sum() < 2:
             raise UserError(f"{self.path}: window {t0}:{t1} holds fewer than 2 poses")
         return Run(self.path, self.cmd_t, self.duty_pct, self.pose_t[keep], self.pose[keep],
-                   self.thrust_t, self.thrust_n, self.meta)
+                   self.thrust_t, self.thrust_n, self.meta, self.structure)
 
 
 _UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
@@ -183,23 +228,35 @@ def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, 
     return values, line_no
 
 
-def read_run(path: str | Path) -> Run:
-    """Load and validate a run folder."""
+def read_run(path: str | Path, structure: Structure | str | Path | None = None) -> Run:
+    """Load and validate a run folder.
+
+    ``structure`` (a :class:`common.structure.Structure` or its TOML file) makes it a
+    structure run; without it, a ``structure.toml`` in the folder does. A structure run's
+    commands.csv needs ``t,d1..d{4N}`` (thrusts.csv ``t,T1..T{4N}``); an explicit
+    ``structure`` wins over the folder's file.
+    """
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: run folder not found")
+    if structure is None and (path / "structure.toml").is_file():
+        structure = path / "structure.toml"
+    if structure is not None and not isinstance(structure, Structure):
+        structure = Structure.load(structure)
+    cmd_cols = COMMAND_COLUMNS if structure is None else structure.command_columns()
+    thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
     thrust_file = path / "thrusts.csv"
     cmd_file = path / "commands.csv"
     thrust_t = thrust_n = None
     duty = None
     if thrust_file.exists():
-        tv, tlines = read_table_lines(thrust_file, THRUST_COLUMNS)
+        tv, tlines = read_table_lines(thrust_file, thrust_cols)
         thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
         if np.any(thrust_n < 0):
             row = int(np.argwhere(thrust_n < 0)[0][0])
             raise UserError(f"{thrust_file}: line {tlines[row]}: negative thrust")
     if cmd_file.exists() or thrust_t is None:
-        cv, clines = read_table_lines(cmd_file, COMMAND_COLUMNS)
+        cv, clines = read_table_lines(cmd_file, cmd_cols)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         bad = (duty < 0) | (duty > 100)
         if bad.any():
@@ -232,7 +289,7 @@ def read_run(path: str | Path) -> Run:
         warn_if_partial(path, meta)
     else:
         warn_if_partial(path)  # a body folder of a mocap recording
-    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta)
+    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure)
 
 
 def _check_truth(meta_file: Path, truth: Any) -> None:
@@ -300,15 +357,22 @@ def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.n
 
 
 def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thrust_t=None,
-              thrust_n=None, meta: dict[str, Any] | None = None) -> Path:
+              thrust_n=None, meta: dict[str, Any] | None = None,
+              structure: Structure | None = None) -> Path:
     """Write a run folder (creating it): CSVs with 12 significant digits, run.json
-    atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder."""
+    atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder.
+    With ``structure`` the folder gets its ``structure.toml`` (and the modules' own tables)
+    and commands.csv/thrusts.csv ``4N`` channel columns."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
+    cmd_cols = COMMAND_COLUMNS if structure is None else structure.command_columns()
+    thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
+    if structure is not None:
+        structure.write(path)
     if duty_pct is not None:
-        _write_csv(path / "commands.csv", COMMAND_COLUMNS, cmd_t, duty_pct)
+        _write_csv(path / "commands.csv", cmd_cols, cmd_t, duty_pct)
     if thrust_n is not None:
-        _write_csv(path / "thrusts.csv", THRUST_COLUMNS, thrust_t, thrust_n)
+        _write_csv(path / "thrusts.csv", thrust_cols, thrust_t, thrust_n)
     _write_csv(path / "poses.csv", POSE_COLUMNS, pose_t, pose)
     if meta is not None:
         write_json_atomic(path / "run.json", meta)

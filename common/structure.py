@@ -325,12 +325,17 @@ class Structure:
 
     def with_table(self, table: ThrustTable) -> Structure:
         """A copy in which every module whose entry names no ``thrust_table`` uses ``table``
-        instead of the default (what ``--thrust-table`` means for a structure run)."""
-        if all(m.table_path is not None for m in self.modules):
-            raise UserError(f"{self.source}: every module names its own thrust_table; "
-                            "--thrust-table would be ignored (drop it)")
+        instead of the default (what ``--thrust-table`` means for a structure run; see
+        :meth:`check_table_option`)."""
         return replace(self, modules=tuple(m if m.table_path is not None else replace(m, table=table)
                                            for m in self.modules))
+
+    def check_table_option(self, option: str = "--thrust-table") -> None:
+        """UserError when every module names its own ``thrust_table``: a table given on
+        the command line would then be ignored."""
+        if all(m.table_path is not None for m in self.modules):
+            raise UserError(f"{self.source}: every module names its own thrust_table; "
+                            f"{option} would be ignored (drop it)")
 
     # ---------------------------------------------------------------- shape
     @property

@@ -200,3 +200,52 @@ def test_with_table_applies_to_modules_without_their_own(tmp_path):
     s = Structure.load(write(tmp_path, TWO))
     t = ThrustTable({1: (0.0, 0.01)}, unit="N")
     assert all(m.table is t for m in s.with_table(t).modules)
+
+
+# ---------------------------------------------------------------- run folders
+
+
+def structure_run(tmp_path, text=TWO, **kw):
+    from common.runfolder import write_run
+
+    s = Structure.load(write(tmp_path, text, "s.toml"))
+    cmd_t = np.array([0.0, 1.0, 2.0])
+    duty = np.array([[50.0, 0, 50, 0, 0, 60, 0, 0], [0, 40, 0, 40, 70, 0, 0, 0], [0.0] * 8])
+    pose_t = np.linspace(0, 2, 5)
+    run = write_run(tmp_path / "run", cmd_t=cmd_t, duty_pct=duty, pose_t=pose_t,
+                    pose=np.zeros((5, 3)), structure=s, **kw)
+    return s, run, duty
+
+
+def test_structure_run_round_trip_gives_virtual_thrusts(tmp_path):
+    from common.runfolder import read_run
+
+    s, path, duty = structure_run(tmp_path)
+    assert (path / "structure.toml").is_file()
+    assert (path / "commands.csv").read_text().splitlines()[0] == "t,d1,d2,d3,d4,d5,d6,d7,d8"
+    run = read_run(path)
+    assert run.structure is not None and run.structure.n_channels == 8
+    assert run.duty_pct.shape == (3, 8)
+    t, v = run.thrust_profile()
+    np.testing.assert_array_equal(v, s.virtual_thrust(duty))
+    assert run.window(0.5, 2.0).structure is run.structure
+    assert run.thrust_sensitivity() is None  # Table 2 states no uncertainty
+    # an explicit table replaces the default of modules without their own
+    tab = ThrustTable({1: (0.0, 0.01), 2: (0.0, 0.01)}, unit="N")
+    _, v2 = run.thrust_profile(tab)
+    np.testing.assert_allclose(v2, s.with_table(tab).virtual_thrust(duty))
+    assert not np.allclose(v2, v)
+
+
+def test_structure_run_needs_4n_columns(tmp_path):
+    from common.runfolder import read_run, write_run
+
+    s = Structure.load(write(tmp_path, TWO, "s.toml"))
+    write_run(tmp_path / "r", cmd_t=np.array([0.0, 1.0]), duty_pct=np.zeros((2, 4)),
+              pose_t=np.array([0.0, 1.0]), pose=np.zeros((2, 3)))
+    with pytest.raises(UserError, match=r"commands.csv: missing column\(s\) d5, d6, d7, d8"):
+        read_run(tmp_path / "r", structure=s)
+    with pytest.raises(UserError, match="structure file not found"):
+        read_run(tmp_path / "r", structure=tmp_path / "none.toml")
+    run = read_run(tmp_path / "r")  # without a structure: a single-module run as today
+    assert run.structure is None and run.duty_pct.shape == (2, 4)
