@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from common.errors import UserError
-from common.runwriter import CsvLog, write_json_atomic
+from common.runwriter import CsvLog, command_columns, write_json_atomic
 from common.structure import Structure
 from common.thrust_table import load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
@@ -361,12 +361,17 @@ def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thru
               structure: Structure | None = None) -> Path:
     """Write a run folder (creating it): CSVs with 12 significant digits, run.json
     atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder.
-    With ``structure`` the folder gets its ``structure.toml`` (and the modules' own tables)
-    and commands.csv/thrusts.csv ``4N`` channel columns."""
+    commands.csv/thrusts.csv get one column per channel of ``duty_pct``/``thrust_n``
+    (``d1..d{4N}`` for a structure's 4N channels). With ``structure`` the folder also
+    gets its ``structure.toml`` (and the modules' own tables)."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    cmd_cols = COMMAND_COLUMNS if structure is None else structure.command_columns()
-    thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
+    n_cmd = 4 if duty_pct is None else np.shape(duty_pct)[-1]
+    n_thr = 4 if thrust_n is None else np.shape(thrust_n)[-1]
+    if structure is not None and duty_pct is not None and n_cmd != structure.n_channels:
+        raise ValueError(f"{n_cmd} duty columns for a structure of {structure.n_channels} channels")
+    cmd_cols = command_columns(n_cmd)
+    thrust_cols = ("t",) + tuple(f"T{i}" for i in range(1, n_thr + 1))
     if structure is not None:
         structure.write(path)
     if duty_pct is not None:

@@ -14,6 +14,7 @@ import numpy as np
 
 from common.errors import UserError
 from common.runfolder import COMMAND_COLUMNS, read_table
+from common.runwriter import command_columns
 
 INPUT_NAMES = ("phase-sine", "translate-rotate")
 
@@ -63,9 +64,10 @@ def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct
     return _close(t, duty, duration_s)
 
 
-def from_commands_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a commands.csv (run-folder format) as an input sequence."""
-    v = read_table(Path(path), COMMAND_COLUMNS)
+def from_commands_csv(path: str | Path, n_channels: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Read a commands.csv (run-folder format) as an input sequence: (N,) s and (N,
+    n_channels) percent (``t,d1..d{n_channels}``: a structure's 4N channels)."""
+    v = read_table(Path(path), COMMAND_COLUMNS if n_channels == 4 else command_columns(n_channels))
     return v[:, 0], v[:, 1:]
 
 
@@ -74,8 +76,13 @@ END_TOLERANCE_S = 1e-3  # a file that ends this close to the asked duration is l
 
 
 def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
-               amplitude_pct: float = 20.0, omega_rad_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+               amplitude_pct: float = 20.0, omega_rad_s: float = 1.0,
+               n_channels: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Build an input by name (``phase-sine``, ``translate-rotate``) or from a commands.csv path.
+
+    ``n_channels`` > 4 (a structure's 4N valves): the phase-sine's phase shifts continue
+    across modules (channel i at (i-1) pi/4), a file needs ``d1..d{n_channels}``;
+    ``translate-rotate`` is a single-module input and is refused.
 
     A file input is cut to ``duration_s`` (rows after it dropped, a closing row added);
     ``duration_s=None`` takes the whole file (and :data:`DEFAULT_DURATION_S` for a
@@ -85,15 +92,19 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
     if duration_s is None and spec in INPUT_NAMES:
         duration_s = DEFAULT_DURATION_S
     if spec == "phase-sine":
-        return phase_sine(duration_s, cmd_rate_hz, amplitude_pct, omega_rad_s)
+        phases = None if n_channels == 4 else np.arange(n_channels) * math.pi / 4
+        return phase_sine(duration_s, cmd_rate_hz, amplitude_pct, omega_rad_s, phases_rad=phases)
     if spec == "translate-rotate":
+        if n_channels != 4:
+            raise UserError("--input translate-rotate is the single module's input; a structure "
+                            "takes phase-sine or a commands.csv with d1..d{4N}")
         return translate_rotate(duration_s, cmd_rate_hz)
     p = Path(spec)
     if p.is_dir():
         p = p / "commands.csv"
     if not p.exists():
         raise UserError(f"unknown input {spec!r}: choose {', '.join(INPUT_NAMES)} or a commands.csv path")
-    t, d = from_commands_csv(p)
+    t, d = from_commands_csv(p, n_channels)
     if duration_s is None:
         return t, d
     if t[-1] < duration_s - END_TOLERANCE_S:
