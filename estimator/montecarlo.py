@@ -257,7 +257,7 @@ class TruthStream:
         self.mass, self.izz = truth[:, 0], truth[:, 1]
         f = cfg.filter
         self.params = {"mass": self.mass, "izz": self.izz,
-                       **dict(zip(PARAM_NAMES[2:], f.known, strict=True))}
+                       **dict(zip(PARAM_NAMES[2:7], f.known, strict=True))}
         self.seg_w = [[wrench(thr, f.arm_m) for thr in seg] for seg in self.seg_thr]
         self.s = np.array(s0, float)
         self.rng = rng

@@ -32,7 +32,7 @@ from estimator.batch.crlb import (
     reference_states,
     trajectory_stm,
 )
-from estimator.plant.model import ARM_M, SQRT1_2, dynamics, jac_state
+from estimator.plant.model import ARM_M, SQRT1_2, dynamics, jac_state, output_jacobian
 from estimator.plant.propagate import segment_thrust
 
 
@@ -213,7 +213,11 @@ def batch_consider(res, cmd_t: np.ndarray, sens, *, sigma_pos_m: float, sigma_ya
         J = output_sensitivity(states, grid, res.params, segment_jacobian(grid, sens.jacobian))
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     cov_noise = res.cov if res.cov_noise is None else res.cov_noise
-    return consider(phi[:, :3, :], w, cov_noise, J, sens.covariance, sens.names)
+    cx, cy = float(res.params.get("cx", 0.0)), float(res.params.get("cy", 0.0))
+    nodes = states[grid.node_pos]
+    H = output_jacobian(nodes, phi, res.names, cx, cy)
+    J = output_jacobian(nodes, J, (), cx, cy)  # the tracked frame's poses (yaw rotates c)
+    return consider(H, w, cov_noise, J, sens.covariance, sens.names)
 
 
 def bound_consider(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[str, float],
@@ -229,6 +233,10 @@ def bound_consider(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[
     states = reference_states(s0, grid, params)
     _, phi = trajectory_stm(s0, None, None, pose_t, params, tuple(names), grid=grid, states=states)
     J = output_sensitivity(states, grid, params, segment_jacobian(grid, sens.jacobian))
-    F = fisher_information(phi, sigma_pos_m, sigma_yaw_rad)
+    cx, cy = float(params.get("cx", 0.0)), float(params.get("cy", 0.0))
+    nodes = states[grid.node_pos]
+    H = output_jacobian(nodes, phi, tuple(names), cx, cy)
+    J = output_jacobian(nodes, J, (), cx, cy)
+    F = fisher_information(H, sigma_pos_m, sigma_yaw_rad)
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
-    return consider(phi[:, :3, :], w, safe_inverse(F), J, sens.covariance, sens.names)
+    return consider(H, w, safe_inverse(F), J, sens.covariance, sens.names)

@@ -29,25 +29,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import UserError
-from estimator.plant.model import ARM_M, PARAM_NAMES, PlantParams, rk4_hold_chain, wrench
+from estimator.plant.model import (
+    ARM_M,
+    PARAM_NAMES,
+    PlantParams,
+    output_jacobian,
+    rk4_hold_chain,
+    wrench,
+)
 from estimator.plant.propagate import rk4_stm, segment_thrust, zoh_segments
 
 STATE_SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 """Characteristic size of x, y (m), psi (rad), u, v (m/s), r (rad/s)."""
 
 PARAM_SCALE = {"mass": 1.0, "izz": 1e-3, "ct": 0.1, "cr": 1e-3, "kb": 1e-3, "ax": 1e-2,
-               "ay": 1e-2}
+               "ay": 1e-2, "cx": 1e-2, "cy": 1e-2}
 """Characteristic size of each parameter in SI units (kg, kg m^2, N s/m, ...)."""
 
 DEFAULT_MAX_STEP_S = 0.01
 
 
 def plant_from(params: Mapping[str, float]) -> PlantParams:
-    """PlantParams from model keyword names (mass, izz, arm, ct, cr, kb, ax, ay)."""
+    """PlantParams from model keyword names (mass, izz, arm, ct, cr, kb, ax, ay, cx, cy)."""
     return PlantParams(float(params["mass"]), float(params["izz"]),
                        float(params.get("arm", ARM_M)), float(params.get("ct", 0.0)),
                        float(params.get("cr", 0.0)), float(params.get("kb", 0.0)),
-                       float(params.get("ax", 0.0)), float(params.get("ay", 0.0)))
+                       float(params.get("ax", 0.0)), float(params.get("ay", 0.0)),
+                       float(params.get("cx", 0.0)), float(params.get("cy", 0.0)))
 
 
 def check_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -310,7 +318,8 @@ def crlb(pose_t, cmd_t, thrust_n, params: Mapping[str, float], *, s0=None,
     names = check_names(names)
     s0 = np.zeros(6) if s0 is None else np.asarray(s0, float)
     x, phi = trajectory_stm(s0, cmd_t, thrust_n, pose_t, params, names, max_step)
-    F = fisher_information(phi, sigma_pos_m, sigma_yaw_rad)
+    H = output_jacobian(x, phi, names, float(params.get("cx", 0.0)), float(params.get("cy", 0.0)))
+    F = fisher_information(H, sigma_pos_m, sigma_yaw_rad)
     if not np.all(np.isfinite(F)):  # the motion overflowed: LAPACK would print and fail
         raise np.linalg.LinAlgError("the predicted trajectory is not finite")
     M, cov, sig, logdet = crlb_from_fisher(F, names)

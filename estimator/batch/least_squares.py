@@ -50,11 +50,20 @@ from estimator.batch.crlb import (
     safe_inverse,
     trajectory_stm,
 )
-from estimator.plant.model import ARM_M, PARAM_NAMES, STATE_NAMES, wrap_angle
+from estimator.plant.model import (
+    ARM_M,
+    PARAM_NAMES,
+    STATE_NAMES,
+    com_from_tracked,
+    output_jacobian,
+    tracked_pose,
+    wrap_angle,
+)
 
 DEFAULT_INITIAL = {"mass": 1.0, "izz": 0.005, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0,
-                   "ay": 0.0}
-"""The paper's initial guess (m = 1 kg, Izz = 0.005 kg m^2); friction and tilt zero."""
+                   "ay": 0.0, "cx": 0.0, "cy": 0.0}
+"""The paper's initial guess (m = 1 kg, Izz = 0.005 kg m^2); friction, tilt and the centre
+of mass's offset from the tracked origin zero."""
 
 DEFAULT_TOL = 1e-8
 """Largest scaled correction at convergence (the paper's threshold)."""
@@ -306,7 +315,10 @@ def _initial_vector(initial, names, fixed, pose) -> np.ndarray:
     if unknown:
         raise UserError(f"unknown initial value(s): {', '.join(sorted(unknown))}")
     z = np.zeros(n)
-    z[:3] = pose[0]
+    # the states are the centre of mass's: the first pose moved by the initial offset guess
+    cx = float(initial.get("cx", fixed.get("cx", 0.0)))
+    cy = float(initial.get("cy", fixed.get("cy", 0.0)))
+    z[:3] = com_from_tracked(pose[0], cx, cy)
     for i, s in enumerate(STATE_NAMES):
         if s in initial:
             z[i] = float(initial[s])
@@ -391,7 +403,7 @@ class _Problem:
                 return math.inf, None, None
         if not np.all(np.isfinite(states)):
             return math.inf, None, None
-        pred = states[self.grid.node_pos, :3]
+        pred = tracked_pose(states[self.grid.node_pos], d.get("cx", 0.0), d.get("cy", 0.0))
         res = self.pose - pred
         res[:, 2] = wrap_angle(res[:, 2])
         cost = float(np.sum(res**2 * self.w))
@@ -411,12 +423,18 @@ class _Problem:
         self._stm_cache = (key, phi)
         return phi
 
+    def output_jacobian(self, z, states):
+        """(N, 3, 6+p) d tracked pose(t_k) / dz at ``z`` (:func:`model.output_jacobian`)."""
+        d = self.params(z)
+        return output_jacobian(states[self.grid.node_pos], self.stm(z, states), self.names,
+                               d.get("cx", 0.0), d.get("cy", 0.0))
+
     def normal(self, z, res, states):
         """``(Lambda, lambda)`` in z coordinates at ``z`` (Algorithm 1, steps 3-8)."""
-        phi = self.stm(z, states)
+        H = self.output_jacobian(z, states)
         sig = 1.0 / np.sqrt(self.w)
-        Lam = fisher_information(phi, sig[0], sig[2])
-        lam = np.einsum("kin,i,ki->n", phi[:, :3, :], self.w, res, optimize=True)
+        Lam = fisher_information(H, sig[0], sig[2])
+        lam = np.einsum("kin,i,ki->n", H, self.w, res, optimize=True)
         if self.prior_info is not None:
             Lam = Lam + self.prior_info
             lam = lam + self.prior_info @ (self.zbar - z)
@@ -590,7 +608,8 @@ def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, si
     n = 6 + len(names)
     if 3 * len(pose_t) < n and prior is None:
         raise UserError(f"{len(pose_t)} poses cannot determine {n} unknowns")
-    fixed_d = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+    fixed_d = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0,
+               "cx": 0.0, "cy": 0.0}
     fixed_d.update({k: float(v) for k, v in (fixed or {}).items()})
     for k in ("mass", "izz"):
         if k not in names and k not in fixed_d:

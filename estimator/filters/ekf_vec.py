@@ -43,7 +43,7 @@ def inv_sym3(S: np.ndarray) -> np.ndarray:
 
 
 def _known_plant(known, arm_m=None):
-    fixed = dict(zip(PARAM_NAMES[2:], known, strict=True))
+    fixed = dict(zip(PARAM_NAMES[2:7], known, strict=True))
     if arm_m is not None:
         fixed["arm"] = arm_m
     return filter_plant(("mass", "izz"), fixed)

@@ -38,8 +38,10 @@ import numpy as np
 from common.constants import ARM_M  # noqa: F401  (re-exported: the plant's nominal arm)
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
-PARAM_NAMES = ("mass", "izz", "ct", "cr", "kb", "ax", "ay")
-"""Parameters that :func:`jac_params` can differentiate with respect to."""
+PARAM_NAMES = ("mass", "izz", "ct", "cr", "kb", "ax", "ay", "cx", "cy")
+"""Parameters that :func:`jac_params` can differentiate with respect to. ``cx, cy`` (m): the
+centre of mass in the body frame of the tracked frame (a structure; 0 for a module tracked
+at its centre of mass)."""
 
 
 SQRT1_2 = math.sqrt(0.5)
@@ -57,6 +59,8 @@ class PlantParams:
     kb: float = 0.0
     ax: float = 0.0
     ay: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
 
     def kwargs(self) -> dict[str, float]:
         """Keyword arguments for the array functions of this module."""
@@ -66,6 +70,11 @@ class PlantParams:
     @property
     def has_friction(self) -> bool:
         return any(v != 0.0 for v in (self.ct, self.cr, self.kb, self.ax, self.ay))
+
+    @property
+    def com_offset(self) -> bool:
+        """The tracked frame is not at the centre of mass (cx or cy non-zero)."""
+        return self.cx != 0.0 or self.cy != 0.0
 
 
 def wrench(thrust_n: np.ndarray, arm: float = ARM_M) -> np.ndarray:
@@ -99,7 +108,7 @@ def wrench(thrust_n: np.ndarray, arm: float = ARM_M) -> np.ndarray:
 # more entry here.
 
 _SYMBOLS = ("u", "v", "r", "c", "sn", "fx", "fy", "mz", "im", "ii", "sp", "usp", "vsp",
-            "ct", "cr", "kb", "ax", "ay")
+            "ct", "cr", "kb", "ax", "ay", "cx", "cy")
 _VARYING = frozenset(("u", "v", "r", "c", "sn", "sp", "usp", "vsp"))
 """Symbols that change within a hold segment (the others are constant over a segment)."""
 _COLS = ("psi", "u", "v", "r")
@@ -152,9 +161,19 @@ EFFECTS: tuple[Effect, ...] = (
            {"u": "ax * c + ay * sn", "v": "-ax * sn + ay * c"},
            {("u", "psi"): "-ax * sn + ay * c", ("v", "psi"): "-ax * c - ay * sn",
             ("u", "ax"): "c", ("u", "ay"): "sn", ("v", "ax"): "-sn", ("v", "ay"): "c"}),
+    # the thrust moment is about the tracked origin; about the centre of mass c it is
+    # Mz - c x F (the states are the centre of mass's; the poses are the tracked frame's,
+    # see :func:`tracked_pose`)
+    Effect("centre of mass off the tracked origin (moment of the thrust about it)", ("cx", "cy"),
+           {"r": "(cy * fx - cx * fy) * ii"},
+           {("r", "cx"): "-fy * ii", ("r", "cy"): "fx * ii",
+            ("r", "izz"): "-(cy * fx - cx * fy) * ii * ii"}),
 )
 
-ALL_EFFECTS = tuple(range(len(EFFECTS)))
+ALL_EFFECTS = tuple(range(len(EFFECTS) - 1))
+"""Every effect of a module tracked at its centre of mass (what the filters compile)."""
+EVERY_EFFECT = tuple(range(len(EFFECTS)))
+"""Every effect, the centre-of-mass offset included."""
 
 
 def active_effects(values: Mapping[str, Any], names: Sequence[str] = ()) -> tuple[int, ...]:
@@ -199,6 +218,7 @@ def _uses_speed(effects) -> bool:
 
 
 _ARGS = "psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay"
+_OPT = "cx=0.0, cy=0.0"  # keyword-compatible: callers without a centre-of-mass offset omit them
 _NS = {"cos": math.cos, "sin": math.sin, "hypot": math.hypot, "np": np}
 
 
@@ -215,7 +235,7 @@ def array_function(effects: tuple[int, ...], names: tuple[str, ...] | None):
     """``f(psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay)`` on arrays of any
     broadcastable shapes: the six state derivatives, and with ``names`` given (not None)
     also the Jacobian entries of :func:`jacobian_pattern` (a tuple each)."""
-    lines = [f"def f({_ARGS}):", "    c = np.cos(psi)", "    sn = np.sin(psi)",
+    lines = [f"def f({_ARGS}, {_OPT}):", "    c = np.cos(psi)", "    sn = np.sin(psi)",
              "    im = 1.0 / mass", "    ii = 1.0 / izz"]
     if _uses_speed(effects):
         lines.append("    sp = np.hypot(u, v)")
@@ -236,7 +256,7 @@ def scalar_stage(effects: tuple[int, ...], names: tuple[str, ...]):
     """``f(psi, u, v, r, fx, fy, mz, mass, izz, ct, cr, kb, ax, ay, vals)`` on floats: returns
     the six state derivatives and appends the Jacobian entries of :func:`jacobian_pattern`
     to the list ``vals`` (one RK4 stage of the lean filter)."""
-    lines = [f"def f({_ARGS}, vals):", "    c = cos(psi)", "    sn = sin(psi)",
+    lines = [f"def f({_ARGS}, vals, {_OPT}):", "    c = cos(psi)", "    sn = sin(psi)",
              "    im = 1.0 / mass", "    ii = 1.0 / izz"]
     if _uses_speed(effects):
         lines += ["    sp = hypot(u, v)", "    usp = u / sp if sp > 0.0 else 0.0",
@@ -291,7 +311,7 @@ def scalar_rk4_chain(effects: tuple[int, ...], substeps: bool):
     upd = "\n".join(f"{ind}{S} += h6 * (k1_{i} + 2 * k2_{i} + 2 * k3_{i} + k4_{i})"
                     for i, S in enumerate(("X", "Y", "PS", "U", "V", "R")))
     seg = "\n".join(f"        {g} = {t}" for t, g in hoisted.items())
-    head = ("def f(state, dts, w, mass, izz, ct, cr, kb, ax, ay, nsub=None):\n"
+    head = ("def f(state, dts, w, mass, izz, ct, cr, kb, ax, ay, nsub=None, cx=0.0, cy=0.0):\n"
             "    im = 1.0 / mass\n    ii = 1.0 / izz\n"
             "    X, Y, PS, U, V, R = (float(a) for a in state)\n"
             "    rows = [None] * len(dts)\n")
@@ -307,50 +327,53 @@ def scalar_rk4_chain(effects: tuple[int, ...], substeps: bool):
     return _compile(src, "f")
 
 
-def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0):
+def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
+             cx=0.0, cy=0.0):
     """State derivative ``sdot``, shape (..., 6)."""
     s = np.asarray(s, dtype=float)
     w = wrench(thrust_n, arm)
-    f = array_function(ALL_EFFECTS, None)
+    f = array_function(EVERY_EFFECT, None)
     rates = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
-              mass, izz, ct, cr, kb, ax, ay)
+              mass, izz, ct, cr, kb, ax, ay, cx, cy)
     out = np.empty(np.broadcast_shapes(s.shape, w.shape[:-1] + (6,)))
     for i, v in enumerate(rates):
         out[..., i] = v
     return out
 
 
-def _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, names, cols):
+def _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, cx, cy, names, cols):
     s = np.asarray(s, dtype=float)
     w = wrench(thrust_n, arm)
     lead = np.broadcast_shapes(s.shape[:-1], w.shape[:-1], np.shape(mass), np.shape(izz))
-    f = array_function(ALL_EFFECTS, names)
+    f = array_function(EVERY_EFFECT, names)
     _, vals = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
-                mass, izz, ct, cr, kb, ax, ay)
+                mass, izz, ct, cr, kb, ax, ay, cx, cy)
     J = np.zeros(lead + (6, len(cols)))
-    for (i, j), v in zip(jacobian_pattern(ALL_EFFECTS, names), vals, strict=True):
+    for (i, j), v in zip(jacobian_pattern(EVERY_EFFECT, names), vals, strict=True):
         if j in cols:
             J[..., i, cols[j]] = v
     return J
 
 
-def jac_state(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0):
+def jac_state(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
+              cx=0.0, cy=0.0):
     """Analytic ``df/ds``, shape (..., 6, 6).
 
     The ``kb*sqrt(u^2+v^2)`` term is not differentiable at zero speed; its
     derivative is taken as 0 there (the one-sided limits average to 0).
     """
-    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, (), {j: j for j in range(6)})
+    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, cx, cy, (),
+                {j: j for j in range(6)})
 
 
 def jac_params(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
-               names: tuple[str, ...] = ("mass", "izz")):
+               cx=0.0, cy=0.0, names: tuple[str, ...] = ("mass", "izz")):
     """Analytic ``df/dtheta`` for the parameters ``names`` (from PARAM_NAMES), shape (..., 6, p)."""
     names = tuple(names)
     for n in names:
         if n not in PARAM_NAMES:
             raise ValueError(f"unknown parameter {n!r}; choose from {PARAM_NAMES}")
-    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, names,
+    return _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, cx, cy, names,
                 {6 + j: j for j in range(len(names))})
 
 
@@ -358,14 +381,66 @@ def rk4_hold_chain(s0, dts, w, params: PlantParams, nsub=None) -> list[tuple]:
     """Fused scalar RK4 over hold segments (see :func:`scalar_rk4_chain`): the states at the
     end of every segment. ``w`` (M, 3) wrenches; ``nsub`` (M,) steps per segment (default 1)."""
     p = params
-    eff = active_effects({"ct": p.ct, "cr": p.cr, "kb": p.kb, "ax": p.ax, "ay": p.ay})
+    eff = active_effects({"ct": p.ct, "cr": p.cr, "kb": p.kb, "ax": p.ax, "ay": p.ay,
+                          "cx": p.cx, "cy": p.cy})
     dts = dts.tolist() if isinstance(dts, np.ndarray) else list(dts)
     w = w.tolist() if isinstance(w, np.ndarray) else list(w)
     args = (p.mass_kg, p.izz_kgm2, p.ct, p.cr, p.kb, p.ax, p.ay)
+    com = {"cx": p.cx, "cy": p.cy} if p.com_offset else {}
     if nsub is None:
-        return scalar_rk4_chain(eff, False)(s0, dts, w, *args)
+        return scalar_rk4_chain(eff, False)(s0, dts, w, *args, **com)
     nsub = nsub.tolist() if isinstance(nsub, np.ndarray) else list(nsub)
-    return scalar_rk4_chain(eff, True)(s0, dts, w, *args, nsub)
+    return scalar_rk4_chain(eff, True)(s0, dts, w, *args, nsub, **com)
+
+
+def tracked_pose(states, cx=0.0, cy=0.0):
+    """Pose ``(x, y, psi)`` (..., 3) of the tracked frame from centre-of-mass states (..., 6):
+    ``p = p_com - R(psi) c``. Without an offset, the first three states exactly."""
+    states = np.asarray(states, dtype=float)
+    out = states[..., :3].copy()
+    if cx != 0.0 or cy != 0.0:
+        c, sn = np.cos(states[..., 2]), np.sin(states[..., 2])
+        out[..., 0] -= c * cx - sn * cy
+        out[..., 1] -= sn * cx + c * cy
+    return out
+
+
+def com_from_tracked(pose, cx=0.0, cy=0.0):
+    """The centre of mass's ``(x, y, psi)`` from a tracked pose (..., 3): ``p + R(psi) c``."""
+    pose = np.asarray(pose, dtype=float)
+    out = pose.copy()
+    if cx != 0.0 or cy != 0.0:
+        c, sn = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+        out[..., 0] += c * cx - sn * cy
+        out[..., 1] += sn * cx + c * cy
+    return out
+
+
+def output_jacobian(states, phi, names, cx=0.0, cy=0.0):
+    """``d tracked pose(t_k) / d z0`` (N, 3, 6+p) from the transition matrices' state rows
+    ``phi`` (N, 6, 6+p): ``[I_3 0] Phi`` plus the offset's terms (the yaw column rotates c;
+    columns cx, cy of ``names`` move the tracked point). Without an offset and with cx, cy
+    not estimated, ``phi[:, :3, :]`` exactly."""
+    names = tuple(names)
+    est = [n for n in ("cx", "cy") if n in names]
+    if not est and cx == 0.0 and cy == 0.0:
+        return phi[:, :3, :]
+    H = phi[:, :3, :].copy()
+    psi = np.asarray(states, float)[:, 2]
+    c, sn = np.cos(psi), np.sin(psi)
+    dx_dpsi = sn * cx + c * cy      # d(-R c)/dpsi, x row
+    dy_dpsi = -c * cx + sn * cy     # y row
+    H[:, 0, :] += dx_dpsi[:, None] * phi[:, 2, :]
+    H[:, 1, :] += dy_dpsi[:, None] * phi[:, 2, :]
+    if "cx" in names:
+        j = 6 + names.index("cx")
+        H[:, 0, j] -= c
+        H[:, 1, j] -= sn
+    if "cy" in names:
+        j = 6 + names.index("cy")
+        H[:, 0, j] += sn
+        H[:, 1, j] -= c
+    return H
 
 
 def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: float = 1 / 480):

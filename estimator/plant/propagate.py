@@ -139,7 +139,8 @@ class AugmentedPlant:
     @staticmethod
     def of(names: Sequence[str] = ("mass", "izz"), fixed: Mapping[str, float] | None = None
            ) -> AugmentedPlant:
-        vals = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+        vals = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0,
+                "cx": 0.0, "cy": 0.0}
         vals.update({k: float(v) for k, v in (fixed or {}).items()})
         return _plant(tuple(names), tuple(sorted(vals.items())))
 
@@ -156,13 +157,13 @@ class AugmentedPlant:
         set_(self, "flat", np.array([i * n + j for i, j in pattern], dtype=np.intp))
         set_(self, "stage", scalar_stage(eff, self.names))
         set_(self, "array_stage", array_function(eff, self.names))
-        # where each of (mass, izz, ct, cr, kb, ax, ay) comes from: z[6 + j] or a constant
+        # where each of PARAM_NAMES comes from: z[6 + j] or a constant
         src = [(6 + self.names.index(p), None) if p in self.names else (None, fixed.get(p, 0.0))
                for p in PARAM_NAMES]
         set_(self, "_src", src)
 
     def params(self, z) -> tuple:
-        """(mass, izz, ct, cr, kb, ax, ay) at the augmented state ``z`` (floats or arrays)."""
+        """(mass, izz, ct, cr, kb, ax, ay, cx, cy) at the augmented state ``z`` (floats or arrays)."""
         return tuple(z[i] if i is not None else c for i, c in self._src)
 
 
@@ -219,17 +220,17 @@ def stm_coefficients(h) -> np.ndarray:
 
 def rk4_step(zl: list, h: float, fx: float, fy: float, mz: float, p: tuple, stage, vals: list):
     """One RK4 step of the augmented state (list of floats) under a constant wrench; appends
-    the four stage Jacobians' entries to ``vals``. ``p``: (mass, izz, ct, cr, kb, ax, ay)."""
+    the four stage Jacobians' entries to ``vals``. ``p``: (mass, izz, ct, cr, kb, ax, ay, cx, cy)."""
     x, y, psi, u, v, r = zl[0], zl[1], zl[2], zl[3], zl[4], zl[5]
-    m, izz, ct, cr, kb, ax, ay = p
+    m, izz, ct, cr, kb, ax, ay, cx, cy = p
     h2 = 0.5 * h
-    k1 = stage(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals)
+    k1 = stage(psi, u, v, r, fx, fy, mz, m, izz, ct, cr, kb, ax, ay, vals, cx, cy)
     k2 = stage(psi + h2 * k1[2], u + h2 * k1[3], v + h2 * k1[4], r + h2 * k1[5], fx, fy, mz,
-               m, izz, ct, cr, kb, ax, ay, vals)
+               m, izz, ct, cr, kb, ax, ay, vals, cx, cy)
     k3 = stage(psi + h2 * k2[2], u + h2 * k2[3], v + h2 * k2[4], r + h2 * k2[5], fx, fy, mz,
-               m, izz, ct, cr, kb, ax, ay, vals)
+               m, izz, ct, cr, kb, ax, ay, vals, cx, cy)
     k4 = stage(psi + h * k3[2], u + h * k3[3], v + h * k3[4], r + h * k3[5], fx, fy, mz,
-               m, izz, ct, cr, kb, ax, ay, vals)
+               m, izz, ct, cr, kb, ax, ay, vals, cx, cy)
     h6 = h / 6.0
     out = [x + h6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
            y + h6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),

@@ -18,7 +18,7 @@ import common
 from common.errors import UserError
 from common.runfolder import write_run
 from common.thrust_table import ThrustTable, load_thrust_table
-from estimator.plant.model import PlantParams, integrate_zoh, wrap_angle
+from estimator.plant.model import PlantParams, integrate_zoh, tracked_pose, wrap_angle
 
 
 @dataclass
@@ -100,7 +100,9 @@ def simulate(cmd_t: np.ndarray, duty_pct: np.ndarray, params: PlantParams,
         rng.normal(0.0, config.noise_pos_m, n) if config.noise_pos_m > 0 else np.zeros(n),
         rng.normal(0.0, config.noise_yaw_rad, n) if config.noise_yaw_rad > 0 else np.zeros(n),
     ])
-    pose = states_all[:, :3] + noise
+    # the poses of the TRACKED frame (the states are the centre of mass's; the same without
+    # an offset)
+    pose = tracked_pose(states_all, params.cx, params.cy) + noise
     pose[:, 2] = wrap_angle(pose[:, 2])
     return SimResult(cmd_t, duty_pct, thrust_n, t_all[keep], pose[keep], states_all[keep],
                      params, config)
@@ -111,6 +113,7 @@ def truth_dict(res: SimResult) -> dict[str, Any]:
     return {
         "mass_kg": p.mass_kg, "izz_kgm2": p.izz_kgm2, "arm_m": p.arm_m,
         "ct": p.ct, "cr": p.cr, "kb": p.kb, "ax": p.ax, "ay": p.ay,
+        **({"cx": p.cx, "cy": p.cy} if p.com_offset else {}),
         "initial_state": list(res.config.initial_state),
     }
 

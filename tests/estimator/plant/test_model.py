@@ -13,7 +13,8 @@ from estimator.plant.model import (
 )
 
 RNG = np.random.default_rng(1)
-P_FULL = dict(mass=1.7, izz=4.2e-3, arm=0.05, ct=0.3, cr=2e-3, kb=4e-3, ax=0.01, ay=-0.02)
+P_FULL = dict(mass=1.7, izz=4.2e-3, arm=0.05, ct=0.3, cr=2e-3, kb=4e-3, ax=0.01, ay=-0.02,
+              cx=0.03, cy=-0.02)  # issue 18: the centre of mass off the tracked origin
 
 
 def _fd_state(s, T, p, eps=1e-6):
