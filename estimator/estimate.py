@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,9 @@ from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS, fixed_for, mod
 from estimator.plant.sim import pose_times
 
 METHODS = ("ls", "ekf", "ls-ekf")
+STRUCTURE_ESTIMATE = ("mass", "izz", "cx", "cy")
+"""Default unknowns of a structure run (issue 18): mass, Izz about the centre of mass and
+the centre of mass (cx, cy) in the tracked frame (m)."""
 Window = tuple[float | None, float | None]
 
 
@@ -181,15 +184,26 @@ def _start_at(fit: ModelFit, initial: dict[str, float], note: str | None
     return initial, note
 
 
+def _is_structure_run(run: Run | str | Path, structure) -> bool:
+    """True for a structure run: ``structure`` given, the Run has one, or its folder holds
+    structure.toml (known before the run is read)."""
+    if structure is not None:
+        return True
+    if isinstance(run, Run):
+        return run.structure is not None
+    return (Path(run) / "structure.toml").is_file()
+
+
 def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None = None, *, method: str = "ls",
                  model: str | None = None, window: Window | str | None = None,
-                 clamp: bool = False, estimate: Sequence[str] = ("mass", "izz"),
+                 clamp: bool = False, estimate: Sequence[str] | None = ("mass", "izz"),
                  fixed: Mapping[str, float] | None = None,
                  initial: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
                  sigma_yaw_rad: float = math.radians(1.0), tol: float = 1e-8,
                  max_iter: int = 50, select_alpha: float = 1e-3,
                  filter_options: FilterOptions | None = None,
-                 log: Callable[[str], None] | None = None) -> Estimate:
+                 log: Callable[[str], None] | None = None,
+                 structure: Any = None) -> Estimate:
     """Estimate a run's parameters: the use case of ``tpods estimate batch``.
 
     Args:
@@ -210,13 +224,31 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
             fit, one ``tpods: warning: ...`` line per implausible residual (RMS far from the
             stated noise: :func:`estimator.batch.least_squares.residual_warnings`; also in
             the result's ``warnings``). Default: dropped.
+        structure: a :class:`common.structure.Structure` or its TOML file: the run is a
+            structure run (also when its folder holds structure.toml). ``estimate=None``
+            then means :data:`STRUCTURE_ESTIMATE` less the ``fixed`` names (else mass,
+            izz); only ``method="ls"`` with no ``model`` (or ``ideal``) is built for
+            structures; the JSON gains ``com_x_m``, ``com_y_m`` and ``izz_origin_kgm2``
+            (Izz about the tracked origin, ``izz + m (cx^2 + cy^2)``) with their sigmas.
+            ``table`` then replaces Table 2 for the modules without their own table.
 
     Raises UserError for a bad window, option or run.
     """
     if method not in METHODS:
         raise UserError(f"method must be one of {', '.join(METHODS)}")
-    names = tuple(estimate)
     fixed = dict(fixed or {})
+    is_structure = _is_structure_run(run, structure)
+    if is_structure:
+        if method != "ls":
+            raise UserError(f"--method {method}: the filters do not estimate a structure's centre "
+                            "of mass yet; use --method ls")
+        if model not in (None, DEFAULT_MODEL):
+            raise UserError(f"--model {model} is not built for structures yet; give the "
+                            "unknowns with --estimate (default mass,izz,cx,cy) and --fixed")
+        model = None
+        if estimate is None:
+            estimate = tuple(n for n in STRUCTURE_ESTIMATE if n not in fixed)
+    names = tuple(estimate) if estimate is not None else ("mass", "izz")
     initial = dict(initial or {})
     opts = filter_options or FilterOptions()
     if method == "ls" and max_iter < 1:
@@ -225,8 +257,14 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
 
     def inputs() -> tuple[Run, ThrustTable]:
         """The run and the table, read when first needed (after the option checks)."""
-        if not isinstance(source[0], Run):
-            source[0] = read_run(source[0])
+        if len(source) == 2:  # first call
+            if not isinstance(source[0], Run):
+                source[0] = read_run(source[0], structure=structure)
+            elif structure is not None:
+                source[0] = _with_structure(source[0], structure)
+            if source[0].structure is not None and source[1] is not None:
+                source[0].structure.check_table_option()
+            source.append(True)
         if not isinstance(source[1], ThrustTable):
             source[1] = load_thrust_table(source[1])
         return source[0], source[1]
@@ -287,7 +325,10 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
     window = as_window(window)
     res = least_squares_run(run, table, window, clamp=clamp, names=names, fixed=fixed,
                             initial=initial, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
-                            tol=tol, max_iter=max_iter)
+                            tol=tol, max_iter=max_iter,
+                            thrust_uncertainty=run.structure is None)
+    if run.structure is not None:
+        _structure_consider(res, _windowed(run, window), table, clamp, sigma_pos_m, sigma_yaw_rad)
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
@@ -296,6 +337,8 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
     out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
     out.update(res.to_dict())
     out["model"] = model
+    if run.structure is not None:
+        out.update(structure_keys(res, run))
     if note:
         out["start"] = note
     if selection is not None:
@@ -316,7 +359,8 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
         s0 = truth.get("initial_state") if wrun.pose_t[0] == run.pose_t[0] else None
         tp = {k: float(truth.get(k2, d)) for k, k2, d in (
             ("mass", "mass_kg", 0), ("izz", "izz_kgm2", 0), ("arm", "arm_m", 0.05),
-            ("ct", "ct", 0), ("cr", "cr", 0), ("kb", "kb", 0), ("ax", "ax", 0), ("ay", "ay", 0))}
+            ("ct", "ct", 0), ("cr", "cr", 0), ("kb", "kb", 0), ("ax", "ax", 0), ("ay", "ay", 0),
+            ("cx", "cx", 0), ("cy", "cy", 0))}
         if s0 is None:
             s0 = res.z0[:6]
         try:
@@ -324,10 +368,73 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
                      sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
             out["crlb_mass_sigma_kg"] = c.mass_sigma_kg
             out["crlb_izz_sigma_kgm2"] = c.izz_sigma_kgm2
+            for n, sg in zip(c.names, c.sigma, strict=True):
+                if n in ("cx", "cy"):
+                    out[f"crlb_{n}_sigma"] = float(sg)
             est.crlb = c
         except (UserError, ValueError, np.linalg.LinAlgError):
             pass
     return est
+
+
+def _with_structure(run: Run, structure) -> Run:
+    """``run`` read as a structure run of ``structure`` (a Structure or its TOML file)."""
+    from common.structure import Structure
+
+    s = structure if isinstance(structure, Structure) else Structure.load(structure)
+    if run.duty_pct is not None and run.duty_pct.shape[-1] != s.n_channels:
+        raise UserError(f"{run.path / 'commands.csv'}: {run.duty_pct.shape[-1]} duty columns; "
+                        f"structure {s.name!r} has {s.n_channels} channels")
+    return replace(run, structure=s)
+
+
+def _structure_consider(res: BatchResult, run: Run, table: ThrustTable, clamp: bool,
+                        sigma_pos_m: float, sigma_yaw_rad: float) -> None:
+    """The thrust-table part of a structure fit's covariance: every module's table
+    uncertainty through the virtual thrusts (:meth:`common.runfolder.Run.thrust_sensitivity`),
+    as :func:`estimator.batch.least_squares.estimate_run` does for one module."""
+    from estimator.batch.consider import NO_UNCERTAINTY, THRUSTS_GIVEN, batch_consider
+
+    if not np.all(np.isfinite(res.sigma)):
+        return  # an uninformative fit: reported as such
+    if run.thrust_n is not None:
+        res.thrust_note = THRUSTS_GIVEN
+        return
+    sens = run.thrust_sensitivity(table, clamp=clamp)
+    if sens is None or sens.empty:
+        res.thrust_note = NO_UNCERTAINTY
+        return
+    c = batch_consider(res, run.cmd_t, sens, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+    res.add_thrust_covariance(c.cov_thrust, c.names)
+    res.thrust_note = ("sigma = measurement noise + the modules' thrust table uncertainty "
+                       f"({', '.join(c.names)})")
+
+
+def structure_keys(res: BatchResult, run: Run) -> dict[str, Any]:
+    """The structure keys of ``estimate batch --json``: the centre of mass ``com_x_m``,
+    ``com_y_m`` (m, tracked frame) with sigmas, and ``izz_origin_kgm2`` = Izz about the
+    tracked origin ``izz + m (cx^2 + cy^2)`` (kg m^2) with its sigma from the covariance
+    (first order); truth errors on a simulated run. Sigma 0 for a fixed value."""
+    p = res.params
+    m, izz, cx, cy = (float(p[k]) for k in ("mass", "izz", "cx", "cy"))
+    idx = {n: 6 + i for i, n in enumerate(res.names)}
+    sig = {n: float(res.sigma[idx[n]]) if n in idx else 0.0 for n in ("cx", "cy")}
+    grad = {"mass": cx * cx + cy * cy, "izz": 1.0, "cx": 2 * m * cx, "cy": 2 * m * cy}
+    g = np.zeros(len(res.z0))
+    for n, v in grad.items():
+        if n in idx:
+            g[idx[n]] = v
+    out: dict[str, Any] = {
+        "structure": run.structure.name,
+        "com_x_m": cx, "com_x_sigma_m": sig["cx"], "com_y_m": cy, "com_y_sigma_m": sig["cy"],
+        "izz_origin_kgm2": izz + m * (cx * cx + cy * cy),
+        "izz_origin_sigma_kgm2": float(math.sqrt(max(float(g @ res.cov @ g), 0.0)))}
+    truth = run.truth or {}
+    if "mass_kg" in truth:
+        tcx, tcy = float(truth.get("cx", 0.0)), float(truth.get("cy", 0.0))
+        out.update({"truth_com_x_m": tcx, "truth_com_y_m": tcy,
+                    "com_x_error_m": cx - tcx, "com_y_error_m": cy - tcy})
+    return out
 
 
 def filter_thrust_budget(out: dict[str, Any], run: Run, table: ThrustTable, *, clamp: bool,
@@ -516,6 +623,7 @@ class CommandSequence:
     truth: dict | None = None
     thrust_sens: Any = None  # ThrustSensitivity of the rows when the table states uncertainty
     thrust_note: str = ""
+    structure: Any = None  # common.structure.Structure of a structure sequence (virtual thrusts)
 
 
 def _sequence_sensitivity(seq: CommandSequence, table: ThrustTable | None, duty, clamp: bool
@@ -534,24 +642,63 @@ def _sequence_sensitivity(seq: CommandSequence, table: ThrustTable | None, duty,
     return seq
 
 
+def _structure_sensitivity(seq: CommandSequence, sens, thrusts_given: bool) -> CommandSequence:
+    """Attach a structure's virtual thrust sensitivity (or say why there is none)."""
+    from estimator.batch.consider import NO_UNCERTAINTY, THRUSTS_GIVEN
+
+    if thrusts_given:
+        seq.thrust_note = THRUSTS_GIVEN
+    elif sens is None or sens.empty:
+        seq.thrust_note = NO_UNCERTAINTY
+    else:
+        seq.thrust_sens = sens
+    return seq
+
+
 def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = False,
-                  pose_rate_hz: float = 120.0) -> CommandSequence:
+                  pose_rate_hz: float = 120.0, structure: Any = None) -> CommandSequence:
     """A run folder (with poses.csv), or a folder or commands.csv holding only commands
-    (poses then planned at ``pose_rate_hz``, the module starting at rest at the origin)."""
+    (poses then planned at ``pose_rate_hz``, the module starting at rest at the origin).
+
+    ``structure`` (a :class:`common.structure.Structure` or its TOML file; a run folder's
+    own structure.toml otherwise) makes it a structure sequence: virtual thrusts, 4N duty
+    columns, ``table`` for the modules without their own."""
+    from common.structure import Structure
+
     p = Path(path)
+    if structure is not None and not isinstance(structure, Structure):
+        structure = Structure.load(structure)
     if p.is_dir() and (p / "poses.csv").exists():
-        run = read_run(p)
+        run = read_run(p, structure=structure)
         cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
         truth = run.truth
         s0 = truth.get("initial_state") if truth else None
         if s0 is None:
             s0 = [*run.pose[0], 0.0, 0.0, 0.0]
-        return _sequence_sensitivity(
-            CommandSequence("recorded", cmd_t, thrust, run.pose_t, s0, run, truth), table,
-            run.duty_pct if run.thrust_n is None else None, clamp)
+        seq = CommandSequence("recorded", cmd_t, thrust, run.pose_t, s0, run, truth,
+                              structure=run.structure)
+        if run.structure is not None:
+            return _structure_sensitivity(seq, run.thrust_sensitivity(table, clamp=clamp),
+                                          run.thrust_n is not None)
+        return _sequence_sensitivity(seq, table, run.duty_pct if run.thrust_n is None else None, clamp)
     csv = p / "commands.csv" if p.is_dir() else p
     if not csv.exists():
         raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
+    if structure is None and p.is_dir() and (p / "structure.toml").is_file():
+        structure = Structure.load(p / "structure.toml")
+    if structure is not None:
+        cmd_t, duty = from_commands_csv(csv, structure.n_channels)
+        if len(cmd_t) < 2:
+            raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
+        s = structure.with_table(table) if table is not None else structure
+        try:
+            thrust = s.virtual_thrust(duty, clamp=clamp)
+            sens = s.virtual_sensitivity(duty, clamp=clamp) if s.states_uncertainty else None
+        except UserError as exc:
+            raise UserError(f"{csv}: {exc}") from None
+        seq = CommandSequence("planned", cmd_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
+                              np.zeros(6), structure=s)
+        return _structure_sensitivity(seq, sens, False)
     cmd_t, duty = from_commands_csv(csv)
     if len(cmd_t) < 2:
         raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
@@ -612,17 +759,27 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
             raise UserError(f"window {window} holds fewer than 3 planned poses")
         pose_t = pose_t[keep]
     truth = seq.truth or {}
-    mass = mass_kg or truth.get("mass_kg") or PAPER_MASS_KG
-    izz = izz_kgm2 or truth.get("izz_kgm2") or PAPER_IZZ_KGM2
-    source = "command line" if (mass_kg or izz_kgm2) else ("run truth" if truth else "paper nominal")
+    body = seq.structure.body if seq.structure is not None else None
+    mass = mass_kg or truth.get("mass_kg") or (body and body.mass_kg) or PAPER_MASS_KG
+    izz = izz_kgm2 or truth.get("izz_kgm2") or (body and body.izz_kgm2) or PAPER_IZZ_KGM2
+    source = "command line" if (mass_kg or izz_kgm2) else ("run truth" if truth else
+                                                           "structure [body]" if body and body.mass_kg
+                                                           else "paper nominal")
     params = {"mass": float(mass), "izz": float(izz), "arm": float(truth.get("arm_m", 0.05)),
               **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
+    names = MODELS[model or DEFAULT_MODEL]
+    if seq.structure is not None:
+        if model not in (None, DEFAULT_MODEL):
+            raise UserError(f"--model {model} is not built for structures yet")
+        com = (truth["cx"], truth["cy"]) if "cx" in truth else ((body and body.com_m) or (0.0, 0.0))
+        params.update(cx=float(com[0]), cy=float(com[1]))
+        names = STRUCTURE_ESTIMATE
     model = model or DEFAULT_MODEL
     try:
         with np.errstate(all="ignore"):
             c = crlb(pose_t, seq.cmd_t, seq.thrust_n, params, s0=s0, sigma_pos_m=sigma_pos_m,
                      sigma_yaw_rad=sigma_yaw_rad, keep_sensitivities=keep_sensitivities,
-                     names=MODELS[model])
+                     names=names)
         if not np.all(np.isfinite(c.fisher)):
             raise np.linalg.LinAlgError
     except (np.linalg.LinAlgError, OverflowError, FloatingPointError, ValueError):

@@ -40,7 +40,7 @@ EXTRA_PARAMS = ("ct", "cr", "kb", "ax", "ay")
 """Parameters beyond mass and Izz (their initial guess is 0: no friction, level table)."""
 
 PARAM_UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s/rad",
-               "kb": "N m s/m", "ax": "m/s^2", "ay": "m/s^2"}
+               "kb": "N m s/m", "ax": "m/s^2", "ay": "m/s^2", "cx": "m", "cy": "m"}
 
 
 def names_for(model: str) -> tuple[str, ...]:

@@ -39,8 +39,14 @@ def register_sim(sub) -> None:
                    help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
     p.add_argument("--duration", type=positive_float, default=None,
                    help="seconds (default 120; a commands.csv input: its whole length)")
-    p.add_argument("--mass", type=positive_float, default=PAPER_MASS_KG, help="kg (default 2.268)")
-    p.add_argument("--izz", type=positive_float, default=PAPER_IZZ_KGM2, help="kg m^2 (default 3.78e-3)")
+    p.add_argument("--mass", type=positive_float, default=None,
+                   help="kg (default: the structure's [body] mass_kg, else 2.268)")
+    p.add_argument("--izz", type=positive_float, default=None,
+                   help="kg m^2 about the centre of mass (default: the structure's [body] "
+                        "izz_kgm2, else 3.78e-3)")
+    p.add_argument("--structure", default=None, metavar="F",
+                   help="structure.toml: simulate several modules on one rigid body (copied "
+                        "into the run folder; the centre of mass from its [body] com_m)")
     p.add_argument("--friction", type=float_list(3), default=None, metavar="CT,CR,KB",
                    help="viscous friction N s/m, rotational friction N m s/rad, yaw bias N m s/m")
     p.add_argument("--tilt", type=float_list(2), default=None, metavar="AX,AY",
@@ -71,29 +77,72 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     out = ResultFolder(args.out, force=args.force, command="tpods sim")
     table = load_thrust_table(args.thrust_table)
+    structure = sim_structure(args, table)
+    n_channels = 4 if structure is None else structure.n_channels
     generated = args.input in INPUT_NAMES
     if generated:  # sizes and duties from the options, before anything is allocated
         check_sim_size(args, args.duration or DEFAULT_DURATION_S)
-        check_phase_sine(args, table)
-    cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
+        for t in ([table] if structure is None else [m.table for m in structure.modules]):
+            check_phase_sine(args, t)
+    cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega,
+                             n_channels=n_channels)
     if not generated:
         check_sim_size(args, float(cmd_t[-1] - cmd_t[0]), n_cmds=len(cmd_t))
     ct, cr, kb = args.friction or (0.0, 0.0, 0.0)
     ax, ay = args.tilt or (0.0, 0.0)
-    params = PlantParams(args.mass, args.izz, ct=ct, cr=cr, kb=kb, ax=ax, ay=ay)
+    body = structure.body if structure is not None else None
+    mass = args.mass or (body and body.mass_kg) or PAPER_MASS_KG
+    izz = args.izz or (body and body.izz_kgm2) or PAPER_IZZ_KGM2
+    cx, cy = (body and body.com_m) or (0.0, 0.0)
+    params = PlantParams(mass, izz, ct=ct, cr=cr, kb=kb, ax=ax, ay=ay,
+                         **({"cx": cx, "cy": cy} if (cx, cy) != (0.0, 0.0) else {}))
     cfg = SimConfig(pose_rate_hz=args.pose_rate, noise_pos_m=args.noise_pos,
                     noise_yaw_rad=math.radians(args.noise_yaw_deg), drop=args.drop,
                     seed=args.seed, clamp=args.clamp)
     try:
-        res = simulate(cmd_t, duty, params, table, cfg)
+        virtual = None if structure is None else structure.virtual_thrust(duty, clamp=args.clamp)
+        res = simulate(cmd_t, duty, params, table, cfg, thrust_n=virtual)
     except UserError as exc:  # a duty of a commands.csv outside the table: name the options
         raise UserError(f"--input {args.input}: {clamp_named(exc)}") from None
     with out.writing() as d:
         write_sim_run(res, d, args.input, args.thrust_table or "built-in Table 2")
+        if structure is not None:
+            write_sim_structure(d, structure)
     print(f"wrote {out.path}")
     for line in summary_lines(res):
         print("  " + line)
+    if structure is not None:
+        print(f"  structure       {structure.name}: {structure.n_modules} modules, centre of mass "
+              f"({cx:+.4g}, {cy:+.4g}) m in the tracked frame")
     return 0
+
+
+def sim_structure(args: argparse.Namespace, table):
+    """The ``--structure`` of ``tpods sim`` with ``--thrust-table`` applied to the modules
+    without their own table, or None."""
+    from common.structure import Structure
+
+    if args.structure is None:
+        return None
+    s = Structure.load(args.structure)
+    if args.thrust_table is not None:
+        s.check_table_option()
+        s = s.with_table(table)
+    return s
+
+
+def write_sim_structure(folder, structure) -> None:
+    """Make a simulated run folder a structure run: its structure.toml (self-contained)
+    and the structure named in run.json."""
+    import json
+
+    from common.runwriter import write_json_atomic
+
+    structure.write(folder)
+    meta_file = folder / "run.json"
+    meta = json.loads(meta_file.read_text())
+    meta["settings"]["structure"] = {"name": structure.name, "modules": structure.describe()}
+    write_json_atomic(meta_file, meta)
 
 
 def clamp_named(exc: Exception) -> str:

@@ -34,7 +34,7 @@ from common.outputs import ResultFolder, add_force, not_an_input, result_output
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
-                 "r": "r", "arm": "arm"}
+                 "r": "r", "arm": "arm", "cx": "cx", "cy": "cy"}
 
 
 def key_values(text: str) -> dict[str, float]:
@@ -88,12 +88,16 @@ def register(sub, est, rep) -> None:
     p.add_argument("--window", default=None, metavar="T0:T1",
                    help="use only poses with T0 <= t <= T1 (seconds; either side may be empty)")
     p.add_argument("--initial", type=key_values, default={}, metavar="m=1,izz=0.005",
-                   help="initial guess (any of m, izz, ct, cr, kb, ax, ay, x, y, psi, u, v, r)")
-    p.add_argument("--estimate", type=name_list, default=("mass", "izz"), metavar="NAMES",
-                   help="parameters to estimate, comma-separated (default mass,izz)")
+                   help="initial guess (any of m, izz, ct, cr, kb, ax, ay, cx, cy, x, y, psi, u, v, r)")
+    p.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
+                   help="parameters to estimate, comma-separated (default mass,izz; a structure "
+                        "run: mass,izz,cx,cy less the --fixed ones)")
+    p.add_argument("--structure", default=None, metavar="F",
+                   help="structure.toml: read RUN_DIR as a structure run (default: its own "
+                        "structure.toml, if any); estimates the centre of mass cx, cy too")
     p.add_argument("--fixed", type=key_values, default={}, metavar="NAME=VALUE,...",
                    help="values of parameters that are not estimated (arm, ct, cr, kb, ax, ay, "
-                        "or mass/izz when not estimated)")
+                        "cx, cy, or mass/izz when not estimated)")
     p.add_argument("--tol", type=positive_float, default=1e-8,
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
@@ -120,6 +124,9 @@ def register(sub, est, rep) -> None:
     c.add_argument("--pose-rate", type=positive_float, default=120.0,
                    help="pose rate for a planned sequence, Hz (default 120)")
     c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
+    c.add_argument("--structure", default=None, metavar="F",
+                   help="structure.toml: a structure's sequence (4N duty columns); bounds "
+                        "mass, izz, cx, cy (default: the run folder's own structure.toml)")
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     c.add_argument("--out", default=None, metavar="DIR|FILE.json",
                    help="write crlb.json and sensitivities.png (Fig. 6) in folder DIR, or only the "
@@ -219,7 +226,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
         clamp=args.clamp, estimate=args.estimate, fixed=args.fixed, initial=args.initial,
         sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
         tol=args.tol, max_iter=args.max_iter, select_alpha=args.select_alpha,
-        filter_options=cli_ekf.filter_options(args), log=cli_realism.selection_log(args))
+        filter_options=cli_ekf.filter_options(args), log=cli_realism.selection_log(args),
+        structure=args.structure)
     body_lines = _warn_implausible_body(est, args)
     if est.ext is not None:
         return cli_realism.report_ext(est, args)
@@ -262,6 +270,12 @@ def cmd_batch(args: argparse.Namespace) -> int:
         if n not in ("mass", "izz"):
             i = 6 + res.names.index(n)
             print(f"  {n:<5} = {res.z0[i]:.6g} +/- {res.sigma[i]:.3g}")
+    if "com_x_m" in out:
+        print(f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
+              f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
+              f"structure {out['structure']!r}; Izz above is about it")
+        print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
+              f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
     rms = res.rms_residuals()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
           f"yaw {math.degrees(rms[2]):.3f} deg")
@@ -335,7 +349,9 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     not_an_input(out_folder, args.run_dir, args.thrust_table)
     table = load_thrust_table(args.thrust_table)
     _check_crlb_size(args)  # planned poses: before they are allocated
-    seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate)
+    seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate, structure=args.structure)
+    if seq.structure is not None and args.thrust_table:
+        seq.structure.check_table_option()
     _check_crlb_size(args, seq)
     b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
                        izz_kgm2=args.izz, model=args.model, sigma_pos_m=args.sigma_pos,

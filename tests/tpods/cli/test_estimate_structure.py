@@ -1,0 +1,88 @@
+"""CLI of structure runs (issue 18): tpods sim --structure, estimate batch|crlb."""
+
+import json
+
+import pytest
+
+from tests.support.cli import run
+
+STRUCTURE = """
+name = "truss"
+[[modules]]
+name = "tpods1"
+position_m = [-0.2, 0.0]
+yaw_deg = 0
+[[modules]]
+name = "tpods2"
+position_m = [0.2, 0.05]
+yaw_deg = 90
+[body]
+mass_kg = 1.6
+izz_kgm2 = 0.03
+com_m = [0.03, 0.0]
+"""
+
+
+@pytest.fixture(scope="module")
+def structure_run(tpods_exe, tmp_path_factory):
+    d = tmp_path_factory.mktemp("structure")
+    (d / "truss.toml").write_text(STRUCTURE)
+    r = run(tpods_exe, "sim", "--structure", str(d / "truss.toml"), "--duration", "60",
+            "--pose-rate", "120", "--drop", "0.05", "--seed", "1", "--out", str(d / "run"))
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def _one_line_error(r):
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("tpods: error: "), r.stderr
+    return lines[0]
+
+
+def test_sim_writes_a_structure_run(structure_run):
+    run_dir = structure_run / "run"
+    assert (run_dir / "structure.toml").is_file()
+    assert (run_dir / "commands.csv").read_text().splitlines()[0] == "t,d1,d2,d3,d4,d5,d6,d7,d8"
+    truth = json.loads((run_dir / "run.json").read_text())["truth"]
+    assert (truth["mass_kg"], truth["izz_kgm2"], truth["cx"], truth["cy"]) == (1.6, 0.03, 0.03, 0.0)
+
+
+def test_batch_estimates_mass_izz_and_centre_of_mass_efficiently(tpods_exe, structure_run):
+    run_dir = str(structure_run / "run")
+    r = run(tpods_exe, "estimate", "batch", run_dir, "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["converged"] is True and est["estimated"] == ["mass", "izz", "cx", "cy"]
+    c = run(tpods_exe, "estimate", "crlb", run_dir, "--json")
+    assert c.returncode == 0, c.stderr
+    bound = json.loads(c.stdout)
+    assert bound["estimated"] == ["mass", "izz", "cx", "cy"]
+    rows = [("mass", est["mass_kg"], est["mass_sigma_kg"], 1.6, bound["crlb_mass_sigma_kg"]),
+            ("izz", est["izz_kgm2"], est["izz_sigma_kgm2"], 0.03, bound["crlb_izz_sigma_kgm2"]),
+            ("cx", est["com_x_m"], est["com_x_sigma_m"], 0.03, bound["crlb_cx_sigma"]),
+            ("cy", est["com_y_m"], est["com_y_sigma_m"], 0.0, bound["crlb_cy_sigma"])]
+    for name, value, sigma, truth, crlb in rows:
+        assert abs(value - truth) < 3.5 * sigma, (name, value, truth, sigma)
+        assert sigma == pytest.approx(crlb, rel=0.10), (name, sigma, crlb)
+    m, izz, cx, cy = est["mass_kg"], est["izz_kgm2"], est["com_x_m"], est["com_y_m"]
+    assert est["izz_origin_kgm2"] == pytest.approx(izz + m * (cx * cx + cy * cy), rel=1e-12)
+    assert 0 < est["izz_origin_sigma_kgm2"] < 10 * est["izz_sigma_kgm2"]
+    assert est["com_x_error_m"] == pytest.approx(cx - 0.03)
+
+
+def test_structure_refusals_are_one_line(tpods_exe, structure_run, tmp_path):
+    run_dir = str(structure_run / "run")
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--method", "ekf"))
+    assert "centre of mass" in line and "--method ls" in line
+    bad = tmp_path / "bad.toml"
+    bad.write_text(STRUCTURE.replace("yaw_deg = 90", "yaw = 90"))
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bad)))
+    assert str(bad) in line and "did you mean 'yaw_deg'" in line
+    three = tmp_path / "three.toml"
+    three.write_text(STRUCTURE.replace("[body]", '[[modules]]\nname = "m3"\nposition_m = [0, 0.3]\n'
+                                                 "[body]"))
+    line = _one_line_error(run(tpods_exe, "estimate", "crlb", run_dir, "--structure", str(three)))
+    assert "missing column(s) d9, d10, d11, d12" in line
+    line = _one_line_error(run(tpods_exe, "sim", "--structure", str(bad), "--out", str(tmp_path / "o")))
+    assert "did you mean 'yaw_deg'" in line
