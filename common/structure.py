@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from common.constants import ARM_M
+from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
@@ -341,6 +341,29 @@ class Structure:
     @property
     def n_modules(self) -> int:
         return len(self.modules)
+
+    def initial_guess(self) -> dict[str, float]:
+        """A start for the estimators from what the file says: ``mass``, ``izz`` (about the
+        centre of mass) and ``cx, cy``. The [body] values where given; else the modules as
+        point-like parts: each module's mass_kg/izz_kgm2 (default the paper's module, 2.268 kg,
+        3.78e-3 kg m^2) at its position, by the parallel-axis theorem (the truss's own mass is
+        not known: a start, not an estimate)."""
+        ms = np.array([m.mass_kg if m.mass_kg is not None else PAPER_MASS_KG for m in self.modules])
+        iz = np.array([m.izz_kgm2 if m.izz_kgm2 is not None else PAPER_IZZ_KGM2
+                       for m in self.modules])
+        pos = np.array([m.position_m for m in self.modules], dtype=float)
+        mass = float(ms.sum())
+        c = (ms[:, None] * pos).sum(axis=0) / mass
+        izz = float(np.sum(iz + ms * np.sum((pos - c) ** 2, axis=1)))
+        b = self.body
+        out = {"mass": mass, "izz": izz, "cx": float(c[0]), "cy": float(c[1])}
+        if b.mass_kg is not None:
+            out["mass"] = float(b.mass_kg)
+        if b.izz_kgm2 is not None:
+            out["izz"] = float(b.izz_kgm2)
+        if b.com_m is not None:
+            out["cx"], out["cy"] = (float(v) for v in b.com_m)
+        return out
 
     @property
     def n_channels(self) -> int:

@@ -323,6 +323,14 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
                    sigma_yaw_rad, tol, max_iter, selection, note, log=None) -> Estimate:
     run, table = inputs()
     window = as_window(window)
+    if run.structure is not None:
+        # a structure's start: its geometry (or its [body] values), not the paper's module
+        guess = {k: v for k, v in run.structure.initial_guess().items()
+                 if k in names and k not in initial}
+        if guess:
+            initial = {**guess, **initial}
+            note = note or ("started from the structure's geometry: " + ", ".join(
+                f"{k} {v:.4g}" for k, v in guess.items()))
     res = least_squares_run(run, table, window, clamp=clamp, names=names, fixed=fixed,
                             initial=initial, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
                             tol=tol, max_iter=max_iter,
