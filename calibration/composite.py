@@ -64,9 +64,36 @@ class Composite:
     izz_com_kgm2: float
     izz_com_sigma_kgm2: float
     parts: list[dict[str, Any]] = field(default_factory=list)
+    com_sigma_m: tuple[float, float] = (0.0, 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
+
+
+def compare(gt: Composite, est: dict[str, Any]) -> list[dict[str, Any]]:
+    """The ground truth from parts against an estimate's JSON object (``tpods estimate batch
+    --json`` or its estimate.json): one row per quantity both hold (mass, Izz about the centre
+    of mass, the centre of mass's x and y in the tracked frame): values, sigmas, the
+    difference and the difference in combined sigmas ``sqrt(s_gt^2 + s_est^2)``."""
+    rows = []
+    pairs = [("mass", "kg", gt.mass_kg, gt.mass_sigma_kg, "mass_kg", "mass_sigma_kg"),
+             ("Izz (centre of mass)", "kg m^2", gt.izz_com_kgm2, gt.izz_com_sigma_kgm2,
+              "izz_kgm2", "izz_sigma_kgm2"),
+             ("centre of mass x", "m", gt.com_m[0], gt.com_sigma_m[0], "com_x_m", "com_x_sigma_m"),
+             ("centre of mass y", "m", gt.com_m[1], gt.com_sigma_m[1], "com_y_m", "com_y_sigma_m")]
+    for name, unit, g, gs, k, ks in pairs:
+        v = est.get(k)
+        vs = est.get(ks)
+        if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+            continue
+        vs = float(vs) if isinstance(vs, int | float) and math.isfinite(vs) else math.nan
+        comb = math.hypot(gs, vs) if math.isfinite(vs) else math.nan
+        rows.append({"quantity": name, "unit": unit, "ground_truth": g, "ground_truth_sigma": gs,
+                     "estimate": float(v), "estimate_sigma": vs, "difference": float(v) - g,
+                     "difference_sigmas": (float(v) - g) / comb if comb > 0 else None})
+    if not rows:
+        raise UserError("the estimate holds none of mass_kg, izz_kgm2, com_x_m, com_y_m")
+    return rows
 
 
 def combine(parts: list[Part], about: str | tuple[float, float] = "com") -> Composite:
@@ -92,9 +119,12 @@ def combine(parts: list[Part], about: str | tuple[float, float] = "com") -> Comp
     rows = [dict(name=p.name, mass_kg=p.mass_kg, izz_own_kgm2=p.izz_kgm2, position_m=[p.x_m, p.y_m],
                  parallel_axis_kgm2=float(p.mass_kg * d), izz_about_point_kgm2=float(p.izz_kgm2 + p.mass_kg * d))
             for p, d in zip(parts, d2_o, strict=True)]
+    # the centre of mass c = sum m r / M: dc/dm_i = (r_i - c) / M, dc/dr_i = m_i / M
+    var_com = (((r - c) / M) ** 2 * (um**2)[:, None] + ((m / M) * ur)[:, None] ** 2).sum(0)
     return Composite(M, float(math.sqrt((um**2).sum())), (float(c[0]), float(c[1])),
                      (float(o[0]), float(o[1])), izz_o, float(math.sqrt(var_o)), izz_c,
-                     float(math.sqrt(var_c)), rows)
+                     float(math.sqrt(var_c)), rows,
+                     (float(math.sqrt(var_com[0])), float(math.sqrt(var_com[1]))))
 
 
 def _num(tab: dict, key: str, where: str, default: float | None = None, positive: bool = False,

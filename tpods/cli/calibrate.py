@@ -275,6 +275,10 @@ def _register_combine(cal) -> None:
     p.add_argument("--about", type=float_list(2), default=None, metavar="X,Y",
                    help="report Izz about this point, m (default: the file's 'about', else the "
                         "centre of mass)")
+    p.add_argument("--compare", default=None, metavar="ESTIMATE.json",
+                   help="compare with an estimate (tpods estimate batch --json, or its "
+                        "estimate.json): mass, Izz about the centre of mass, the centre of mass; "
+                        "the parts' positions must be in the tracked frame of the run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_combine)
 
@@ -286,8 +290,9 @@ def cmd_combine(args: argparse.Namespace) -> int:
     if args.about is not None:
         about = tuple(args.about)
     res = combine(parts, about)
+    rows = _compare_rows(res, args.compare) if args.compare else None
     if args.json:
-        _print_json(res.to_dict())
+        _print_json({**res.to_dict(), **({"comparison": rows} if rows is not None else {})})
         return 0
     print(f"mass = {res.mass_kg:.6g} +- {res.mass_sigma_kg:.2g} kg ({len(parts)} parts)")
     print(f"centre of mass = ({res.com_m[0]:.5g}, {res.com_m[1]:.5g}) m")
@@ -297,7 +302,28 @@ def cmd_combine(args: argparse.Namespace) -> int:
     for r in res.parts:
         print(f"  {r['name']:32s} m {r['mass_kg']:.4g} kg  Izz own {r['izz_own_kgm2']:.3g}  "
               f"+ m d^2 {r['parallel_axis_kgm2']:.3g} kg m^2")
+    if rows is not None:
+        print(f"compared with {args.compare} (difference in combined sigmas):")
+        for r in rows:
+            z = "-" if r["difference_sigmas"] is None else f"{r['difference_sigmas']:+.1f}"
+            print(f"  {r['quantity']:22s} parts {r['ground_truth']:.6g} +- "
+                  f"{r['ground_truth_sigma']:.2g}   estimate {r['estimate']:.6g} +- "
+                  f"{r['estimate_sigma']:.2g} {r['unit']}   difference {r['difference']:+.3g} ({z})")
     return 0
+
+
+def _compare_rows(res, path: str) -> list[dict]:
+    from calibration.composite import compare
+
+    try:
+        est = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise UserError(f"--compare {path}: not found") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise UserError(f"--compare {path}: not an estimate's JSON ({exc})") from None
+    if not isinstance(est, dict):
+        raise UserError(f"--compare {path}: not an estimate's JSON object")
+    return compare(res, est)
 
 
 # ---------------------------------------------------------------------------- thrust

@@ -108,3 +108,63 @@ def test_a_structure_without_body_values_starts_from_its_geometry(tpods_exe, str
                                ("izz_kgm2", "izz_sigma_kgm2", 0.03),
                                ("com_x_m", "com_x_sigma_m", 0.03), ("com_y_m", "com_y_sigma_m", 0.0)):
         assert abs(est[key] - true) < 3.5 * est[sig_key], (key, est[key], est[sig_key])
+
+
+PARTS = """
+about = "com"
+[[part]]
+name = "module tpods1"
+mass_kg = 0.72
+mass_sigma_kg = 0.0015
+izz_kgm2 = 1.2e-3
+izz_sigma_kgm2 = 3e-5
+position_m = [-0.2, 0.0]
+position_sigma_m = 0.002
+[[part]]
+name = "module tpods2"
+mass_kg = 0.72
+mass_sigma_kg = 0.0015
+izz_kgm2 = 1.2e-3
+izz_sigma_kgm2 = 3e-5
+position_m = [0.2, 0.05]
+position_sigma_m = 0.002
+[[part]]
+name = "truss bar"
+mass_kg = 0.30
+mass_sigma_kg = 0.001
+shape = "rod"
+length_m = 0.5
+position_m = [0.05, 0.0]
+position_sigma_m = 0.002
+"""
+
+
+def test_parts_ground_truth_compares_with_the_estimate_in_one_command(tpods_exe, tmp_path):
+    """issue 18: `calibrate combine PARTS --compare ESTIMATE.json` puts the parallel-axis
+    ground truth beside a structure estimate in the same frame and units."""
+    (tmp_path / "parts.toml").write_text(PARTS)
+    r = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--json")
+    assert r.returncode == 0, r.stderr
+    gt = json.loads(r.stdout)
+    assert gt["com_sigma_m"][0] > 0
+    body = (f"[body]\nmass_kg = {gt['mass_kg']!r}\nizz_kgm2 = {gt['izz_com_kgm2']!r}\n"
+            f"com_m = [{gt['com_m'][0]!r}, {gt['com_m'][1]!r}]\n")
+    (tmp_path / "truss.toml").write_text(STRUCTURE.split("[body]")[0] + body)
+    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--duration", "60",
+            "--seed", "4", "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--out",
+            str(tmp_path / "est.json"))
+    assert r.returncode == 0, r.stderr
+    r = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+            str(tmp_path / "est.json"), "--json")
+    assert r.returncode == 0, r.stderr
+    rows = {row["quantity"]: row for row in json.loads(r.stdout)["comparison"]}
+    assert set(rows) == {"mass", "Izz (centre of mass)", "centre of mass x", "centre of mass y"}
+    assert all(abs(row["difference_sigmas"]) < 3 for row in rows.values()), rows
+    text = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+               str(tmp_path / "est.json")).stdout
+    assert "compared with" in text and "centre of mass x" in text
+    bad = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+              str(tmp_path / "missing.json"))
+    assert bad.returncode == 2 and "--compare" in bad.stderr and "Traceback" not in bad.stderr
