@@ -21,6 +21,7 @@ UDPInterface.hpp`` (packed structs, walk by ``ItemDataSize``, skip unknown types
 from __future__ import annotations
 
 import math
+import os
 import socket
 import struct
 import sys
@@ -30,6 +31,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from common.errors import UserError
+from mocap_bridge.capture import PcapWriter
 from mocap_bridge.pose import PoseSample, euler_xyz_to_quat, occluded_sample
 
 DEFAULT_PORT = 51001
@@ -45,6 +47,7 @@ ITEM_DATA_SIZE = 72
 OBJECT_ITEM_ID = 0
 NAME_MAX_CHARS = 23
 """Tracker writes the name as a C string in 24 bytes: a longer name is cut to 23."""
+_IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)  # Linux's value; Python 3.11 lacks the name
 assert HEADER.size == 5 and ITEM.size == 75 and OBJECT.size == ITEM_DATA_SIZE
 
 
@@ -274,15 +277,21 @@ class ViconUDPSource:
             (the UDP stream does not report Tracker's own latency).
         on_notice: called once per kind of skipped item or suspicious name (default:
             a ``vicon-udp: warning:`` line on stderr).
+        capture: a pcap file to write every received datagram to, with its receive time
+            and its real addresses and ports (:class:`mocap_bridge.capture.PcapWriter`;
+            counters ``captured``, ``capture_errors``). Replay it with
+            :class:`mocap_bridge.sources.pcap.PcapSource`.
     """
 
     in_table_frame = False
 
     def __init__(self, port: int = DEFAULT_PORT, bind: str = "0.0.0.0", latency_s: float = 0.0,
                  zero_is_occluded: bool = True, rcvbuf_bytes: int = 4 << 20,
-                 on_notice: Callable[[str], None] | None = _stderr_notice) -> None:
+                 on_notice: Callable[[str], None] | None = _stderr_notice,
+                 capture: str | os.PathLike | None = None) -> None:
         self.decoder = DatagramDecoder(latency_s, zero_is_occluded, on_notice)
         self.counters = self.decoder.counters
+        self.capture: PcapWriter | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
@@ -296,8 +305,24 @@ class ViconUDPSource:
         self.sock.settimeout(0.2)
         self.address = self.sock.getsockname()
         self.name = f"vicon-udp:{self.address[1]}"
+        self._pktinfo = False
+        if capture is not None:
+            if self.address[0] == "0.0.0.0" and sys.platform.startswith("linux"):
+                try:  # the datagram's own destination address, for the capture's IP header
+                    self.sock.setsockopt(socket.IPPROTO_IP, _IP_PKTINFO, 1)
+                    self._pktinfo = True
+                except OSError:
+                    pass
+            try:
+                self.capture = PcapWriter(capture, counters=self.counters)
+            except BaseException:
+                self.sock.close()
+                raise
 
     def batches(self, stop: threading.Event) -> Iterator[list[PoseSample]]:
+        if self.capture is not None:
+            yield from self._captured_batches(stop)
+            return
         recv = self.sock.recv
         decode = self.decoder.decode
         now = time.time
@@ -314,5 +339,39 @@ class ViconUDPSource:
             if batch:
                 yield batch
 
+    def _captured_batches(self, stop: threading.Event) -> Iterator[list[PoseSample]]:
+        """The receive loop of :meth:`batches` with every datagram also written to the
+        capture file (one ``writev`` per datagram, before it is parsed)."""
+        decode = self.decoder.decode
+        write = self.capture.write
+        now = time.time
+        dst = self.address
+        pktinfo = self._pktinfo
+        recvmsg = self.sock.recvmsg
+        recvfrom = self.sock.recvfrom
+        while not stop.is_set():
+            try:
+                if pktinfo:
+                    data, anc, _, src = recvmsg(65536, 64)
+                    t = now()
+                    for level, kind, val in anc:
+                        if level == socket.IPPROTO_IP and kind == _IP_PKTINFO and len(val) >= 12:
+                            dst = (socket.inet_ntoa(val[8:12]), self.address[1])
+                else:
+                    data, src = recvfrom(65536)
+                    t = now()
+            except TimeoutError:
+                continue
+            except OSError:
+                if stop.is_set() or self.sock.fileno() < 0:
+                    return
+                raise
+            write(data, src, dst, t)
+            batch = decode(data, t)
+            if batch:
+                yield batch
+
     def close(self) -> None:
         self.sock.close()
+        if self.capture is not None:
+            self.capture.close()

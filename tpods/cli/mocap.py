@@ -31,10 +31,18 @@ def register(sub) -> None:
     p.add_argument("--source", default="vicon-udp",
                    help="vicon-udp[:PORT] (Tracker UDP stream, default port 51001), "
                         "vicon-sdk:HOST[:PORT] (DataStream SDK), replay:RUN_DIR (run folder or "
-                        "recording), sim[:RUN_DIR] (plant simulator); default vicon-udp")
+                        "recording), pcap:FILE[?speed=X&port=N] (a Tracker capture: ours, "
+                        "tcpdump's or Wireshark's), sim[:RUN_DIR] (plant simulator); default "
+                        "vicon-udp")
+    p.add_argument("--capture", default=None, metavar="FILE.pcap|DIR",
+                   help="vicon-udp: also write every received datagram to a pcap file "
+                        "(Wireshark opens it; replay with --source pcap:FILE); a folder gets "
+                        "vicon-udp-<date>-<time>.pcap")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --capture file (default: refuse)")
     p.add_argument("--bind", default="0.0.0.0", help="UDP bind address (default 0.0.0.0)")
-    p.add_argument("--rate-scale", type=nonneg_float, default=1.0, metavar="X",
-                   help="replay/sim speed: 1 real time, 10 ten times faster, 0 as fast as "
+    p.add_argument("--rate-scale", "--speed", type=nonneg_float, default=1.0, metavar="X",
+                   help="replay/pcap/sim speed: 1 real time, 10 ten times faster, 0 as fast as "
                         "possible (default 1)")
     p.add_argument("--prefix", default="tpods/mocap", metavar="P",
                    help="key prefix (default tpods/mocap)")
@@ -105,6 +113,14 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     if not math.isfinite(args.yaw_offset_deg):
         raise UserError("--yaw-offset-deg must be finite")
     kind, _, arg = args.source.partition(":")
+    capture = None
+    if args.capture is not None:
+        from mocap_bridge.capture import capture_path
+
+        if kind != "vicon-udp":
+            raise UserError(f"--capture records the raw datagrams of --source vicon-udp; {kind!r} "
+                            "has none to capture (record its poses with tpods mocap record)")
+        capture = capture_path(args.capture, force=args.force)
     if kind == "sim":
         from tpods.sim_source import SimSource
 
@@ -112,7 +128,7 @@ def cmd_bridge(args: argparse.Namespace) -> int:
                                     body=args.body or "tpods1")
     else:
         source = open_source(args.source, rate_scale=args.rate_scale, bind=args.bind,
-                             body=args.body, latency_s=args.latency_ms * 1e-3)
+                             body=args.body, latency_s=args.latency_ms * 1e-3, capture=capture)
     if args.keep_zero_poses and hasattr(source, "decoder"):
         source.decoder.zero_is_occluded = False
     console = Console(args.quiet)
@@ -127,6 +143,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
                             on_stats=lambda snap: console.show(console_line(snap)))
             print(f"bridge: {source.name} -> {bridge.prefix}/<body>/pose "
                   f"(zenoh id {session.zid()})", file=sys.stderr)
+            if capture is not None:
+                print(f"bridge: capturing datagrams to {capture}", file=sys.stderr)
             with _stop_on_signals(stop):
                 if args.wait_subscriber > 0 and not bridge.wait_for_subscriber(args.wait_subscriber):
                     print(f"bridge: no subscriber after {args.wait_subscriber:g} s, publishing "
@@ -141,6 +159,16 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     src = bridge.stats.source_counters
     extra = f", {src.get('datagrams', 0)} datagrams, {src.get('malformed', 0)} malformed" \
         if "datagrams" in src else ""
+    if "pcap_records" in src:  # --source pcap: what the file held besides Tracker datagrams
+        extra += "".join(f", {src[k]} {label}" for k, label in (
+            ("non_udp", "non-UDP packets skipped"), ("other_port", "on other ports skipped"),
+            ("ip_fragments", "IP fragments skipped"), ("cut_short", "cut short by the snap length"),
+            ("truncated_records", "truncated record (file cut)"),
+            ("damaged_records", "damaged record")) if src.get(k))
+    if capture is not None:
+        extra += f", {src.get('captured', 0)} captured to {capture}"
+        if src.get("capture_errors"):
+            extra += " (capture stopped by a write error)"
     print(f"bridge: published {tot['published']} poses of {len(bridge.stats.bodies)} bodies "
           f"({tot['occluded']} occluded, {tot['duplicates']} duplicates dropped, "
           f"{tot['gaps']} missing frames{extra})")
