@@ -6,8 +6,10 @@
   ``estimate.json``, ``bench fit`` -> ``thrust_table.toml``, ...) takes either through
   :func:`result_output`: given a file with its main file's suffix it writes just that file,
   given a folder the main file and the rest (residuals, plots) in it. A command that writes
-  a folder refuses a file name (:func:`check_folder`), and ``.mcap`` is refused everywhere
-  (MCAP output is not implemented yet).
+  a folder refuses a file name (:func:`check_folder`). ``.mcap`` is written only where
+  MCAP is (:func:`stream_file`: ``mocap record`` and ``estimate live`` record the Zenoh
+  streams into it; ``export mcap`` through :class:`ResultFile`) and refused elsewhere
+  (:data:`MCAP_WRITERS` names them in the refusal).
 - **Checked at the start.** ``--out ''``, a path under a file, an existing file where a
   folder is wanted (or a folder where a file is wanted) and a parent that cannot be
   created are a :class:`~common.errors.UserError` naming the path, before any work.
@@ -108,10 +110,19 @@ def names_a_file(path: str | Path) -> bool:
     return Path(path).suffix.lower() in FILE_SUFFIXES
 
 
+MCAP_WRITERS = "tpods mocap record, tpods estimate live and tpods export mcap"
+"""The commands that write an ``--out X.mcap`` (named when another command refuses one)."""
+
+
+def is_mcap(path: str | Path | None) -> bool:
+    """Whether ``path`` names an MCAP file by the --out rule."""
+    return path is not None and Path(path).suffix.lower() == ".mcap"
+
+
 def _not_mcap(p: Path, option: str, command: str, instead: str) -> None:
-    if p.suffix.lower() == ".mcap":
-        raise UserError(f"{option} {p}: MCAP output is not implemented yet; {command} writes "
-                        f"{instead}")
+    if is_mcap(p):
+        raise UserError(f"{option} {p}: {command} does not write MCAP (only {MCAP_WRITERS} "
+                        f"do); it writes {instead}")
 
 
 def _folder_base(path: str | Path | None, option: str, command: str | None) -> Path:
@@ -364,6 +375,20 @@ def stream_folder(path: str | Path | None, *, force: bool, option: str = "--out"
     return p
 
 
+def stream_file(path: str | Path | None, *, force: bool, option: str = "--out") -> Path:
+    """Prepare a file a recorder writes into as it goes (an MCAP recording; it cannot be
+    atomic): checked as :func:`check_file`; with ``force`` an existing file is removed.
+    Returns the path (its parent created)."""
+    p = check_file(path, force=force, option=option)
+    if force and (p.exists() or p.is_symlink()):
+        try:
+            p.unlink()
+        except OSError as exc:
+            raise UserError(f"{option} {p}: cannot replace it ({exc.strerror})") from None
+    _make_parent(p, option)
+    return p
+
+
 def optional_folder(path: str | Path | None, *, force: bool, option: str = "--out",
                     command: str | None = None) -> ResultFolder | None:
     """:class:`ResultFolder` for an optional ``--out``: None when the option was not
@@ -377,8 +402,7 @@ def result_output(path: str | Path | None, main: str, *, force: bool, command: s
     ``estimate.json``) with, in a folder, other files beside it.
 
     None when the option was not given; a :class:`ResultFile` when ``path`` ends in
-    ``main``'s suffix; a refusal for another file suffix (:data:`FILE_SUFFIXES`; ``.mcap``:
-    not implemented); else a :class:`ResultFolder` that receives ``main`` and the rest.
+    ``main``'s suffix; a refusal for another file suffix (:data:`FILE_SUFFIXES`); else a :class:`ResultFolder` that receives ``main`` and the rest.
     Write through ``writing_main()`` on either; ``.main`` is the main file's final path."""
     if path is None:
         return None

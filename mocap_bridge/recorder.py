@@ -5,6 +5,7 @@ Layout of ``OUT``::
     OUT/recording.json           key, host start time, t0, status, counters (rewritten at the end)
     OUT/<body>/poses.csv         t,x,y,psi   (run-folder contract; occluded frames left out)
     OUT/<body>/samples.csv       every sample as received (occluded ones too)
+    OUT/recording.mcap           with --mcap: every message on the key, as received (below)
 
 poses.csv times are the sample's ``t_src`` when the source has its own timeline
 (replay, sim), otherwise ``t - t0`` with ``t0`` the capture time of the first sample
@@ -16,6 +17,12 @@ writes ``complete`` (a clean stop: Ctrl-C or the end of ``--duration``) or ``inc
 (samples that could not be written, or closed on an error); ``running`` left behind means
 the recorder was killed. Readers warn on a recording that is not ``complete``
 (:func:`common.runfolder.warn_if_partial`).
+
+Given an :class:`common.mcap_log.McapLog` (``mcap=``), the recorder also logs every
+payload of the subscribed key, stats and malformed ones included, on a channel per Zenoh
+key, with the receive time (:mod:`common.mcap_log`); the CSV files stay the primary
+format. ``tpods mocap record --out X.mcap`` writes only the MCAP file (:func:`subscribe`
+with a log and no recorder is :func:`common.mcap_log.subscribe`).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from common.errors import UserError
+from common.mcap_log import McapLog
 from common.runfolder import POSE_COLUMNS
 from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.wire import decode_pose, sanitize_chunk
@@ -71,7 +79,7 @@ class Recorder:
     """
 
     def __init__(self, out: str | Path, key: str = "", t0: float | None = None,
-                 flush: bool = True) -> None:
+                 flush: bool = True, mcap: McapLog | None = None) -> None:
         self.out = Path(out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
@@ -89,6 +97,7 @@ class Recorder:
         self._closed = False
         self.last_error = ""
         self.status = "running"
+        self.mcap = mcap
         self._write_meta()
 
     def _write_meta(self) -> None:
@@ -107,9 +116,17 @@ class Recorder:
             self._write_meta()
         return bf
 
-    def handle(self, payload: bytes, t_rx: float | None = None) -> dict[str, Any] | None:
-        """Decode one payload and write it; returns the sample, or None if skipped."""
-        t_rx = time.time() if t_rx is None else t_rx
+    def handle(self, payload: bytes, t_rx: float | None = None, key: str | None = None
+               ) -> dict[str, Any] | None:
+        """Decode one payload and write it; returns the sample, or None if skipped.
+        ``key``: the Zenoh key it came on (needed to log it to the MCAP file)."""
+        if t_rx is None:
+            t_rx_ns = time.time_ns()
+            t_rx = t_rx_ns / 1e9
+        else:
+            t_rx_ns = round(t_rx * 1e9)
+        if self.mcap is not None and key is not None:
+            self.mcap.write(key, payload, t_rx_ns)
         with self._lock:
             if self._closed:
                 return None
@@ -154,6 +171,8 @@ class Recorder:
             if status is None:
                 status = "incomplete" if self.counters.get("write_errors") else "complete"
             self.status = status
+            if self.mcap is not None:
+                self.mcap.close(status, {"recorded": self.counters["recorded"]})
             self._write_meta()
             return dict(self.counters)
 
@@ -173,7 +192,10 @@ def subscribe(session: Any, key: str, recorder: Recorder):
     """Declare a subscriber on ``key`` feeding ``recorder``; returns it (undeclare when done)."""
     def on_sample(sample: Any) -> None:
         try:
-            recorder.handle(sample.payload.to_bytes())
+            if recorder.mcap is None:
+                recorder.handle(sample.payload.to_bytes())
+            else:
+                recorder.handle(sample.payload.to_bytes(), key=str(sample.key_expr))
         except OSError as exc:  # disk full, folder removed: count, keep the session alive
             recorder.counters["write_errors"] = recorder.counters.get("write_errors", 0) + 1
             recorder.last_error = f"{exc.strerror or exc}"

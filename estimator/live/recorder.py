@@ -1,4 +1,9 @@
-"""The live estimator's run folder: what it saw, written as it goes (:mod:`common.runwriter`)."""
+"""The live estimator's run folder: what it saw, written as it goes (:mod:`common.runwriter`).
+
+With ``--mcap`` (or ``--out X.mcap``) the streams themselves are recorded too:
+:func:`record_streams` logs every message of the body's pose, command and estimate keys,
+as received (the estimates: as published), into a :class:`common.mcap_log.McapLog`.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,8 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.mcap_log import McapLog
+from common.mcap_log import subscribe as _subscribe
 from common.runwriter import CommandLog, CsvLog, write_json_atomic
 from estimator.filters.ekf import STATE_NAMES
 
@@ -132,3 +139,11 @@ class LiveRecorder:
         self.meta.update(extra or {})
         with contextlib.suppress(OSError):
             self.write_meta()
+
+
+def record_streams(session: Any, keys: dict[str, str], log: McapLog) -> list[Any]:
+    """Subscribe ``log`` to the body's keys (``pose``, ``cmd``, ``estimate``: the keys of
+    :func:`estimator.live.zenoh_run.keys`); the estimates this session publishes reach it
+    too (Zenoh delivers them to the session's own subscribers). Returns the subscribers
+    (undeclare them before closing ``log``)."""
+    return [_subscribe(session, keys[k], log) for k in ("pose", "cmd", "estimate") if k in keys]

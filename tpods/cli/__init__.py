@@ -28,7 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     from tpods.cli.bench import register as register_bench
     from tpods.cli.calibrate import register as register_calibration
     from tpods.cli.estimate import register as register_estimator
+    from tpods.cli.export import register as register_export
     from tpods.cli.mocap import register as register_mocap
+    from tpods.cli.replay import register as register_replay
     from tpods.cli.run import register as register_run
     from tpods.demo import register as register_demo
 
@@ -45,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     register_calibration(sub)
     register_mocap(sub)
     register_run(sub)
+    register_replay(sub)
+    register_export(sub)
     register_demo(sub)
     return parser
 

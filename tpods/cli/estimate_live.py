@@ -33,7 +33,11 @@ def register(est) -> None:
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
                    help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
                         "then the filter restarts from it (default ekf)")
-    p.add_argument("--out", default=None, metavar="RUN_DIR", help="record a run folder here")
+    p.add_argument("--out", default=None, metavar="RUN_DIR",
+                   help="record a run folder here; a file X.mcap: only the Zenoh streams, in MCAP")
+    p.add_argument("--mcap", action="store_true",
+                   help="with --out RUN_DIR: also record the pose, command and estimate streams "
+                        "to RUN_DIR/recording.mcap")
     add_force(p)
     p.add_argument("--rate", type=nonneg_float, default=10.0, metavar="HZ",
                    help="estimate publish rate, Hz; 0 = after every pose update (default 10)")
@@ -60,8 +64,11 @@ def register(est) -> None:
 def cmd_live(args: argparse.Namespace) -> int:
     import tpods
     from common.console import Console as _Console
+    from common.mcap_log import McapLog
+    from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
     from common.zenoh_net import open_session
+    from estimator.live.recorder import record_streams
     from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
     from tpods.cli.estimate_ekf import _filter_config
 
@@ -74,8 +81,13 @@ def cmd_live(args: argparse.Namespace) -> int:
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
     k = keys(args.body, args.mocap_prefix, args.prefix)
-    rec = None
-    if args.out is not None:
+    rec = log = None
+    if args.mcap and args.out is None:
+        raise UserError("--mcap records into the --out folder; give --out RUN_DIR (or --out X.mcap)")
+    if is_mcap(args.out):
+        log = McapLog(stream_file(args.out, force=args.force),
+                      meta={"command": "tpods estimate live", "body": args.body, "keys": k})
+    elif args.out is not None:
         rec = LiveRecorder(stream_folder(args.out, force=args.force, command="tpods estimate live"), {
             "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
@@ -87,6 +99,9 @@ def cmd_live(args: argparse.Namespace) -> int:
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
                          "sigma_meas": list(cfg.ekf.sigma_meas),
                          "underweight": cfg.ekf.underweight}})
+        if args.mcap:
+            log = McapLog(Path(args.out) / "recording.mcap",
+                          meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     est = LiveEstimator(table, cfg, args.body, recorder=rec)
     console = _Console(args.quiet)
     stop = threading.Event()
@@ -95,9 +110,12 @@ def cmd_live(args: argparse.Namespace) -> int:
         old[sig] = signal.signal(sig, lambda *_a: stop.set())
     status = "failed"
     res = None
+    subs = []
     try:
         session = open_session(args)
         try:
+            if log is not None:
+                subs = record_streams(session, k, log)
             print(f"live: {k['pose']} + {k['cmd']} -> {k['estimate']} ({args.method}, "
                   f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
             res = run_live(session, est, stop=stop, duration_s=args.duration,
@@ -105,12 +123,16 @@ def cmd_live(args: argparse.Namespace) -> int:
                            prefix=args.prefix, on_console=console.show)
             status = res.status
         finally:
+            for s in subs:
+                s.undeclare()
             session.close()
     finally:
         console.end()
         for sig, h in old.items():
             signal.signal(sig, h)
         summary = est.summary()
+        if log is not None:
+            log.close(status)
         if rec is not None:
             rec.close(status, {"final": summary})
             (Path(args.out) / "estimate.json").write_text(
@@ -156,8 +178,11 @@ def cmd_live(args: argparse.Namespace) -> int:
           f"{c['malformed']}; commands {c['cmds_rx']}, late {c['align_cmds_late']} (re-filtered "
           f"{c['align_cmds_rewound']}); released by "
           f"timeout {c['align_released_by_timeout']}; largest backlog {c['max_backlog']}")
-    if args.out:
-        print(f"  wrote {args.out} (commands.csv, poses.csv, estimates.csv, run.json, estimate.json)")
+    if rec is not None:
+        print(f"  wrote {args.out} (commands.csv, poses.csv, estimates.csv, run.json, estimate.json"
+              + (", recording.mcap)" if log is not None else ")"))
+    elif log is not None:
+        print(f"  wrote {log.path} ({log.counters['messages']} messages)")
     if not math.isfinite(summary["mass_kg"]):
         raise UserError("the filter diverged (non-finite estimate)")
     return 0

@@ -72,9 +72,14 @@ def register(sub) -> None:
     r = g.add_parser(
         "record", help="record poses from Zenoh into run folders",
         description="Write OUT/<body>/poses.csv (t,x,y,psi) and OUT/<body>/samples.csv, "
-                    "flushed as samples arrive.")
+                    "flushed as samples arrive; with --mcap also OUT/recording.mcap (every "
+                    "message on the key, one channel per Zenoh key); --out X.mcap writes only "
+                    "that MCAP file.")
     r.add_argument("--key", default="tpods/mocap/**", help="key expression (default tpods/mocap/**)")
-    r.add_argument("--out", required=True, metavar="RUN_DIR", help="output folder")
+    r.add_argument("--out", required=True, metavar="RUN_DIR",
+                   help="output folder, or a file X.mcap (only the MCAP recording)")
+    r.add_argument("--mcap", action="store_true",
+                   help="also record the Zenoh messages to OUT/recording.mcap")
     add_force(r)
     r.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C)")
@@ -176,13 +181,19 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from common.mcap_log import McapLog
+    from common.outputs import is_mcap, stream_file
     from common.zenoh_net import open_session
     from mocap_bridge.recorder import Recorder, subscribe
 
+    if is_mcap(args.out):
+        return _record_mcap_only(args, stream_file(args.out, force=args.force))
     console = Console(args.quiet)
     stop = threading.Event()
-    rec = Recorder(stream_folder(args.out, force=args.force, command="tpods mocap record"),
-                   key=args.key, t0=args.t0)
+    out = stream_folder(args.out, force=args.force, command="tpods mocap record")
+    log = McapLog(out / "recording.mcap", meta={"command": "tpods mocap record",
+                                                "key": args.key}) if args.mcap else None
+    rec = Recorder(out, key=args.key, t0=args.t0, mcap=log)
     try:
         session = open_session(args)
         try:
@@ -210,7 +221,45 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"record: {counters['recorded']} poses of {len(rec.bodies)} bodies written to {rec.out} "
           f"({counters['occluded']} occluded, {counters['malformed']} malformed, "
           f"{counters['not_increasing']} out of order)")
+    if log is not None:
+        print(f"record: {log.counters['messages']} messages on {len(log.topics)} keys written to "
+              f"{log.path}")
     if counters.get("write_errors"):
         raise UserError(f"{counters['write_errors']} samples could not be written to {rec.out} "
                         f"({rec.last_error})")
+    return 0
+
+
+def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
+    """``tpods mocap record --out X.mcap``: every message on the key into one MCAP file."""
+    from common.mcap_log import McapLog, subscribe
+    from common.zenoh_net import open_session
+
+    console = Console(args.quiet)
+    stop = threading.Event()
+    log = McapLog(path, meta={"command": "tpods mocap record", "key": args.key})
+    status = "incomplete"
+    try:
+        session = open_session(args)
+        try:
+            sub = subscribe(session, args.key, log)
+            t_end = None if args.duration is None else time.monotonic() + args.duration
+            with _stop_on_signals(stop):
+                while not stop.is_set():
+                    wait = 1.0 if t_end is None else min(1.0, t_end - time.monotonic())
+                    if wait <= 0:
+                        break
+                    stop.wait(wait)
+                    console.show(f"record: {log.counters['messages']} messages on "
+                                 f"{len(log.topics)} keys")
+            sub.undeclare()
+        finally:
+            session.close()
+        status = "incomplete" if log.counters.get("write_errors") else "complete"
+    finally:
+        log.close(status)
+        console.end()
+    print(f"record: {log.counters['messages']} messages on {len(log.topics)} keys written to {path}")
+    if log.counters.get("write_errors"):
+        raise UserError(f"{log.counters['write_errors']} messages could not be written to {path}")
     return 0

@@ -1,0 +1,56 @@
+"""``tpods export mcap RUN_DIR --out FILE.mcap``: a run folder as MCAP (:mod:`common.mcap_export`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from common.errors import UserError
+from common.outputs import add_force
+
+
+def register(sub) -> None:
+    """Add the ``tpods export`` group."""
+    from tpods.cli import group
+
+    g = group(sub, "export", "convert recordings to other formats")
+    p = g.add_parser(
+        "mcap", help="a run folder as an MCAP file of the Zenoh messages it stands for",
+        description="Write poses.csv (one tpods.pose/1 message per row on "
+                    "<mocap-prefix>/<body>/pose), commands.csv (tpods.cmd/1 on <prefix>/<body>/cmd), "
+                    "estimates.csv (tpods.estimate/1 on <prefix>/<body>/estimate) and truth.csv "
+                    "(tpods.truth/1 on <prefix>/<body>/truth) where present, in time order, with "
+                    "their JSON schemas. `tpods replay` publishes the file.")
+    p.add_argument("run", metavar="RUN_DIR", help="the run folder")
+    p.add_argument("--out", required=True, metavar="FILE.mcap", help="the MCAP file to write")
+    add_force(p)
+    p.add_argument("--body", default=None,
+                   help="body name in the keys and payloads (default: run.json's body, else the "
+                        "folder name)")
+    p.add_argument("--prefix", default="tpods", help="command/estimate/truth key prefix (default tpods)")
+    p.add_argument("--mocap-prefix", default="tpods/mocap",
+                   help="pose key prefix (default tpods/mocap)")
+    p.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
+                   help="host time of the run's t = 0 (default: run.json t0_lab, else 0: run time)")
+    p.set_defaults(func=cmd_export_mcap)
+
+
+def cmd_export_mcap(args: argparse.Namespace) -> int:
+    from common.mcap_export import export_run
+    from common.outputs import ResultFile, is_mcap
+
+    if not is_mcap(args.out):
+        raise UserError(f"--out {args.out}: tpods export mcap writes one MCAP file; give a name "
+                        "ending in .mcap")
+    for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
+        if not v.strip("/"):
+            raise UserError(f"{opt} must not be empty")
+    if not Path(args.run).is_dir():
+        raise UserError(f"{args.run}: run folder not found")
+    out = ResultFile(args.out, force=args.force)
+    with out.writing() as tmp:
+        info = export_run(args.run, tmp, body=args.body, prefix=args.prefix,
+                          mocap_prefix=args.mocap_prefix, t0=args.t0)
+    counts = ", ".join(f"{n} {f}" for f, n in info["counts"].items())
+    print(f"wrote {out.path}: {info['messages']} messages for body {info['body']} ({counts} rows)")
+    return 0

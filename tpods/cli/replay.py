@@ -1,0 +1,73 @@
+"""``tpods replay FILE.mcap``: a recording back onto Zenoh (:mod:`common.mcap_replay`)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+from common.argtypes import nonneg_float
+from common.console import Console
+
+
+def register(sub) -> None:
+    """Add ``tpods replay`` to the `tpods` parser."""
+    from common.zenoh_net import add_zenoh_options
+
+    p = sub.add_parser(
+        "replay", help="publish an MCAP recording back onto Zenoh with its timing",
+        description="Publish every message of an MCAP file (from `tpods mocap record`, "
+                    "`tpods estimate live --mcap` or `tpods export mcap`) on the Zenoh key it was "
+                    "recorded from, payload unchanged, at the recorded pace. A file cut by a kill "
+                    "(no summary) is replayed up to its last complete chunk.")
+    p.add_argument("file", metavar="FILE.mcap", help="the recording")
+    p.add_argument("--speed", type=nonneg_float, default=1.0, metavar="X",
+                   help="1 recorded pace, 2 twice as fast, 0 as fast as possible (default 1)")
+    p.add_argument("--prefix", action="append", default=None, metavar="P",
+                   help="remap the keys: OLD=NEW replaces a leading OLD (e.g. tpods=lab2), a plain "
+                        "P is put in front of every key (repeatable; default: the recorded keys)")
+    p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
+                   help="wait up to S seconds for a subscriber of the first key before "
+                        "publishing (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no console line")
+    add_zenoh_options(p)
+    p.set_defaults(func=cmd_replay)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from common.mcap_log import iter_messages
+    from common.mcap_replay import remapper, replay
+    from common.zenoh_net import open_session
+
+    remap = remapper(args.prefix)
+    next(iter(iter_messages(args.file)), None)  # a missing or non-MCAP file: one line, before Zenoh
+    console = Console(args.quiet)
+    stop = threading.Event()
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            old[sig] = signal.signal(sig, lambda *_a: stop.set())
+        except ValueError:  # not the main thread
+            pass
+    try:
+        session = open_session(args)
+        try:
+            res = replay(session, args.file, speed=args.speed, remap=remap, stop=stop,
+                         wait_subscriber_s=args.wait_subscriber,
+                         on_progress=lambda p: console.show(
+                             f"replay: {p['published']} messages | t {p['t_s']:.1f} s"))
+            time.sleep(0.2)  # let the last messages leave before the session closes
+        finally:
+            session.close()
+    finally:
+        console.end()
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    how = "" if res["complete"] else " (file without summary: read up to its last complete chunk)"
+    print(f"replay: {res['published']} messages on {len(res['keys'])} keys, {res['span_s']:.3f} s "
+          f"of recording in {res['elapsed_s']:.3f} s{how}")
+    if stop.is_set():
+        print("replay: stopped", file=sys.stderr)
+    return 0
