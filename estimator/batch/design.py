@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -32,13 +33,14 @@ class SineInput:
 
     amplitude_pct: float
     omega_rad_s: float
-    phases_rad: tuple[float, float, float, float]
+    phases_rad: tuple[float, ...]  # one per valve channel (4 per module)
     mean_pct: float = 50.0
 
     @classmethod
-    def paper(cls) -> SineInput:
-        """The paper's informed input: A = 20 %, w = 1 rad/s, phases (i-1) pi/4."""
-        return cls(20.0, 1.0, tuple(i * math.pi / 4 for i in range(4)))
+    def paper(cls, n_channels: int = 4) -> SineInput:
+        """The paper's informed input: A = 20 %, w = 1 rad/s, phases (i-1) pi/4 (continuing
+        over every module's channels for a structure)."""
+        return cls(20.0, 1.0, tuple(i * math.pi / 4 for i in range(n_channels)))
 
     def commands(self, duration_s: float, cmd_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
         return phase_sine(duration_s, cmd_rate_hz, self.amplitude_pct, self.omega_rad_s,
@@ -81,15 +83,36 @@ class DesignSettings:
     table_size_m: tuple[float, float] = (2.0, 2.0)
     margin_m: float = 0.0
     max_yaw_rate_rad_s: float | None = None
+    structure: Any = None
+    """A :class:`common.structure.Structure` (issue 18): its modules' duties are designed
+    together, the thrust is its virtual thrust and the criterion is on (m, Izz, cx, cy);
+    ``plant`` then carries the assumed cx, cy."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return ("mass", "izz") if self.structure is None else ("mass", "izz", "cx", "cy")
+
+    @property
+    def n_channels(self) -> int:
+        return 4 if self.structure is None else self.structure.n_channels
+
+    def duty_range(self, table: ThrustTable) -> tuple[float, float]:
+        """The duties every module's table accepts."""
+        if self.structure is None:
+            return table.duty_range
+        lo = max(m.table.duty_range[0] for m in self.structure.modules)
+        hi = min(m.table.duty_range[1] for m in self.structure.modules)
+        return lo, hi
 
 
 def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSettings,
                       label: str = "", spec: SineInput | None = None) -> Evaluation:
     """D-optimal criterion and workspace check of a duty sequence (start at rest, centre)."""
-    thrust = table.thrust_n(duty_pct)
+    thrust = (table.thrust_n(duty_pct) if settings.structure is None
+              else settings.structure.virtual_thrust(duty_pct))
     t_pose = pose_times(cmd_t[0], cmd_t[-1], settings.pose_rate_hz)
     c = crlb(t_pose, cmd_t, thrust, settings.plant.kwargs(), sigma_pos_m=settings.sigma_pos_m,
-             sigma_yaw_rad=settings.sigma_yaw_rad, keep_sensitivities=True)
+             sigma_yaw_rad=settings.sigma_yaw_rad, keep_sensitivities=True, names=settings.names)
     exc = np.abs(c.states[:, :2] - c.states[0, :2]).max(axis=0)
     half = np.asarray(settings.table_size_m, float) / 2 - settings.margin_m
     feasible = bool(np.all(exc <= half)) and math.isfinite(c.logdet)
@@ -101,7 +124,10 @@ def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSetti
 
 def evaluate_sine(spec: SineInput, table: ThrustTable, settings: DesignSettings,
                   label: str = "") -> Evaluation:
-    lo, hi = table.duty_range
+    lo, hi = settings.duty_range(table)
+    if len(spec.phases_rad) != settings.n_channels:
+        raise UserError(f"the input has {len(spec.phases_rad)} phases for {settings.n_channels} "
+                        "valve channels")
     if spec.mean_pct - spec.amplitude_pct < lo - 1e-9 or spec.mean_pct + spec.amplitude_pct > hi + 1e-9:
         raise UserError(f"duties {spec.mean_pct - spec.amplitude_pct:g}..{spec.mean_pct + spec.amplitude_pct:g} % "
                         f"leave the table's valid range {lo:g}-{hi:g} %")
@@ -114,7 +140,7 @@ def _decode(x: np.ndarray, a_max: float, w_range: tuple[float, float], mean: flo
     a = a_max / (1 + math.exp(-x[0]))
     lw0, lw1 = math.log(w_range[0]), math.log(w_range[1])
     w = math.exp(lw0 + (lw1 - lw0) / (1 + math.exp(-x[1])))
-    ph = tuple(float(np.mod(p, 2 * math.pi)) for p in x[2:6])
+    ph = tuple(float(np.mod(p, 2 * math.pi)) for p in x[2:])
     return SineInput(a, w, ph, mean)
 
 
@@ -153,7 +179,8 @@ def search(table: ThrustTable, settings: DesignSettings, *, n_random: int = 48,
     """
     from scipy.optimize import minimize
 
-    lo, hi = table.duty_range
+    lo, hi = settings.duty_range(table)
+    n = settings.n_channels
     a_max = min(mean_pct - lo, hi - mean_pct)
     if a_max <= 0:
         raise UserError(f"mean duty {mean_pct:g} % leaves no room inside {lo:g}-{hi:g} %")
@@ -167,16 +194,19 @@ def search(table: ThrustTable, settings: DesignSettings, *, n_random: int = 48,
             progress(1)
         return e
 
-    paper_spec = SineInput.paper()
-    paper = evaluate_sine(paper_spec, table, settings, "paper's phase-shifted sine")
+    paper_spec = SineInput.paper(n)
+    paper = evaluate_sine(paper_spec, table, settings, "paper's phase-shifted sine" if n == 4
+                          else "phase-shifted sine, phases (i-1) pi/4 over every channel")
     if progress:
         progress(1)
     for _ in range(n_random):
         spec = SineInput(float(rng.uniform(0.2, 1.0) * a_max),
                          float(math.exp(rng.uniform(*np.log(omega_range)))),
-                         tuple(rng.uniform(0, 2 * math.pi, 4).tolist()), mean_pct)
+                         tuple(rng.uniform(0, 2 * math.pi, n).tolist()), mean_pct)
         ev(spec)
-    ranked = sorted((e for e in history if e.feasible), key=lambda e: -e.score)
+    # the hand-made input competes too: a refinement may start from it, and the design is
+    # never worse than it
+    ranked = sorted((e for e in [paper, *history] if e.feasible), key=lambda e: -e.score)
     for start in ranked[:n_refine]:
         x0 = _encode(start.spec, a_max, omega_range)
 
@@ -185,8 +215,13 @@ def search(table: ThrustTable, settings: DesignSettings, *, n_random: int = 48,
 
         with np.errstate(invalid="ignore"):
             minimize(neg, x0, method="Nelder-Mead",
-                     options={"maxfev": refine_evals, "initial_simplex": x0 + 0.3 * np.vstack([np.zeros(6), np.eye(6)])})
+                     options={"maxfev": refine_evals,
+                              "initial_simplex": x0 + 0.3 * np.vstack([np.zeros(n + 2), np.eye(n + 2)])})
     feasible = [e for e in history if e.feasible]
+    if paper.feasible:
+        import copy
+
+        feasible.append(copy.copy(paper))
     if not feasible:
         raise UserError("no candidate keeps the module inside the table; shorten the duration "
                         "or enlarge the table size")

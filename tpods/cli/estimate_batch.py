@@ -178,6 +178,10 @@ def register(sub, est, rep) -> None:
     d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
                    help="--for thrust-calibration: the factors to design for (default both)")
     d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    d.add_argument("--structure", default=None, metavar="F",
+                   help="design for a structure (structure.toml): every module's duties "
+                        "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "
+                        "mass default to the file's [body] values or its geometry")
     d.set_defaults(func=cmd_design)
 
     r = rep.add_parser(
@@ -467,9 +471,25 @@ def cmd_design(args: argparse.Namespace) -> int:
         raise UserError("--table-size must exceed twice the --margin")
     _check_design_size(args)
     table = load_thrust_table(args.thrust_table)
+    structure = None
+    plant = PlantParams(args.mass, args.izz)
+    if getattr(args, "structure", None):
+        from common.structure import Structure
+
+        if args.design_for == "thrust-calibration":
+            raise UserError("--for thrust-calibration is not built for structures yet")
+        if args.compare:
+            raise UserError("--compare takes single-module inputs; a structure design "
+                            "compares with the phase-shifted sine over all its channels")
+        structure = Structure.load(args.structure)
+        g = structure.initial_guess()
+        given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
+        plant = PlantParams(args.mass if "mass" in given else g["mass"],
+                            args.izz if "izz" in given else g["izz"], cx=g["cx"], cy=g["cy"])
+        args.mass, args.izz = plant.mass_kg, plant.izz_kgm2
     settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
-                              math.radians(args.noise_yaw_deg), PlantParams(args.mass, args.izz),
-                              tuple(args.table_size), args.margin, args.max_yaw_rate)
+                              math.radians(args.noise_yaw_deg), plant,
+                              tuple(args.table_size), args.margin, args.max_yaw_rate, structure)
     if args.design_for == "thrust-calibration":
         from tpods.cli.calibrate import design_calibration
 
@@ -497,8 +517,13 @@ def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path)
     from estimator.reports.plots_batch import plot_sensitivities
 
     best = res.best
+    n_ch = best.duty_pct.shape[1]
     np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
-               header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
+               header="t," + ",".join(f"d{i + 1}" for i in range(n_ch)), comments="", fmt="%.10g")
+    if getattr(args, "structure", None):
+        import shutil
+
+        shutil.copyfile(args.structure, d / "structure.toml")
 
     def row(e):
         return {"label": e.label, "logdet_info": e.logdet, "feasible": e.feasible,
@@ -506,6 +531,8 @@ def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path)
                 "excursion_x_m": e.excursion_m[0], "excursion_y_m": e.excursion_m[1],
                 "crlb_mass_sigma_kg": e.crlb.mass_sigma_kg,
                 "crlb_izz_sigma_kgm2": e.crlb.izz_sigma_kgm2,
+                **({"crlb_com_x_sigma_m": e.crlb.sigma_of("cx"),
+                    "crlb_com_y_sigma_m": e.crlb.sigma_of("cy")} if "cx" in e.crlb.names else {}),
                 **({"amplitude_pct": e.spec.amplitude_pct, "omega_rad_s": e.spec.omega_rad_s,
                     "phases_rad": list(e.spec.phases_rad), "mean_pct": e.spec.mean_pct}
                    if e.spec else {})}
@@ -520,8 +547,8 @@ def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path)
     (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
     for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):
         t = np.arange(len(e.crlb.sens_x)) / args.pose_rate
-        plot_sensitivities(t, e.crlb.sens_x, e.crlb.names, [args.mass, args.izz], d / name,
-                           title=e.label)
+        plot_sensitivities(t, e.crlb.sens_x[:, :, :2], e.crlb.names[:2], [args.mass, args.izz],
+                           d / name, title=e.label)
     return out
 
 
