@@ -385,6 +385,51 @@ def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bo
     return z, P, (nis, triggered)
 
 
+def _offset_spec(plant: AugmentedPlant):
+    """How the pose measurement sees the centre of mass's offset (issue 18): None when the
+    tracked frame is the centre of mass (the fast update), else ``(ix, iy, cx, cy)``: the
+    state indices of cx, cy when estimated (None when fixed) and their fixed values."""
+    fixed = dict(plant.fixed)
+    ix = 6 + plant.names.index("cx") if "cx" in plant.names else None
+    iy = 6 + plant.names.index("cy") if "cy" in plant.names else None
+    cx, cy = fixed.get("cx", 0.0), fixed.get("cy", 0.0)
+    if ix is None and iy is None and cx == 0.0 and cy == 0.0:
+        return None
+    return ix, iy, cx, cy
+
+
+def _update_offset(z, P, meas, R, off, inv=()):
+    """Pose update when the tracked frame is off the centre of mass: ``h(x) = p - R(psi) c``
+    (the states are the centre of mass's), linearised at the prior; Joseph form."""
+    ix, iy, cx0, cy0 = off
+    n = len(z)
+    cx = z[ix] if ix is not None else cx0
+    cy = z[iy] if iy is not None else cy0
+    c, sn = math.cos(z[2]), math.sin(z[2])
+    h = np.array([z[0] - (c * cx - sn * cy), z[1] - (sn * cx + c * cy), z[2]])
+    H = np.zeros((NZ, n))
+    H[0, 0] = H[1, 1] = H[2, 2] = 1.0
+    H[0, 2] = sn * cx + c * cy
+    H[1, 2] = -c * cx + sn * cy
+    if ix is not None:
+        H[0, ix], H[1, ix] = -c, -sn
+    if iy is not None:
+        H[0, iy], H[1, iy] = sn, -c
+    y = np.asarray(meas, float) - h
+    y[2] = (y[2] + math.pi) % TWO_PI - math.pi
+    S = H @ P @ H.T + R
+    Si = np.linalg.inv(S)
+    nis = float(y @ Si @ y)
+    K = P @ H.T @ Si
+    z1 = z + K @ y
+    A = np.eye(n) - K @ H
+    P = A @ P @ A.T + K @ R @ K.T
+    if inv:
+        inverse_correction(z, z1, P, inv)
+    P = 0.5 * (P + P.T)
+    return z1, P, (nis, False)
+
+
 # --------------------------------------------------------------------------------------
 # Whole-run filtering
 
@@ -595,6 +640,9 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
     trig = np.zeros(n, bool)
     covs = np.empty((n, nx, nx)) if keep_cov else None
     meas = pose.tolist()
+    off = _offset_spec(plant)
+    if off is not None and underweight > 0:
+        raise ValueError("underweighting is not built for a tracked frame off the centre of mass")
     for k in range(n):
         if k:
             if stop_on_blowup:
@@ -612,8 +660,11 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
                 x, P, _ = _predict(x, P, sched.seg_dt[k], sched.seg_w[k], plant, q_nz,
                                    max_step_s, q_per_step)
         if use[k]:
-            x, P, (nis[k], trig[k]) = _update(x, P, meas[k], R, underweight, uw_trigger,
-                                              (k & 15) == 0, inv)
+            if off is None:
+                x, P, (nis[k], trig[k]) = _update(x, P, meas[k], R, underweight, uw_trigger,
+                                                  (k & 15) == 0, inv)
+            else:
+                x, P, (nis[k], trig[k]) = _update_offset(x, P, meas[k], R, off, inv)
         xs[k] = x
         sig[k] = P.diagonal()
         if keep_cov:

@@ -28,11 +28,12 @@ from estimator.plant.model import ARM_M, PARAM_NAMES, STATE_NAMES
 
 SIGMA0 = {"x": 0.1, "y": 0.1, "psi": math.radians(5.0), "u": 0.1, "v": 0.1,
           "r": math.radians(2.0), "mass": 1.0, "izz": 2e-3, "ct": 0.3, "cr": 2e-3,
-          "kb": 1e-2, "ax": 1e-2, "ay": 1e-2}
+          "kb": 1e-2, "ax": 1e-2, "ay": 1e-2, "cx": 0.1, "cy": 0.1}
 """Default initial standard deviations (the paper's for the 8 states; friction and tilt
 wide enough to cover an air table with ball transfers and a 1 mrad tilt)."""
 
-X0 = {"mass": 1.0, "izz": 5e-3, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+X0 = {"mass": 1.0, "izz": 5e-3, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0,
+      "cx": 0.0, "cy": 0.0}
 """Default initial parameter means (the paper's m = 1 kg, Izz = 5e-3 kg m^2; no friction, level)."""
 
 
@@ -82,15 +83,23 @@ class ExtEkfConfig:
         return np.diag(np.square(self.sigma_meas))
 
     def base_params(self) -> dict[str, float]:
-        d = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0}
+        d = {"arm": ARM_M, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0, "cx": 0.0,
+             "cy": 0.0}
         d.update({k: float(v) for k, v in self.fixed.items()})
         return d
 
     def default_x0(self, first_pose=None) -> np.ndarray:
+        """Initial mean: the centre of mass at the first pose moved by the offset's guess
+        (the states are the centre of mass's), at rest; parameters at X0 (or fixed)."""
+        from estimator.plant.model import com_from_tracked
+
         z = np.zeros(6 + len(self.names))
-        if first_pose is not None:
-            z[:3] = first_pose
         z[6:] = [X0[n] for n in self.names]
+        if first_pose is not None:
+            b = self.base_params()
+            cx = z[6 + self.names.index("cx")] if "cx" in self.names else b["cx"]
+            cy = z[6 + self.names.index("cy")] if "cy" in self.names else b["cy"]
+            z[:3] = com_from_tracked(np.asarray(first_pose, float), cx, cy)
         return z
 
     def default_P0(self) -> np.ndarray:
