@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import math
 import re
-import time
 from collections import deque
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
+from bench import clock
 from bench.ohaus_lines import (
     GROSS,
     KNOWN_UNITS,
@@ -109,7 +110,7 @@ class OhausScout:
                  stable_timeout: float = 10.0, ack_timeout: float = 0.3,
                  silence_timeout: float = 2.0, xonxoff: bool = False,
                  rtscts: bool = False, acquisition: str = "auto", probe_s: float = 1.0,
-                 poll_interval_s: float = 0.0) -> None:
+                 poll_interval_s: float = 0.0, capture: str | Path | None = None) -> None:
         if acquisition not in ACQUISITION_MODES:
             raise UserError(f"balance acquisition must be one of {', '.join(ACQUISITION_MODES)}, "
                             f"not {acquisition!r}")
@@ -118,6 +119,8 @@ class OhausScout:
         self.url = url
         self.settings = dict(baudrate=baudrate, bytesize=bytesize, parity=parity,
                              stopbits=stopbits, xonxoff=xonxoff, rtscts=rtscts)
+        self.capture = capture
+        """File receiving a serial transcript of the link (:mod:`bench.capture`), or None."""
         self.timeout = timeout
         self.stable_timeout = stable_timeout
         self.ack_timeout = ack_timeout
@@ -160,7 +163,7 @@ class OhausScout:
     # ------------------------------------------------------------ lifecycle
     def open(self) -> OhausScout:
         if self._link is None:
-            self._link = SerialLink(self.url, "OHAUS balance", **self.settings)
+            self._link = SerialLink(self.url, "OHAUS balance", capture=self.capture, **self.settings)
         return self
 
     def close(self) -> None:
@@ -258,7 +261,7 @@ class OhausScout:
             timeout = self.stable_timeout if mode == "SP" else self.timeout
         self.link.reset_input()
         self._send(mode)
-        deadline = time.monotonic() + timeout
+        deadline = clock.monotonic() + timeout
         self._skipped_since_valid = 0
         self.last_error = ""
         while True:
@@ -273,10 +276,10 @@ class OhausScout:
             if text == b"OK!":
                 continue
             n_skipped = self.n_skipped_legend
-            r = self._classify(raw, time.monotonic())
+            r = self._classify(raw, self.link.line_t)
             if r is None:
                 if self.n_skipped_legend > n_skipped:  # a print template may follow with the load
-                    deadline = min(deadline, time.monotonic() + self.ack_timeout)
+                    deadline = min(deadline, clock.monotonic() + self.ack_timeout)
                 continue
             self.n_readings += 1
             return r
@@ -286,7 +289,7 @@ class OhausScout:
         self._no_continuous(cmd)
         self.link.reset_input()
         self._send(cmd)
-        deadline = time.monotonic() + self.ack_timeout
+        deadline = clock.monotonic() + self.ack_timeout
         while True:
             raw = self.link.readline(deadline)
             if raw is None:
@@ -302,7 +305,7 @@ class OhausScout:
         self._no_continuous(cmd)
         self.link.reset_input()
         self._send(cmd)
-        deadline = time.monotonic() + self.timeout
+        deadline = clock.monotonic() + self.timeout
         while True:
             raw = self.link.readline(deadline)
             if raw is None:
@@ -350,7 +353,7 @@ class OhausScout:
         """``PV``: the version line(s), joined with `` | ``."""
         first = self._reply_line("PV")
         lines = [first]
-        deadline = time.monotonic() + self.ack_timeout
+        deadline = clock.monotonic() + self.ack_timeout
         while (raw := self.link.readline(deadline)) is not None:
             text = raw.decode("ascii", "replace").strip()
             if text.isprintable():
@@ -412,7 +415,7 @@ class OhausScout:
         self._send("CP")
         self.continuous = True
         self.mode_in_use = "continuous"
-        self._last_valid = time.monotonic()
+        self._last_valid = clock.monotonic()
         if self.acquisition == "continuous":
             return
         end = self._last_valid + self.probe_s
@@ -425,7 +428,7 @@ class OhausScout:
             if raw is None:
                 self._send("0P")  # in case it starts printing later
                 self.continuous = False
-                time.sleep(0.05)
+                clock.sleep(0.05)
                 self.link.reset_input()
                 self._start_polling(f"no reading within {self.probe_s:g} s")
                 return
@@ -436,7 +439,7 @@ class OhausScout:
                 return
             if text == b"OK!":
                 continue
-            r = self._classify(raw, time.monotonic())
+            r = self._classify(raw, self.link.line_t)
             if r is None:
                 continue
             self._last_valid = r.t
@@ -452,7 +455,7 @@ class OhausScout:
         self._outstanding = False
         self._next_send = -math.inf
         self._rtt = math.nan
-        self._last_valid = t = time.monotonic()
+        self._last_valid = t = clock.monotonic()
         periods = []
         try:
             for _ in range(5):
@@ -487,7 +490,7 @@ class OhausScout:
         self._pending.clear()
         self._send("0P")
         self.continuous = False
-        time.sleep(0.05)
+        clock.sleep(0.05)
         self.link.reset_input()
 
     def _silent_error(self) -> DeviceError:
@@ -515,7 +518,7 @@ class OhausScout:
         """Polling: send ``IP`` unless its reply could not arrive before ``deadline``;
         wait for the reply to an outstanding ``IP`` even past ``deadline``."""
         while True:
-            now = time.monotonic()
+            now = clock.monotonic()
             silent_at = self._last_valid + self.silence_timeout
             if not self._outstanding:
                 if now >= silent_at:
@@ -534,10 +537,10 @@ class OhausScout:
                     self._stray(raw)
                 self._send("IP")
                 self._outstanding = True
-                self._t_sent = time.monotonic()
+                self._t_sent = clock.monotonic()
                 self._next_send = self._t_sent + self.poll_interval_s
             raw = self.link.readline(min(self._t_sent + self.poll_reply_timeout, silent_at))
-            now = time.monotonic()
+            now = clock.monotonic()
             if raw is None:
                 self._outstanding = False
                 if now >= silent_at:
@@ -552,7 +555,7 @@ class OhausScout:
                 raise DeviceError("OHAUS balance refused 'IP' (ES): it can be neither polled nor, "
                                   "in this mode, read continuously")
             self._outstanding = False
-            r = self._classify(raw, now)
+            r = self._classify(raw, self.link.line_t)
             if r is None:  # the reply, garbled or not a load reading: ask again
                 continue
             rtt = now - self._t_sent
@@ -579,7 +582,7 @@ class OhausScout:
             limit = min(deadline, self._last_valid + self.silence_timeout) \
                 if math.isfinite(self._last_valid) else deadline
             raw = self.link.readline(limit)
-            now = time.monotonic()
+            now = clock.monotonic()
             if raw is None:
                 if now >= deadline:
                     return None
@@ -591,7 +594,7 @@ class OhausScout:
                                   "poll acquisition mode")
             if text == b"OK!":
                 continue
-            r = self._classify(raw, now)
+            r = self._classify(raw, self.link.line_t)
             if r is None:
                 continue
             self._last_valid = now
@@ -621,11 +624,11 @@ class OhausScout:
         acquisition first if needed."""
         if not self.acquiring:
             self.start_continuous()
-        end = math.inf if duration_s is None else time.monotonic() + duration_s
+        end = math.inf if duration_s is None else clock.monotonic() + duration_s
         while True:
-            r = self.next_reading(min(end, time.monotonic() + 3600.0))
+            r = self.next_reading(min(end, clock.monotonic() + 3600.0))
             if r is None:
-                if time.monotonic() >= end:
+                if clock.monotonic() >= end:
                     return
                 continue
             yield r

@@ -5,17 +5,28 @@ path) with :func:`serial.serial_for_url`, or wraps an already open port-like obj
 (anything with ``write``, ``read`` and ``in_waiting``: tests pass scripted fakes).
 Reads lines against a deadline, so a caller can wait until a given time without
 treating the wait as a silent device.
+
+``capture=PATH`` records every chunk written and read, byte-exact with its time, as a
+serial transcript (:mod:`bench.capture`, docs/recordings.md); ``replay://PATH`` opens
+such a transcript as a device (:mod:`bench.protocol_replay`). ``line_t`` is the host
+time at which the bytes completing the last line returned were read.
 """
 
 from __future__ import annotations
 
+import math
 import re
-import time
+from pathlib import Path
 from typing import Any
 
 import serial
 
+from bench import clock
+from bench.capture import Transcript
 from common.errors import DeviceError
+
+if "bench" not in serial.protocol_handler_packages:  # replay://PATH (bench.protocol_replay)
+    serial.protocol_handler_packages.append("bench")
 
 _EOL = re.compile(rb"[\r\n]")
 MAX_LINE = 512
@@ -28,14 +39,24 @@ class SerialLink:
         port: pyserial URL or an open port-like object.
         name: what the device is, for error messages ("valve controller").
         poll_s: read timeout of one poll, seconds (granularity of deadlines).
+        capture: write a serial transcript of this link to this file (None: no capture).
+        keepalive: a command the driver sends from a thread at scheduler-decided times
+            (named in the transcript's header, for strict replays).
         **settings: pyserial settings (baudrate, bytesize, parity, stopbits, ...).
     """
 
-    def __init__(self, port: str | Any, name: str, poll_s: float = 0.02, **settings: Any) -> None:
+    def __init__(self, port: str | Any, name: str, poll_s: float = 0.02, *,
+                 capture: str | Path | None = None, keepalive: bytes | None = None,
+                 **settings: Any) -> None:
         self.name = name
         self.poll_s = poll_s
         self._timeout = poll_s
         self._buf = b""
+        self.line_t = math.nan
+        """Host time of the last read that returned bytes (the line just returned was completed then)."""
+        self.tx_t = math.nan
+        """Host time at which the last write returned."""
+        self.capture: Transcript | None = None
         if isinstance(port, str):
             self.url = port
             try:
@@ -46,6 +67,13 @@ class SerialLink:
         else:
             self.url = getattr(port, "name", None) or repr(port)
             self.port = port
+        if capture is not None:
+            try:
+                self.capture = Transcript(capture, device=name, url=str(self.url), settings=settings,
+                                          t_open=clock.monotonic(), poll_s=poll_s, keepalive=keepalive)
+            except BaseException:
+                self.close()
+                raise
 
     def write(self, data: bytes) -> None:
         try:
@@ -55,13 +83,18 @@ class SerialLink:
                 flush()
         except OSError as exc:  # serial.SerialException is an OSError
             raise DeviceError(f"{self.name} at {self.url}: write failed ({exc})") from None
+        self.tx_t = t = clock.monotonic()
+        if self.capture is not None:
+            self.capture.chunk(t, "tx", data)
 
     def pull(self) -> None:
         """Move every byte already received by the OS into the line buffer (never waits)."""
         try:
             n = int(self.port.in_waiting or 0)
             if n:
-                self._buf += self.port.read(n)
+                chunk = self.port.read(n)
+                if chunk:
+                    self._got(chunk, True)
         except OSError as exc:
             raise DeviceError(f"{self.name} at {self.url}: read failed ({exc})") from None
 
@@ -96,22 +129,35 @@ class SerialLink:
             if len(self._buf) > MAX_LINE:
                 line, self._buf = self._buf, b""
                 return line
-            remaining = deadline - time.monotonic()
+            t_call = clock.monotonic()
+            remaining = deadline - t_call
             if remaining <= 0:
                 return None
             want = min(self.poll_s, max(remaining, 0.001))
-            if abs(self._timeout - want) > 5e-4:  # wake up at the deadline, not a poll later
+            if self._timeout > want or want - self._timeout > 5e-4:  # wake up by the deadline, never after
                 self.port.timeout = self._timeout = want
             try:
-                n = max(1, int(self.port.in_waiting or 0))
-                chunk = self.port.read(n)
+                waiting = int(self.port.in_waiting or 0)
+                chunk = self.port.read(max(1, waiting))
             except OSError as exc:
                 raise DeviceError(f"{self.name} at {self.url}: read failed ({exc})") from None
             if chunk:
-                self._buf += chunk
+                self._got(chunk, False, t_call)
+            elif self.capture is not None:  # a read that timed out: the replay needs it too
+                self.capture.chunk(clock.monotonic(), "rx", b"", t_call=t_call)
+
+    def _got(self, chunk: bytes, ready: bool, t_call: float | None = None) -> None:
+        """``chunk`` read; ``ready``: read by :meth:`pull` (bytes already waiting, never
+        waits); else ``t_call``: when the read (which could wait) was issued."""
+        self.line_t = t = clock.monotonic()
+        self._buf += chunk
+        if self.capture is not None:
+            self.capture.chunk(t, "rx", chunk, ready, None if ready else t_call)
 
     def close(self) -> None:
         try:
             self.port.close()
         except OSError:
             pass
+        if self.capture is not None:
+            self.capture.close()

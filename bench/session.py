@@ -43,6 +43,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from bench import clock
 from bench.ohaus import OhausScout, Reading
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
@@ -263,7 +264,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    t_start = time.monotonic()
+    t_start = clock.monotonic()
     meta: dict[str, Any] = run_header("thrust-characterisation", status="running",
                                       t0_unix=time.time(), config=asdict(config), devices={})
     write_json_atomic(out / "run.json", meta)
@@ -303,17 +304,24 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
             write_json_atomic(out / "run.json", meta)
             if scale.fallback_message:
                 tqdm.write(scale.fallback_message, file=sys.stderr)
-            t_loop = time.monotonic()
+            t_loop = clock.monotonic()
             planned_done = 0.0
 
+            def last_event() -> float:
+                """When the host last heard from a device (the reply to the last command,
+                the last bytes from the balance): windows start there, so a replayed
+                session (bench.protocol_replay) cuts them at the recorded times."""
+                ts = [t for t in (valves.last_caller_t, scale.link.line_t) if math.isfinite(t)]
+                return max(ts) if ts else clock.monotonic()
+
             def record(duration: float, phase: str, step: int, n_open: int, duty: float,
-                       after: str | None = None) -> None:
+                       after: str | None = None, start: float | None = None) -> float:
                 if after is not None:
                     # lines printed during the previous phase but still waiting in the
                     # host's buffers belong to that phase, not to this window
                     for r in scale.received():
                         rec.add(r, window, after, step, n_open, duty)
-                end = time.monotonic() + duration
+                end = (last_event() if start is None else start) + duration
                 while True:
                     r = scale.next_reading(end)
                     guard.heartbeat()
@@ -321,13 +329,14 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                         break
                     rec.add(r, window, phase, step, n_open, duty)
                     if progress:
-                        done = planned_done + duration - max(0.0, end - time.monotonic())
+                        done = planned_done + duration - max(0.0, end - clock.monotonic())
                         bar.update(max(0.0, min(bar.total, done) - bar.n))
+                return end
 
             def zero_window() -> None:
                 nonlocal window, planned_done
-                record(config.zero_settle_s, "zero_settle", -1, 0, 0.0)
-                record(config.zero_dwell_s, "zero", -1, 0, 0.0, after="zero_settle")
+                end = record(config.zero_settle_s, "zero_settle", -1, 0, 0.0)
+                record(config.zero_dwell_s, "zero", -1, 0, 0.0, after="zero_settle", start=end)
                 planned_done += config.zero_settle_s + config.zero_dwell_s
                 window += 1
 
@@ -335,8 +344,8 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
             for st in steps:
                 bar.set_postfix_str(f"{st.n_open} nozzle(s) at {st.duty_pct:g} %", refresh=False)
                 valves.set_all(st.duties)
-                record(config.settle_s, "settle", st.index, st.n_open, st.duty_pct)
-                record(config.dwell_s, "dwell", st.index, st.n_open, st.duty_pct, after="settle")
+                end = record(config.settle_s, "settle", st.index, st.n_open, st.duty_pct)
+                record(config.dwell_s, "dwell", st.index, st.n_open, st.duty_pct, after="settle", start=end)
                 valves.off()
                 planned_done += config.settle_s + config.dwell_s
                 window += 1
@@ -354,7 +363,7 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
     finally:
         if bar is not None:
             bar.close()
-        t_end = time.monotonic()
+        t_end = clock.monotonic()
         rec.close()
         with contextlib.suppress(Exception):
             if scale.acquiring:

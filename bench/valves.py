@@ -14,11 +14,12 @@ import contextlib
 import math
 import re
 import threading
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+from bench import clock
 from bench.serial_link import SerialLink
 from common.errors import DeviceError, UserError
 
@@ -69,6 +70,8 @@ class ValveController:
             (boot banner, replies to commands the board half-heard) are skipped.
             Default 3 s when the driver opens ``url`` itself, 0 (no wait) for a port
             object passed in.
+        capture: record a serial transcript of the link into this file
+            (:mod:`bench.capture`; replay it with ``replay://PATH``).
         **serial_settings: other pyserial settings.
 
     Use as a context manager; ``identify()`` before channel commands (it learns the
@@ -79,13 +82,14 @@ class ValveController:
 
     def __init__(self, url: str | Any, baudrate: int = 115200, timeout: float = 1.0,
                  duty_limits: tuple[float, float] = (0.0, 100.0), boot_s: float | None = None,
-                 **serial_settings: Any) -> None:
+                 capture: str | Path | None = None, **serial_settings: Any) -> None:
         self.url = url
         self.baudrate = baudrate
         self.timeout = timeout
         self.duty_limits = duty_limits
         self.boot_s = (3.0 if isinstance(url, str) else 0.0) if boot_s is None else float(boot_s)
         self.serial_settings = serial_settings
+        self.capture = capture
         self.n_channels: int | None = None
         self.identity: ValveIdentity | None = None
         self._link: SerialLink | None = None
@@ -103,8 +107,8 @@ class ValveController:
     def open(self) -> ValveController:
         if self._link is None:
             self._link = SerialLink(self.url, "valve controller", baudrate=self.baudrate,
-                                    **self.serial_settings)
-            self._opened_t = time.monotonic()
+                                    capture=self.capture, keepalive=b"PING\n", **self.serial_settings)
+            self._opened_t = clock.monotonic()
             self._sync_pending = self.boot_s > 0
         return self
 
@@ -137,7 +141,7 @@ class ValveController:
                                       f"but no end of line within {self.timeout:g} s (replies end with \\n)")
                 raise DeviceError(f"valve controller at {link.url} did not answer {line!r} "
                                   f"within {self.timeout:g} s")
-            self.last_command_t = time.monotonic()
+            self.last_command_t = link.line_t  # when the reply was read
             if not _feeder:
                 self.last_caller_t = self.last_command_t
         if reply.startswith("ERR"):
@@ -151,7 +155,7 @@ class ValveController:
         """
         link.reset_input()  # a late reply to an earlier, timed-out command
         link.write(line.encode("ascii") + b"\n")
-        deadline = time.monotonic() + timeout
+        deadline = clock.monotonic() + timeout
         while True:
             raw = link.readline(deadline)
             if raw is None:
@@ -175,11 +179,11 @@ class ValveController:
             if reply is not None:
                 heard = reply
                 self.skipped_lines += 1
-            if time.monotonic() >= end:
+            if clock.monotonic() >= end:
                 break
         if heard is None:
             raise DeviceError(
-                f"valve controller at {link.url} sent nothing in the {time.monotonic() - self._opened_t:.1f} s "
+                f"valve controller at {link.url} sent nothing in the {clock.monotonic() - self._opened_t:.1f} s "
                 f"after the port opened ({sent} PINGs; a board that resets on open answers within about 2 s): "
                 f"check the port, the cable and the baud rate")
         # it talks but never said PONG: let the caller's command report what it answers
@@ -335,7 +339,7 @@ class SafeValves:
         self.watchdog_ms = int(watchdog_ms)
         self.feed_every_s = feed_every_s if feed_every_s is not None else watchdog_ms / 4000.0
         self.stall_s = stall_s if stall_s is not None else watchdog_ms / 1000.0
-        self._beat = time.monotonic()
+        self._beat = clock.monotonic()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.feeds = 0
@@ -344,7 +348,7 @@ class SafeValves:
 
     def heartbeat(self) -> None:
         """Tell the feeder the caller is alive (call at least every ``stall_s``)."""
-        self._beat = time.monotonic()
+        self._beat = clock.monotonic()
 
     def start(self) -> None:
         self.valves.off()
@@ -355,7 +359,7 @@ class SafeValves:
 
     def _feed(self) -> None:
         while not self._stop.wait(self.feed_every_s / 2):
-            now = time.monotonic()
+            now = clock.monotonic()
             alive = max(self._beat, self.valves.last_caller_t)
             if now - alive > self.stall_s:
                 continue  # the caller is stuck: let the watchdog close the valves

@@ -56,3 +56,14 @@ def runs_mixed():
     """Three 10 s runs with different masses, seeds and 15 % dropped frames."""
     return [sim_run(m, i, s, duration=10.0, drop=0.15)
             for m, i, s in ((2.268, 3.78e-3, 0), (1.4, 2.2e-3, 1), (3.3, 5.9e-3, 2))]
+
+
+def pytest_addoption(parser):
+    parser.addoption("--update-goldens", action="store_true", default=False,
+                     help="rewrite the golden outputs of tests/regression (prints what moved)")
+
+
+def pytest_configure(config):
+    from tests.support import golden
+
+    golden.UPDATE["on"] = bool(config.getoption("--update-goldens", default=False))
