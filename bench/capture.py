@@ -100,6 +100,26 @@ def capture_path(target: str | Path, default_name: str) -> Path:
     return p / default_name
 
 
+def capture_folder(path: str | Path, force: bool, command: str) -> Path:
+    """A ``--capture DIR`` for serial transcripts: created if needed; transcripts already in it
+    are replaced only with ``force``. UserError (one line) otherwise."""
+    d = Path(path)
+    if d.name.endswith((".jsonl", ".json")):
+        raise UserError(f"--capture {path} names a file; {command} writes its transcripts "
+                        "(*.serial.jsonl) into a folder: give a folder name")
+    if d.exists() and not d.is_dir():
+        raise UserError(f"--capture {path}: not a folder")
+    there = sorted(p.name for p in d.glob("*" + SUFFIX)) if d.is_dir() else []
+    if there and not force:
+        raise UserError(f"--capture {path} already holds {', '.join(there)}; add --force to replace "
+                        "them or choose another folder")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--capture {path}: cannot create the folder ({exc.strerror or exc})") from None
+    return d
+
+
 def read_transcript(path: str | Path) -> tuple[dict[str, Any], list[tuple[float, str, bytes, bool, float | None]]]:
     """``(header, [(t, dir, bytes, ready, t_call), ...])`` of a transcript; UserError naming the line
     for anything that is not one."""

@@ -53,6 +53,10 @@ def register(sub) -> None:
                         "the same reading again, which would shrink the step's standard error; "
                         "0: as fast as the balance answers)")
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--capture", nargs="?", const=True, default=None, metavar="DIR",
+                   help="record byte-exact transcripts of both serial links (valves.serial.jsonl, "
+                        "scale.serial.jsonl; docs/recordings.md) into the run folder, or into DIR; "
+                        "replay them with --valves replay://PATH --scale replay://PATH")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_characterize)
@@ -117,7 +121,7 @@ def _serial_format(text: str) -> dict:
 MAX_VALVES = 4
 """Valves of a TPODS module's controller (the session checks the device's own count too)."""
 
-SESSION_FILES = ("raw.csv", "steps.csv", "run.json")
+SESSION_FILES = ("raw.csv", "steps.csv", "run.json", "valves.serial.jsonl", "scale.serial.jsonl")
 
 
 def _replace_empty_failed_session(out: str | Path | None) -> None:
@@ -144,6 +148,7 @@ def _replace_empty_failed_session(out: str | Path | None) -> None:
 
 
 def cmd_characterize(args: argparse.Namespace) -> int:
+    from bench.capture import capture_folder
     from bench.ohaus import OhausScout
     from bench.session import (
         SessionConfig,
@@ -171,16 +176,19 @@ def cmd_characterize(args: argparse.Namespace) -> int:
                         f"cannot open {max(cfg.nozzles)} at once")
     fmt = _serial_format(args.scale_format)
     _replace_empty_failed_session(args.out)
+    cap_dir = None if args.capture in (None, True) else capture_folder(args.capture, args.force, "tpods bench characterize")
     out = stream_folder(args.out, force=args.force, command="tpods bench characterize")
+    if args.capture is True:
+        cap_dir = Path(out)
     hs = args.scale_handshake
     with sigterm_raises():
         try:
-            with ValveController(args.valves, baudrate=args.valves_baud,
-                                 duty_limits=cfg.duty_limits_pct) as valves, \
+            with ValveController(args.valves, baudrate=args.valves_baud, duty_limits=cfg.duty_limits_pct,
+                                 capture=cap_dir and cap_dir / "valves.serial.jsonl") as valves, \
                  OhausScout(args.scale, baudrate=args.scale_baud, xonxoff=hs == "xonxoff",
                             rtscts=hs == "rtscts", silence_timeout=args.silence_timeout,
                             acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
-                            **fmt) as scale:
+                            capture=cap_dir and cap_dir / "scale.serial.jsonl", **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
         except Terminated:
             print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
@@ -193,7 +201,10 @@ def cmd_characterize(args: argparse.Namespace) -> int:
     print(f"time {res.elapsed_s:.1f} s for {res.planned_s:.1f} s planned "
           f"(overhead {res.overhead_pct:+.1f} %)")
     print(f"wrote {out}/raw.csv, steps.csv, run.json")
+    if cap_dir is not None:
+        print(f"wrote {cap_dir}/valves.serial.jsonl, scale.serial.jsonl (serial transcripts)")
     return 0
+
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

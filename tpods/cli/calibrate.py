@@ -64,6 +64,10 @@ def _register_mass(cal) -> None:
     p.add_argument("--stopbits", type=int, choices=(1, 2), default=1, help="default 1")
     p.add_argument("--timeout", type=positive_float, default=5.0,
                    help="seconds to wait for one stable reading (default 5)")
+    p.add_argument("--capture", metavar="FILE.jsonl|DIR", default=None,
+                   help="with --scale: record a byte-exact transcript of the balance's serial link "
+                        "(docs/recordings.md) into FILE.jsonl, or DIR/scale.serial.jsonl; replay it "
+                        "with --scale replay://PATH")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_mass)
 
@@ -78,9 +82,10 @@ def _scale_readings(args) -> tuple[list[float], int]:
                         "use --readings-from FILE or --values") from None
     from tqdm import tqdm
 
+    capture = _mass_capture(args.capture)
     with OhausScout(args.scale, baudrate=args.baudrate, bytesize=args.bytesize,
                     parity=args.parity, stopbits=args.stopbits, timeout=args.timeout,
-                    stable_timeout=args.timeout) as scale, \
+                    stable_timeout=args.timeout, capture=capture) as scale, \
             tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
                  disable=args.json or None) as bar:
         def read():
@@ -101,10 +106,25 @@ def _scale_readings(args) -> tuple[list[float], int]:
         return take_readings(read, args.readings, progress=bar.update, fatal=(NotALoadReading,))
 
 
+def _mass_capture(target: str | None):
+    """--capture FILE.jsonl or DIR (-> DIR/scale.serial.jsonl); an existing file is refused."""
+    if target is None:
+        return None
+    p = Path(target)
+    p = p if p.name.endswith(".jsonl") else p / "scale.serial.jsonl"
+    if p.exists():
+        raise UserError(f"--capture: {p} already exists; choose another file or folder")
+    if p.parent.exists() and not p.parent.is_dir():
+        raise UserError(f"--capture {target}: {p.parent} is not a folder")
+    return p
+
+
 def cmd_mass(args: argparse.Namespace) -> int:
     from calibration.mass import mass_from_readings, parse_readings_text, to_kg
 
     to_kg(1.0, args.unit)  # validates --unit
+    if args.capture and not args.scale:
+        raise UserError("--capture records the balance's serial link: it needs --scale")
     if args.scale:
         readings, skipped = _scale_readings(args)
     elif args.readings_from:

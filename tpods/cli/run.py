@@ -7,6 +7,7 @@ import math
 import sys
 import threading
 import time
+from pathlib import Path
 
 from common.argtypes import fraction, nonneg_float, positive_float, random_seed
 from common.errors import UserError
@@ -50,6 +51,9 @@ def register(sub) -> None:
     p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--prefix", default="tpods", help="key prefix (default tpods)")
     _clock_options(p)
+    p.add_argument("--capture", nargs="?", const=True, default=None, metavar="DIR",
+                   help="record a byte-exact transcript of the valve controller's serial link "
+                        "(valves.serial.jsonl, docs/recordings.md) into the --out folder, or into DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_zenoh_options(p)
     p.set_defaults(func=cmd_play)
@@ -142,7 +146,16 @@ def cmd_play(args: argparse.Namespace) -> int:
     clock = _clock(args)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
     _check_play_duties(args, duty, lim[0], lim[1])
+    if args.capture is True and args.out is None:
+        raise UserError("--capture without a folder records into --out: give --out RUN_DIR or --capture DIR")
     out = None if args.out is None else stream_folder(args.out, force=args.force, command="tpods run play")
+    capture = None
+    if args.capture is not None:
+        from bench.capture import capture_folder
+
+        cap_dir = Path(out) if args.capture is True else capture_folder(args.capture, args.force,
+                                                                        "tpods run play")
+        capture = cap_dir / "valves.serial.jsonl"
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
     try:
@@ -155,7 +168,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         with sigterm_raises():
             try:
                 with ValveController(args.valves, baudrate=args.valves_baud,
-                                     duty_limits=(lim[0], lim[1])) as valves:
+                                     duty_limits=(lim[0], lim[1]), capture=capture) as valves:
                     print(f"play: {args.input} for {cmd_t[-1] - cmd_t[0]:g} s on {args.valves}, "
                           f"commands on {key}"
                           + (f" (time scale {clock.scale:g})" if clock.scale != 1 else ""),
@@ -181,6 +194,8 @@ def cmd_play(args: argparse.Namespace) -> int:
           f"valves closed (STATE? {' '.join(f'{x:g}' for x in res.final_state or ())})")
     if out:
         print(f"wrote {out}/commands.csv, run.json")
+    if capture is not None:
+        print(f"wrote {capture} (serial transcript)")
     return 0
 
 
