@@ -32,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     from tpods.cli.mocap import register as register_mocap
     from tpods.cli.replay import register as register_replay
     from tpods.cli.run import register as register_run
+    from tpods.cli.view import register as register_view
     from tpods.demo import register as register_demo
 
     parser = _Parser(
@@ -49,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_run(sub)
     register_replay(sub)
     register_export(sub)
+    register_view(sub)
     register_demo(sub)
     return parser
 

@@ -1,0 +1,129 @@
+"""``tpods view``: watch a run live in Foxglove (:mod:`tpods.viewer`)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from common.argtypes import nonneg_float
+from common.console import Console
+from common.errors import UserError
+from common.outputs import add_force
+
+DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
+DEFAULT_PORT = 8765
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"port must be a whole number, got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be 0-65535, got {v}")
+    return v
+
+
+def register(sub) -> None:
+    """Add ``tpods view`` to the `tpods` parser."""
+    from common.zenoh_net import add_zenoh_options
+
+    p = sub.add_parser(
+        "view", help="serve the live poses, duties and estimates to Foxglove",
+        description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
+                    "them over the Foxglove WebSocket protocol: open Foxglove (desktop app or "
+                    "app.foxglove.dev), connect to ws://localhost:8765 and load "
+                    "docs/foxglove/tpods_layout.json. Channels per body: /tpods/<body>/frame "
+                    "(foxglove.FrameTransform), pose, duty, estimate (with the 1-sigma band), "
+                    "health; /tpods/clock (lab time of the last pose). Ctrl-C ends it.")
+    p.add_argument("--host", default=DEFAULT_HOST,
+                   help=f"address to serve on (default {DEFAULT_HOST}; 0.0.0.0 for other hosts)")
+    p.add_argument("--port", type=_port, default=DEFAULT_PORT,
+                   help=f"WebSocket port (default {DEFAULT_PORT}; 0: any free port)")
+    p.add_argument("--body", action="append", default=None,
+                   help="body to show (repeatable; default: every body seen)")
+    p.add_argument("--pose-rate", type=nonneg_float, default=50.0, metavar="HZ",
+                   help="poses forwarded per body and second (default 50; 0: every pose)")
+    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
+    p.add_argument("--mocap-prefix", default="tpods/mocap",
+                   help="pose key prefix (default tpods/mocap)")
+    p.add_argument("--write-layout", metavar="FILE.json", default=None,
+                   help="write a Foxglove layout for the --body names (default tpods1) to FILE "
+                        "and exit")
+    add_force(p, "--write-layout")
+    p.add_argument("--quiet", action="store_true", help="no console line")
+    add_zenoh_options(p)
+    p.set_defaults(func=cmd_view)
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
+        if not v.strip("/"):
+            raise UserError(f"{opt} must not be empty")
+    if args.body is not None and not all(b.strip() for b in args.body):
+        raise UserError("--body must not be empty")
+    if not args.host.strip():
+        raise UserError("--host must not be empty")
+    if args.write_layout is not None:
+        return _write_layout(args)
+
+    from common.zenoh_net import open_session
+    from tpods.viewer import LiveView
+
+    console = Console(args.quiet)
+    stop = threading.Event()
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            old[sig] = signal.signal(sig, lambda *_a: stop.set())
+        except ValueError:  # not the main thread
+            pass
+    try:
+        view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
+                        prefix=args.prefix, mocap_prefix=args.mocap_prefix,
+                        pose_rate=args.pose_rate)
+        view.start_server()  # a port in use or a bad host: one line, before Zenoh
+        try:
+            view.session = session = open_session(args)
+            try:
+                view.subscribe()
+                print(f"view: serving on {view.url} (Foxglove: Open connection -> Foxglove "
+                      f"WebSocket -> {view.url}; layout docs/foxglove/tpods_layout.json)",
+                      file=sys.stderr, flush=True)
+                while not stop.wait(0.5):
+                    console.show(view.status_line())
+            finally:
+                view.close()
+                session.close()
+        finally:
+            view.close()
+    finally:
+        console.end()
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    c = view.counters
+    print(f"view: stopped; {c.get('pose_shown', 0)} poses, {c.get('cmd_shown', 0)} commands, "
+          f"{c.get('estimate_shown', 0)} estimates shown for {len(view.bodies)} bodies; "
+          f"{c.get('malformed', 0)} malformed skipped")
+    return 0
+
+
+def _write_layout(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from tpods.view_layout import layout_json
+
+    path = Path(args.write_layout)
+    if path.suffix != ".json":
+        raise UserError(f"--write-layout {path}: a Foxglove layout is a .json file")
+    if path.exists() and not args.force:
+        raise UserError(f"{path} already exists; add --force to replace it or choose another name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(layout_json(args.body or ["tpods1"]))
+    except OSError as exc:
+        raise UserError(f"cannot write {path} ({exc.strerror})") from None
+    print(f"wrote {path}")
+    return 0
