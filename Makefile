@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test demo bench robustness lint clean
+.PHONY: setup test demo bench robustness lint clean golden fixtures
 
 setup: $(STAMP)
 
@@ -31,6 +31,15 @@ robustness: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+
+# rewrite the golden outputs beside runs/fixtures/* from today's code, printing what moved
+# (review with `git diff runs/fixtures` before committing)
+golden: $(STAMP)
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -s -p no:cacheprovider tests/regression --update-goldens
+
+# record the serial fixture (runs/fixtures/bench-session) again against the emulators
+fixtures: $(STAMP)
+	$(BIN)/python -m tests.support.make_fixtures bench
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

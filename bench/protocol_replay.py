@@ -14,7 +14,9 @@ Modes (``?mode=``):
     host asked) is readable at once, the others at their recorded time. A difference raises :class:`ReplayMismatch` (a
     ``SerialException``: the drivers report it as a write failure) naming the first
     differing exchange: its number (the n-th ``tx`` of the transcript), its recorded time,
-    the expected and the actual bytes; the port stays failed after it. Recorded replies
+    the expected and the actual bytes. After it the port only answers writes found later in
+    the recording (so a driver's closing ``OFF`` and ``STATE?`` get their recorded
+    replies and the first error is the one reported); ``mismatch`` keeps it. Recorded replies
     the host did not read before its next command are dropped, as a real port's input
     buffer would be. The header's ``keepalive`` command (the valve watchdog's ``PING``,
     sent from a thread whenever the scheduler runs it) is not held to its recorded places:
@@ -313,8 +315,9 @@ class Serial(SerialBase):
             if self.mode == "paced":
                 return len(data)
             if self.mismatch is not None:
-                raise ReplayMismatch(str(self.mismatch))
-            self._match(data)
+                self._resync(data)
+            else:
+                self._match(data)
         return len(data)
 
     def _match(self, data: bytes) -> None:
@@ -363,6 +366,22 @@ class Serial(SerialBase):
                 self._ka_rx = is_ka
                 if not is_ka and self._clock is not None:
                     self._clock.advance_to(t)
+
+    def _resync(self, data: bytes) -> None:
+        """After a mismatch: continue at the next recorded write of exactly ``data`` (the
+        drivers' closing OFF and STATE? get their recorded replies), else fail again."""
+        ev = self._events
+        for j in range(self._pos, len(ev)):
+            if ev[j][1] == "tx" and ev[j][2] == data:
+                self._pos, self._off, self._inject = j + 1, 0, b""
+                self._ka_rx = bool(self.keepalive) and data == self.keepalive
+                if self._clock is not None and not self._ka_rx:
+                    self._clock.advance_to(ev[j][0])
+                return
+        if self.keepalive and data == self.keepalive:
+            self._answer_keepalive()
+            return
+        raise ReplayMismatch(str(self.mismatch))
 
     def _answer_keepalive(self) -> None:
         self.keepalives_answered += 1

@@ -96,10 +96,52 @@ def _kill(tmp: Path, sig: int, name: str) -> float:
         vs.stop()
 
 
+def _capture_rows(tmp: Path) -> list[dict]:
+    """A short session (100 Hz prints) with serial capture on and off, alternated; and the
+    cost of writing one transcript line."""
+    from bench.capture import Transcript
+    from bench.ohaus import OhausScout
+    from bench.session import SessionConfig, run_session
+    from bench.valves import ValveController
+
+    cfg = SessionConfig(nozzles=(1, 2), duties_pct=(30, 60, 90), dwell_s=0.3, settle_s=0.1,
+                        zero_settle_s=0.1, zero_dwell_s=0.1, watchdog_ms=300)
+    loop = {False: [], True: []}
+    for i in range(4):
+        cap = bool(i % 2)
+        ev, es, vs, ss = _bench(seed=i, lag_s=0.02, print_rate_hz=100)
+        out = tmp / f"cap{i}"
+        try:
+            with ValveController(vs.path, capture=out / "v.serial.jsonl" if cap else None) as v, \
+                    OhausScout(ss.path, capture=out / "s.serial.jsonl" if cap else None) as s:
+                run_session(v, s, cfg, out, progress=False)
+        finally:
+            ss.stop()
+            vs.stop()
+        loop[cap].append(json.loads((out / "run.json").read_text())["timing"]["loop_s"] - cfg.planned_s)
+    off, on = float(np.median(loop[False])), float(np.median(loop[True]))
+    tr = Transcript(tmp / "x.serial.jsonl", device="x", url="x", settings={}, t_open=time.monotonic())
+    n = 20000
+    t0 = time.perf_counter()
+    for _ in range(n):
+        tr.chunk(time.monotonic(), "rx", b"     12.34 g ?\r\n", False, 1.0)
+    per = (time.perf_counter() - t0) / n
+    tr.close()
+    return [
+        {"case": "bench session, serial capture on/off", "metric": "loop time beyond plan, on - off (ms)",
+         "value": 1000 * (on - off), "reference": 10.0, "ratio": 10.0 / max(abs(1000 * (on - off)), 1e-3),
+         "ok": 1000 * (on - off) < 10.0, "target": f"< 10 ms (off {1000 * off:.1f} ms, on {1000 * on:.1f} ms)"},
+        {"case": "serial capture", "metric": "cost of one transcript line (us)",
+         "value": 1e6 * per, "reference": 10.0, "ratio": 10.0 / (1e6 * per), "ok": per < 10e-6,
+         "target": "< 10 us (write + flush per line)"},
+    ]
+
+
 def run() -> list[dict]:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         rows = _full_session(tmp)
+        rows += _capture_rows(tmp)
         lat = [_kill(tmp, signal.SIGINT, f"int{i}") for i in range(3)]
         rows.append({"case": "bench Ctrl-C", "metric": "signal to valves closed, worst of 3 (ms)",
                      "value": 1000 * max(lat), "reference": 200.0, "ratio": 200.0 / (1000 * max(lat)),

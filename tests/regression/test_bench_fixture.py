@@ -28,11 +28,12 @@ def _check_table(table: ThrustTable, path: Path) -> None:
     coeffs = {f"nozzles {k} coefficients": list(table.coefficients[k]) for k in sorted(table.coefficients)}
     if golden.UPDATE["on"]:
         old = ThrustTable.load(path) if path.exists() else None
-        table.save(path)
-        print(f"golden {path}: " + ("created" if old is None else (
-            "unchanged" if not golden._value_diffs(
-                {f"nozzles {k} coefficients": list(old.coefficients[k]) for k in sorted(old.coefficients)},
-                coeffs, 1e-12, 0.0) else "moved")))
+        moved = ["(new)"] if old is None else golden._value_diffs(
+            {f"nozzles {k} coefficients": list(old.coefficients[k]) for k in sorted(old.coefficients)},
+            coeffs, 1e-12, 0.0)
+        if moved:
+            table.save(path)
+        print(f"golden {path}: " + ("unchanged" if not moved else "moved:\n  " + "\n  ".join(moved)))
         return
     gold = ThrustTable.load(path)
     problems = golden._value_diffs(

@@ -37,9 +37,11 @@ def check_frame(actual: pd.DataFrame, path: str | Path, *, atol: float = 1e-12, 
     label = what or path.name
     if UPDATE["on"] or not path.exists():
         old = pd.read_csv(path) if path.exists() else None
-        path.parent.mkdir(parents=True, exist_ok=True)
-        actual.to_csv(path, index=False)
-        print(f"golden {path}: " + ("created" if old is None else _moved(old, actual, atol_columns or {}, atol, rtol)))
+        moved = "created" if old is None else _moved(old, actual, atol_columns or {}, atol, rtol)
+        if moved != "unchanged":  # within tolerance: the file stays as it is (no diff noise)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            actual.to_csv(path, index=False)
+        print(f"golden {path}: {moved}")
         return
     golden = pd.read_csv(path)
     problems = []
@@ -91,10 +93,11 @@ def check_values(actual: Mapping[str, Sequence[float] | float], path: str | Path
               for k, v in actual.items()}
     if UPDATE["on"] or not path.exists():
         old = json.loads(path.read_text()) if path.exists() else None
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(actual, indent=1, sort_keys=True) + "\n")
-        msg = "created" if old is None else ("unchanged" if not _value_diffs(old, actual, atol, rtol)
-                                             else "moved:\n  " + "\n  ".join(_value_diffs(old, actual, atol, rtol)))
+        d = [] if old is None else _value_diffs(old, actual, atol, rtol)
+        msg = "created" if old is None else ("unchanged" if not d else "moved:\n  " + "\n  ".join(d))
+        if msg != "unchanged":
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(actual, indent=1, sort_keys=True) + "\n")
         print(f"golden {path}: {msg}")
         return
     golden = json.loads(path.read_text())
