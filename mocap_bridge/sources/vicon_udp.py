@@ -47,6 +47,10 @@ ITEM_DATA_SIZE = 72
 OBJECT_ITEM_ID = 0
 NAME_MAX_CHARS = 23
 """Tracker writes the name as a C string in 24 bytes: a longer name is cut to 23."""
+CAPTURE_FLUSH_S = 0.05
+"""--capture hands waiting datagrams to the file when the oldest is this old ..."""
+CAPTURE_IDLE_S = 0.05
+"""... or when no datagram came for this long: a kill loses at most the last 0.1 s."""
 _IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)  # Linux's value; Python 3.11 lacks the name
 assert HEADER.size == 5 and ITEM.size == 75 and OBJECT.size == ITEM_DATA_SIZE
 
@@ -314,7 +318,8 @@ class ViconUDPSource:
                 except OSError:
                     pass
             try:
-                self.capture = PcapWriter(capture, counters=self.counters)
+                self.capture = PcapWriter(capture, counters=self.counters,
+                                          flush_every_s=CAPTURE_FLUSH_S)
             except BaseException:
                 self.sock.close()
                 raise
@@ -347,8 +352,10 @@ class ViconUDPSource:
         now = time.time
         dst = self.address
         pktinfo = self._pktinfo
+        flush = self.capture.flush
         recvmsg = self.sock.recvmsg
         recvfrom = self.sock.recvfrom
+        self.sock.settimeout(CAPTURE_IDLE_S)
         while not stop.is_set():
             try:
                 if pktinfo:
@@ -361,6 +368,7 @@ class ViconUDPSource:
                     data, src = recvfrom(65536)
                     t = now()
             except TimeoutError:
+                flush()  # the stream paused: what waits goes to the file now
                 continue
             except OSError:
                 if stop.is_set() or self.sock.fileno() < 0:

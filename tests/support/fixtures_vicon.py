@@ -6,16 +6,16 @@ capture path, and its replay through the bridge and the recorder.
 slowly, with occlusions and one malformed datagram, every datagram padded to Tracker's
 1024-byte Data Block Size, sent on loopback to a ``ViconUDPSource`` capturing into the
 file while a bridge publishes) and the goldens beside it (``golden/<body>/poses.csv`` and
-``golden/counters.json``) from :func:`replay_and_record`. ``--goldens-only`` recomputes
-the goldens from the checked-in capture (what a deliberate change of the parser or
-recorder does). tests/regression/test_vicon_fixture.py compares against them.
+``golden/counters.json``) from :func:`replay_and_record`, written by
+tests/support/golden.py. ``--goldens-only`` recomputes the goldens from the checked-in
+capture (as ``make golden`` / ``pytest tests/regression --update-goldens`` does).
+tests/regression/test_vicon_fixture.py compares against them.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import shutil
 import socket
 import struct
 import sys
@@ -154,18 +154,48 @@ def replay_and_record(pcap: Path, out: Path) -> dict:
                                                    "malformed", "not_increasing")}}
 
 
+def flat_counters(counters: dict) -> dict[str, float]:
+    """``{"bridge": {"tpods1": {"occluded": 9}}}`` -> ``{"bridge.tpods1.occluded": 9}``."""
+    out: dict[str, float] = {}
+
+    def walk(prefix: str, d: dict) -> None:
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(f"{prefix}{k}.", v)
+            else:
+                out[f"{prefix}{k}"] = v
+    walk("", counters)
+    return out
+
+
+def check_goldens(rec: Path, counters: dict, fixture: Path = FIXTURE) -> None:
+    """The replay's ``poses.csv`` of each body and its counters against ``fixture/golden``
+    (tests/support/golden.py: poses to 1e-12, counters exactly; rewritten instead with
+    ``--update-goldens``)."""
+    import pandas as pd
+
+    from tests.support.golden import check_frame, check_values
+
+    for body in BODIES:
+        check_frame(pd.read_csv(rec / body / "poses.csv"), fixture / "golden" / body / "poses.csv",
+                    atol=1e-12, what=f"{body}/poses.csv")
+    check_values(flat_counters(counters), fixture / "golden" / "counters.json", atol=0.0,
+                 what="the bridge, source and recorder counters")
+
+
 def write_goldens(fixture: Path = FIXTURE) -> dict:
-    """Replay the fixture's capture and write ``golden/`` beside it; returns the counters."""
+    """Replay the fixture's capture and (re)write ``golden/`` beside it, printing what
+    moved; returns the counters."""
+    from tests.support import golden
+
     with tempfile.TemporaryDirectory() as tmp:
         counters = replay_and_record(fixture / PCAP, Path(tmp) / "rec")
-        golden = fixture / "golden"
-        if golden.exists():
-            shutil.rmtree(golden)
-        golden.mkdir(parents=True)
-        for body in BODIES:
-            (golden / body).mkdir()
-            shutil.copyfile(Path(tmp) / "rec" / body / "poses.csv", golden / body / "poses.csv")
-        (golden / "counters.json").write_text(json.dumps(counters, indent=2, sort_keys=True) + "\n")
+        old = golden.UPDATE["on"]
+        golden.UPDATE["on"] = True
+        try:
+            check_goldens(Path(tmp) / "rec", counters, fixture)
+        finally:
+            golden.UPDATE["on"] = old
     return counters
 
 
