@@ -37,9 +37,11 @@ lint: $(STAMP)
 golden: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -q -s -p no:cacheprovider tests/regression --update-goldens
 
-# record the serial fixture (runs/fixtures/bench-session) again against the emulators
+# record the serial fixture (runs/fixtures/bench-session) again against the emulators,
+# and live-run, bifilar-swing, structure-run against the simulated module and simulator
 fixtures: $(STAMP)
 	$(BIN)/python -m tests.support.make_fixtures bench
+	$(BIN)/python -m tests.support.fixtures_recorded all
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
