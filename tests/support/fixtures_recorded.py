@@ -132,8 +132,9 @@ izz and their sigmas, rel. 1e-9) and `golden/replay.json` (the final estimate of
 estimate live --method ekf --max-wait-ms 20` fed by `tpods replay recording.mcap --speed 4`:
 mass, izz, sigmas, updates, rel. 1e-9; tests/regression/test_live_run_fixture.py, which also
 checks it against the last row of the recorded `estimates.csv`, to its 10 printed digits).
-Replays gave the same bits every time; `estimate.json`, the live summary, was taken one
-update before the end (0.08 sigma away in mass).
+Replays gave the same bits every time, equal to the recorded final estimate (here also
+`estimate.json`, the live summary; in an earlier recording that summary had been taken one
+update before the end, 0.08 sigma away in mass, so the test compares with `estimates.csv`).
 
 Made by `python -m tests.support.fixtures_recorded live-run` (tests/support/fixtures_recorded.py,
 `record_live_run`; `make fixtures` remakes every fixture).
