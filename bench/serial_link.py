@@ -32,6 +32,15 @@ _EOL = re.compile(rb"[\r\n]")
 MAX_LINE = 512
 
 
+try:  # a pty or tty whose other end has gone fails in tcdrain with termios.error (EIO)
+    import termios
+
+    IO_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # pragma: no cover - not POSIX
+    IO_ERRORS = (OSError,)
+"""What a serial port raises when the device or its link is gone."""
+
+
 class SerialLink:
     """A byte link with a line reader.
 
@@ -81,7 +90,7 @@ class SerialLink:
             flush = getattr(self.port, "flush", None)
             if flush is not None:
                 flush()
-        except OSError as exc:  # serial.SerialException is an OSError
+        except IO_ERRORS as exc:  # serial.SerialException is an OSError
             raise DeviceError(f"{self.name} at {self.url}: write failed ({exc})") from None
         self.tx_t = t = clock.monotonic()
         if self.capture is not None:
@@ -95,7 +104,7 @@ class SerialLink:
                 chunk = self.port.read(n)
                 if chunk:
                     self._got(chunk, True)
-        except OSError as exc:
+        except IO_ERRORS as exc:
             raise DeviceError(f"{self.name} at {self.url}: read failed ({exc})") from None
 
     def reset_input(self) -> None:
@@ -105,7 +114,7 @@ class SerialLink:
         if reset is not None:
             try:
                 reset()
-            except OSError:
+            except IO_ERRORS:
                 pass
 
     @property
@@ -139,7 +148,7 @@ class SerialLink:
             try:
                 waiting = int(self.port.in_waiting or 0)
                 chunk = self.port.read(max(1, waiting))
-            except OSError as exc:
+            except IO_ERRORS as exc:
                 raise DeviceError(f"{self.name} at {self.url}: read failed ({exc})") from None
             if chunk:
                 self._got(chunk, False, t_call)
@@ -157,7 +166,7 @@ class SerialLink:
     def close(self) -> None:
         try:
             self.port.close()
-        except OSError:
+        except IO_ERRORS:
             pass
         if self.capture is not None:
             self.capture.close()

@@ -26,7 +26,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -90,47 +90,63 @@ def check_sequence(cmd_t: np.ndarray, duty_pct: np.ndarray, n_channels: int,
 
 
 def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
-         publish: Callable[[bytes], None] | None = None, body: str = "tpods1",
+         publish: Callable[[bytes], None] | Mapping[str, Callable[[bytes], None]] | None = None,
+         body: str = "tpods1",
          out_dir: str | Path | None = None, watchdog_ms: int = 500, pwm_hz: float = 10.0,
          heartbeat_s: float = 0.1, lead_s: float = 0.2, stop: threading.Event | None = None,
          meta: dict[str, Any] | None = None, progress: bool = False) -> PlayResult:
-    """Play ``(cmd_t (N,), duty_pct (N, n))`` on an open :class:`bench.valves.ValveController`.
+    """Play ``(cmd_t (N,), duty_pct (N, n))`` on an open :class:`bench.valves.ValveController`
+    or, for a structure (issue 18), on several: ``valves`` a sequence of ``(module name,
+    controller)`` whose channel blocks are ``duty_pct``'s columns in that order.
 
     Row ``i`` is sent at lab time ``t_start + cmd_t[i] - cmd_t[0]`` with ``t_start`` =
     now + ``lead_s``. Each sent command is stamped with the midpoint of its exchange,
-    written to ``out_dir/commands.csv`` (times from ``t_start``) and handed to
-    ``publish`` (a payload, e.g. a Zenoh put); ``hold`` messages are published when
-    nothing was sent for ``heartbeat_s`` lab seconds. ``stop`` ends the run early
-    (status ``aborted``). KeyboardInterrupt and SIGTERM (with
-    :func:`bench.session.sigterm_raises`) propagate after the valves are closed and
-    the files written. Publishing errors are counted, never allowed to stop the
-    closing of the valves.
+    written to ``out_dir/commands.csv`` (times from ``t_start``; one file for every
+    channel) and handed to ``publish`` (a payload, e.g. a Zenoh put; for several modules a
+    mapping module name -> publisher: each module's four duties on its own key); ``hold``
+    messages are published when nothing was sent for ``heartbeat_s`` lab seconds. ``stop``
+    ends the run early (status ``aborted``). KeyboardInterrupt and SIGTERM (with
+    :func:`bench.session.sigterm_raises`) propagate after the valves are closed and the
+    files written. Every controller's watchdog is armed and fed while the loop lives; any
+    one's lost link ends the run and closes them all. Publishing errors are counted,
+    never allowed to stop the closing of the valves.
     """
     clock = clock or LabClock()
     cmd_t = np.asarray(cmd_t, float)
     duty_pct = np.asarray(duty_pct, float)
     out = Path(out_dir) if out_dir is not None else None
-    ident = valves.identify()
-    check_sequence(cmd_t, duty_pct, ident.n_channels, valves.duty_limits)
-    n_ch = ident.n_channels
+    mods = [(body, valves)] if not isinstance(valves, list | tuple) else [tuple(m) for m in valves]
+    idents = [v.identify() for _, v in mods]
+    widths = [i.n_channels for i in idents]
+    cols = np.cumsum([0, *widths])
+    check_sequence(cmd_t, duty_pct, int(cols[-1]), mods[0][1].duty_limits)
+    for (_, v) in mods[1:]:
+        check_sequence(cmd_t, duty_pct, int(cols[-1]), v.duty_limits)
+    n_ch = int(cols[-1])
+    pubs = ({name: publish for name, _ in mods} if callable(publish) or publish is None
+            else dict(publish))
     seq = 0
     pub_errors = 0
 
     def announce(t: float, duty, kind: str) -> None:
+        """One message per module: its block of ``duty`` on its key."""
         nonlocal seq, pub_errors
-        if publish is None:
-            return
-        seq += 1
-        try:
-            publish(encode_command(body, seq, t, duty, kind))
-        except Exception:  # the network must never keep the valves open
-            pub_errors += 1
+        for j, (name, _) in enumerate(mods):
+            p = pubs.get(name)
+            if p is None:
+                continue
+            seq += 1
+            try:
+                p(encode_command(name, seq, t, tuple(duty[cols[j]:cols[j + 1]]), kind))
+            except Exception:  # the network must never keep the valves open
+                pub_errors += 1
 
     rec = None
+    valves_meta = [{"module": name, "url": str(v.url), "model": i.model, "firmware": i.firmware,
+                    "n_channels": i.n_channels} for (name, v), i in zip(mods, idents, strict=True)]
     meta_all: dict[str, Any] = run_header(
-        "input-play", status="running", body=body,
-        valves={"url": str(valves.url), "model": ident.model, "firmware": ident.firmware,
-                "n_channels": n_ch},
+        "input-play", status="running", body=body if len(mods) == 1 else [m[0] for m in mods],
+        valves=valves_meta[0] if len(mods) == 1 else valves_meta,
         time_scale=clock.scale, clock_origin=clock.origin,
         watchdog_ms=watchdog_ms, pwm_hz=pwm_hz, heartbeat_s=heartbeat_s,
         planned_s=float(cmd_t[-1] - cmd_t[0]))
@@ -143,7 +159,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
         write_json_atomic(out / "run.json", meta_all)
 
     status, error = "failed", None
-    guard = None
+    guards: list = []
     sent: list[tuple[float, tuple[float, ...]]] = []
     n_holds = 0
     max_late = 0.0
@@ -151,9 +167,19 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     current = (0.0,) * n_ch
     bar = None
     stamp = _Stamper()
+
+    def beat() -> None:
+        for g in guards:
+            g.heartbeat()
+            if g.feed_error is not None:  # one module's lost link ends the run for all
+                raise g.feed_error
+
     try:
-        with valves.safe(watchdog_ms) as guard:
-            valves.set_freq(pwm_hz)
+        with contextlib.ExitStack() as stack:  # on exit every controller is closed, confirmed
+            for _, v in mods:
+                guards.append(stack.enter_context(v.safe(watchdog_ms)))
+            for _, v in mods:
+                v.set_freq(pwm_hz)
             t_start = clock.now() + lead_s
             meta_all["t0_lab"] = t_start
             if out is not None:
@@ -176,17 +202,16 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                         announce(now, current, "hold")
                         n_holds += 1
                         last_msg = now
-                    guard.heartbeat()
-                    if guard.feed_error is not None:
-                        raise guard.feed_error
+                    beat()
                     wait = min(target - now, last_msg + heartbeat_s - now)
                     if wait > 4e-4 * clock.scale:
                         time.sleep(min(clock.real_s(wait) - 2e-4, 0.05))
                 d = tuple(float(x) for x in duty_pct[i])
                 ta = clock.now()
-                valves.set_all(d)
+                for j, (_, v) in enumerate(mods):
+                    v.set_all(d[cols[j]:cols[j + 1]])
                 tb = clock.now()
-                t = ta + stamp.half_rtt(tb - ta)
+                t = ta + stamp.half_rtt((tb - ta) / len(mods))
                 max_late = max(max_late, ta - target)
                 current = d
                 sent.append((t, d))
@@ -195,7 +220,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                 is_end = i == last and not any(d)
                 announce(t, d, "end" if is_end else "set")
                 last_msg = t
-                guard.heartbeat()
+                beat()
                 if progress and bar is not None:
                     bar.update(max(0.0, min(bar.total, cmd_t[i] - cmd_t[0]) - bar.n))
         status = "success"
@@ -208,7 +233,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
         status, error = "failed", str(exc) or exc.__class__.__name__
         raise
     finally:
-        # safe() has sent OFF and confirmed it (or raised) by now
+        # the safe() contexts have sent OFF and confirmed it (or raised) by now
         if bar is not None:
             bar.close()
         t_end = clock.now()
@@ -221,13 +246,15 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
             announce(t_end, (0.0,) * n_ch, "end")
         if rec is not None:
             rec.close()
-        final = guard.final_state if guard is not None else None
+        finals = [g.final_state for g in guards]
+        final = (None if len(guards) < len(mods) or any(f is None for f in finals)
+                 else tuple(x for f in finals for x in f))
         meta_all.update({
             "status": status, "error": error,
             "valves_closed_confirmed": final is not None and not any(final),
             "final_state": list(final) if final is not None else None,
             "counts": {"sent": len(sent), "holds": n_holds, "publish_errors": pub_errors,
-                       "watchdog_feeds": guard.feeds if guard is not None else 0},
+                       "watchdog_feeds": sum(g.feeds for g in guards)},
             "timing": {"elapsed_lab_s": (t_end - t_start) if math.isfinite(t_start) else None,
                        "max_late_ms": 1e3 * max_late},
         })
@@ -235,7 +262,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
             with contextlib.suppress(OSError):
                 write_json_atomic(out / "run.json", meta_all)
     return PlayResult(status, len(sent), n_holds, t_start, t_end, max_late,
-                      guard.final_state if guard else None, pub_errors, error, out, sent)
+                      final, pub_errors, error, out, sent)
 
 
 class _Stamper:

@@ -28,7 +28,13 @@ def register(sub) -> None:
                     "controller watchdog is armed and fed; every valve is closed (OFF confirmed by "
                     "STATE?) on every exit path.")
     p.add_argument("--valves", required=True, metavar="URL",
-                   help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...)")
+                   help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...); "
+                        "with --structure one per module: NAME=URL,NAME=URL")
+    p.add_argument("--structure", default=None, metavar="F",
+                   help="play on a structure (structure.toml): every module's controller from "
+                        "--valves NAME=URL,..., each module's commands on tpods/<module>/cmd, one "
+                        "commands.csv with 4 columns per module; any controller's lost link "
+                        "closes them all")
     p.add_argument("--input", default="phase-sine",
                    help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
@@ -144,7 +150,20 @@ def cmd_play(args: argparse.Namespace) -> int:
     if not args.prefix.strip("/"):
         raise UserError("--prefix must not be empty")
     clock = _clock(args)
-    cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega)
+    structure = None
+    if args.structure:
+        from common.structure import Structure
+
+        if args.capture is not None:
+            raise UserError("--capture is not built for --structure yet (one transcript per "
+                            "controller)")
+        structure = Structure.load(args.structure)
+        urls = _module_urls(args.valves, [m.name for m in structure.modules])
+        cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
+                                 args.omega, n_channels=structure.n_channels)
+    else:
+        cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
+                                 args.omega)
     _check_play_duties(args, duty, lim[0], lim[1])
     if args.capture is True and args.out is None:
         raise UserError("--capture without a folder records into --out: give --out RUN_DIR or --capture DIR")
@@ -156,6 +175,8 @@ def cmd_play(args: argparse.Namespace) -> int:
         cap_dir = Path(out) if args.capture is True else capture_folder(args.capture, args.force,
                                                                         "tpods run play")
         capture = cap_dir / "valves.serial.jsonl"
+    if structure is not None:
+        return _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out)
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
     try:
@@ -196,6 +217,79 @@ def cmd_play(args: argparse.Namespace) -> int:
         print(f"wrote {out}/commands.csv, run.json")
     if capture is not None:
         print(f"wrote {capture} (serial transcript)")
+    return 0
+
+
+def _module_urls(text: str, names: list[str]) -> dict[str, str]:
+    """``--valves NAME=URL,NAME=URL`` for a structure: one controller per module, by name."""
+    out: dict[str, str] = {}
+    for item in text.split(","):
+        name, sep, url = item.partition("=")
+        if not sep or not name.strip() or not url.strip():
+            raise UserError(f"--valves with --structure takes NAME=URL,NAME=URL (one per module: "
+                            f"{', '.join(names)}), got {text!r}")
+        out[name.strip()] = url.strip()
+    missing = [n for n in names if n not in out]
+    extra = [n for n in out if n not in names]
+    if missing or extra:
+        raise UserError(f"--valves names {', '.join(out)}; the structure's modules are "
+                        f"{', '.join(names)}")
+    return out
+
+
+def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
+    """``run play --structure``: every module's controller open at once (an ExitStack: every
+    one is closed, OFF confirmed, on every exit path), one player loop."""
+    import contextlib
+
+    import zenoh
+
+    from bench.session import Terminated, sigterm_raises
+    from bench.valves import ValveController
+    from common.zenoh_net import open_session
+    from tpods.player import cmd_key, play
+
+    names = [m.name for m in structure.modules]
+    session = open_session(args)
+    try:
+        pubs = {n: session.declare_publisher(
+            cmd_key(n, args.prefix), encoding=zenoh.Encoding("application/json"), express=True,
+            congestion_control=zenoh.CongestionControl.BLOCK) for n in names}
+        with sigterm_raises():
+            try:
+                with contextlib.ExitStack() as stack:
+                    ctrls = [(n, stack.enter_context(ValveController(
+                        urls[n], baudrate=args.valves_baud, duty_limits=(lim[0], lim[1]))))
+                        for n in names]
+                    print(f"play: {args.input} for {cmd_t[-1] - cmd_t[0]:g} s on structure "
+                          f"{structure.name!r} ({', '.join(f'{n} at {urls[n]}' for n in names)}), "
+                          f"commands on {args.prefix.strip('/')}/<module>/cmd", file=sys.stderr)
+                    if out is not None:
+                        structure.write(out)
+                    res = play(ctrls, cmd_t, duty, clock=clock,
+                               publish={n: p.put for n, p in pubs.items()}, out_dir=out,
+                               watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
+                               heartbeat_s=args.heartbeat, progress=not args.no_progress,
+                               meta={"input": args.input, "structure": structure.name,
+                                     "duration_s": float(cmd_t[-1] - cmd_t[0]),
+                                     "cmd_rate_hz": args.cmd_rate})
+            except Terminated:
+                print("tpods: terminated; every module's valves closed"
+                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
+                return 143
+            except KeyboardInterrupt:
+                print("tpods: interrupted; every module's valves closed"
+                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
+                return 130
+        for p in pubs.values():
+            p.undeclare()
+    finally:
+        session.close()
+    print(f"play {res.status}: {res.n_sent} commands sent to {len(names)} modules, "
+          f"{res.n_holds} holds announced, latest send {res.max_late_s * 1e3:.1f} ms behind "
+          f"schedule (lab), valves closed (STATE? {' '.join(f'{x:g}' for x in res.final_state or ())})")
+    if out:
+        print(f"wrote {out}/commands.csv ({len(names) * 4} channels), structure.toml, run.json")
     return 0
 
 
