@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.emulators import EmulatedValveController, serve_pty
-from estimator.plant.model import PlantParams, integrate_zoh
+from estimator.plant.model import PlantParams, integrate_zoh, tracked_pose
 from mocap_bridge.bridge import Bridge
 from mocap_bridge.sources.push import PushSource
 from mocap_bridge.sources.vicon_udp import build_datagram
@@ -191,9 +191,11 @@ class PlantLoop:
                 self._truth_s.append(s.copy())
                 k += 1
                 occ = nz.occlusion_prob > 0 and self.rng.random() < nz.occlusion_prob
-                x = s[0] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
-                y = s[1] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
-                psi = s[2] + (self.rng.normal(0.0, nz.yaw_rad) if nz.yaw_rad > 0 else 0.0)
+                # mocap tracks its frame, not the centre of mass (a structure: issue 18)
+                p0 = tracked_pose(s, self.params.cx, self.params.cy) if self.params.com_offset else s
+                x = p0[0] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
+                y = p0[1] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
+                psi = p0[2] + (self.rng.normal(0.0, nz.yaw_rad) if nz.yaw_rad > 0 else 0.0)
                 psi = math.remainder(psi, 2.0 * math.pi)
                 self.frames += 1
                 self.occluded += occ
@@ -207,6 +209,39 @@ class PlantLoop:
         n = len(self._truth_t)
         return (np.asarray(self._truth_t[:n], float),
                 np.asarray(self._truth_s[:n], float).reshape(-1, 6))
+
+
+class StructureValves:
+    """Several emulated controllers seen as one (a structure, issue 18): ``duties`` is every
+    module's duties in the structure's channel order, and a listener hears every change of
+    any of them with the whole row."""
+
+    def __init__(self, controllers: list) -> None:
+        self.controllers = list(controllers)
+
+    @property
+    def duties(self) -> tuple[float, ...]:
+        return tuple(x for c in self.controllers for x in c.duties)
+
+    def add_listener(self, callback: Callable[[float, tuple[float, ...]], None]) -> None:
+        for j, c in enumerate(self.controllers):
+            def on_change(t: float, new: tuple[float, ...], j: int = j) -> None:
+                # called before controller j switches: compose the row with its new duties
+                row = [x for k, other in enumerate(self.controllers)
+                       for x in (new if k == j else other.duties)]
+                callback(t, tuple(row))
+            c.add_listener(on_change)
+
+
+class StructureThrust:
+    """A structure as the plant's thrust table: duties of every channel (..., 4N) to the
+    virtual thrusts (..., 4) of :meth:`common.structure.Structure.virtual_thrust`."""
+
+    def __init__(self, structure) -> None:
+        self.structure = structure
+
+    def thrust_n(self, duty_pct, clamp: bool = False) -> np.ndarray:
+        return self.structure.virtual_thrust(np.asarray(duty_pct, float), clamp=clamp)
 
 
 class SimulatedModule:

@@ -83,6 +83,10 @@ def register(sub) -> None:
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
     s.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    s.add_argument("--structure", default=None, metavar="F",
+                   help="simulate a structure (structure.toml): one emulated controller per module "
+                        "(their paths printed as 'valves NAME: PATH'), the truth from its [body] "
+                        "(centre of mass included), poses of its tracked frame")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
                    help="publish through the bridge over zenoh (default) or send Tracker UDP")
     s.add_argument("--udp-block-size", type=int, choices=(0, 256, 512, 1024), default=1024,
@@ -317,7 +321,23 @@ def cmd_plant(args: argparse.Namespace) -> int:
     params = PlantParams(args.mass, args.izz, ct=ct, cr=cr, kb=kb)
     noise = MocapNoise(args.noise_pos, math.radians(args.noise_yaw_deg), args.occlusion)
     stop = threading.Event()
-    valves = EmulatedValveController(4)
+    structure = None
+    if args.structure:
+        from common.structure import Structure
+        from tpods.plant_loop import StructureThrust, StructureValves
+
+        structure = Structure.load(args.structure)
+        g = structure.initial_guess()  # [body] values where given, else the geometry
+        given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
+        params = PlantParams(args.mass if "mass" in given else g["mass"],
+                             args.izz if "izz" in given else g["izz"], ct=ct, cr=cr, kb=kb,
+                             cx=g["cx"], cy=g["cy"])
+        ctrls = [EmulatedValveController(4) for _ in structure.modules]
+        valves = StructureValves(ctrls)
+        table = StructureThrust(structure)
+    else:
+        valves = EmulatedValveController(4)
+        ctrls = [valves]
     session = bridge = source = None
     bridge_thread = None
     if args.mocap == "zenoh":
@@ -338,14 +358,20 @@ def cmd_plant(args: argparse.Namespace) -> int:
                       noise=noise, seed=args.seed)
     old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
     sys.setswitchinterval(2e-4)  # the emulated controller reacts within a fraction of a ms
-    server = serve_pty(valves)
+    servers = [serve_pty(c) for c in ctrls]
     try:
         if bridge_thread is not None:
             bridge_thread.start()
         plant.start()
-        print(f"valves: {server.path}", flush=True)
-        print(f"plant: m {args.mass:g} kg, Izz {args.izz:g} kg m^2, {args.pose_rate:g} Hz poses "
-              f"of {args.body} ({args.mocap}); Ctrl-C to stop", file=sys.stderr, flush=True)
+        if structure is None:
+            print(f"valves: {servers[0].path}", flush=True)
+        else:
+            for m, srv in zip(structure.modules, servers, strict=True):
+                print(f"valves {m.name}: {srv.path}", flush=True)
+        print(f"plant: m {params.mass_kg:g} kg, Izz {params.izz_kgm2:g} kg m^2"
+              + (f", centre of mass ({params.cx:g}, {params.cy:g}) m" if structure else "")
+              + f", {args.pose_rate:g} Hz poses of {args.body} ({args.mocap}); Ctrl-C to stop",
+              file=sys.stderr, flush=True)
         try:  # until --duration, Ctrl-C/SIGTERM, or the plant loop stops on an error
             deadline = None if args.duration is None else time.monotonic() + args.duration
             while plant.error is None and not stop.wait(
@@ -357,7 +383,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     finally:
         stop.set()
         plant.stop()
-        server.stop()
+        for srv in servers:
+            srv.stop()
         if source is not None:
             source.finish()
         if bridge_thread is not None:
@@ -371,11 +398,11 @@ def cmd_plant(args: argparse.Namespace) -> int:
             np.savetxt(d / "truth.csv", np.column_stack([t, s]), delimiter=",",
                        header="t_lab,x,y,psi,u,v,r", comments="", fmt="%.12g")
             with (d / "switches.csv").open("w") as fh:
-                fh.write("t_lab,d1,d2,d3,d4\n")
+                fh.write("t_lab," + ",".join(f"d{i + 1}" for i in range(4 * len(ctrls))) + "\n")
                 for ts, du in plant.switches:
                     fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
     print(f"plant: {plant.frames} poses ({plant.occluded} occluded), {len(plant.switches)} valve "
-          f"changes, {valves.watchdog_trips} watchdog trip(s)", file=sys.stderr)
+          f"changes, {sum(c.watchdog_trips for c in ctrls)} watchdog trip(s)", file=sys.stderr)
     if plant.error is not None:
         raise UserError(f"the simulated module stopped after {plant.frames} poses: {plant.error}")
     return 0
