@@ -2,7 +2,7 @@
 
 - Batch LS on its run folder (``tpods estimate batch --json``) gives the golden mass, Izz
   and sigmas (rel. 1e-9).
-- Its MCAP replayed onto Zenoh (``tpods replay --speed 4``) into ``tpods estimate live
+- Its MCAP replayed onto Zenoh (``tpods replay --speed 2``) into ``tpods estimate live
   --method ekf`` gives the golden final estimate (rel. 1e-9: the replays gave the same bits
   every time; see tests/support/replay_live.py for why not ``--speed 0``), which is also
   the last row of the ``estimates.csv`` the live estimator recorded (to its printed digits).
