@@ -356,14 +356,18 @@ class ViconUDPSource:
         recvmsg = self.sock.recvmsg
         recvfrom = self.sock.recvfrom
         self.sock.settimeout(CAPTURE_IDLE_S)
+        last_val = None
         while not stop.is_set():
             try:
                 if pktinfo:
                     data, anc, _, src = recvmsg(65536, 64)
                     t = now()
                     for level, kind, val in anc:
-                        if level == socket.IPPROTO_IP and kind == _IP_PKTINFO and len(val) >= 12:
+                        # the destination rarely changes: decode it only when it does
+                        if val != last_val and level == socket.IPPROTO_IP and \
+                                kind == _IP_PKTINFO and len(val) >= 12:
                             dst = (socket.inet_ntoa(val[8:12]), self.address[1])
+                            last_val = val
                 else:
                     data, src = recvfrom(65536)
                     t = now()
