@@ -597,18 +597,22 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
                            param_form="direct" if run.structure is not None else "inverse")
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    from estimator.plant.model import com_from_tracked
+
     x0 = cfg.default_x0(None)
     for k, v in initial.items():
         if k not in cfg.labels:
             raise UserError(f"--initial {k}: not estimated by --model {model}")
         x0[cfg.labels.index(k)] = v
-    if not any(k in initial for k in ("x", "y", "psi")):  # the centre of mass at the first pose
-        from estimator.plant.model import com_from_tracked
-
-        b = cfg.base_params()
-        cx = x0[cfg.labels.index("cx")] if "cx" in cfg.labels else b["cx"]
-        cy = x0[cfg.labels.index("cy")] if "cy" in cfg.labels else b["cy"]
-        x0[:3] = com_from_tracked(run.pose[0], cx, cy)
+    # the centre of mass at the first pose (the states are the centre of mass's), then any
+    # initial x, y, psi given
+    b = cfg.base_params()
+    cx = x0[cfg.labels.index("cx")] if "cx" in cfg.labels else b["cx"]
+    cy = x0[cfg.labels.index("cy")] if "cy" in cfg.labels else b["cy"]
+    x0[:3] = com_from_tracked(run.pose[0], cx, cy)
+    for k in ("x", "y", "psi"):
+        if k in initial:
+            x0[cfg.labels.index(k)] = initial[k]
     P0 = cfg.default_P0()
     for k in ("mass", "izz"):
         if k in structure_guess:
