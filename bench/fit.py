@@ -144,9 +144,12 @@ class ThrustFit:
             stats[str(k)] = {
                 "order": n, "n_steps": f.n_points, "residual_rms_gf": f.rms,
                 "cv_rms_gf": f.cv_rms, "aicc": f.aicc, "bic": f.bic,
-                "coefficient_std": [float(math.sqrt(v)) if v >= 0 else math.nan
-                                    for v in np.diag(f.covariance)],
-                "covariance": [[float(x) for x in row] for row in f.covariance],
+                **({"coefficient_std": [float(math.sqrt(v)) for v in np.diag(f.covariance)],
+                    "covariance": [[float(x) for x in row] for row in f.covariance]}
+                   if np.all(np.isfinite(f.covariance)) and np.all(np.diag(f.covariance) >= 0)
+                   else {"covariance_note": f"not determined: {f.n_points} duty steps for "
+                                            f"{f.order + 1} coefficients leave no residual to "
+                                            "estimate the noise from (add steps)"}),
                 "orders": {str(m): {"residual_rms_gf": g.rms, "cv_rms_gf": g.cv_rms,
                                     "aicc": g.aicc, "bic": g.bic,
                                     "coefficients": [float(a) for a in g.coefficients]}

@@ -64,3 +64,20 @@ def test_bench_fit_writes_the_uncertainty_into_the_table(tmp_path, capsys):
     assert "readability 0.01 g" in fitted.uncertainty.sources["scale_rel"]
     cov = fitted.extra["fit"]["nozzles"]["1"]["covariance"]
     assert np.shape(cov) == (4, 4)
+
+
+def test_an_exact_fit_writes_no_covariance_and_its_table_loads():
+    """4 duty steps for a cubic: s^2 is undefined (NaN covariance); the table said so by
+    failing to load ('covariance must be finite'). It now leaves the covariance out, says
+    why, and loads."""
+    from bench.fit import fit_steps
+
+    t = ThrustTable.default()
+    d = [20.0, 40.0, 60.0, 80.0]
+    steps = pd.DataFrame({"n_open": 1, "duty_pct": d,
+                          "thrust_gf": [float(t.per_nozzle(x, 1)) for x in d]})
+    table = fit_steps(steps, 3).table()
+    row = table.extra["fit"]["nozzles"]["1"]
+    assert "covariance" not in row and "no residual" in row["covariance_note"]
+    again = ThrustTable.from_dict(table.to_dict())
+    assert not again.states_uncertainty
