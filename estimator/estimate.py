@@ -243,8 +243,10 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
             raise UserError(f"--model {model} is not built for structures yet; give the "
                             "unknowns with --estimate (default mass,izz,cx,cy) and --fixed")
         model = None
-        if estimate is None:
-            estimate = tuple(n for n in STRUCTURE_ESTIMATE if n not in fixed)
+        knowledge = body_knowledge(_structure_of(run, structure), estimate, fixed)
+        estimate, fixed = knowledge.names, dict(knowledge.fixed)
+    else:
+        knowledge = None
     names = tuple(estimate) if estimate is not None else ("mass", "izz")
     initial = dict(initial or {})
     opts = filter_options or FilterOptions()
@@ -425,12 +427,22 @@ def structure_keys(res: BatchResult, run: Run) -> dict[str, Any]:
     ``com_y_m`` (m, tracked frame) with sigmas, and ``izz_origin_kgm2`` = Izz about the
     tracked origin ``izz + m (cx^2 + cy^2)`` (kg m^2) with its sigma from the covariance
     (first order); truth errors on a simulated run. Sigma 0 for a fixed value."""
-    p = res.params
-    m, izz, cx, cy = (float(p[k]) for k in ("mass", "izz", "cx", "cy"))
-    idx = {n: 6 + i for i, n in enumerate(res.names)}
-    sig = {n: float(res.sigma[idx[n]]) if n in idx else 0.0 for n in ("cx", "cy")}
+    return com_keys(res.params, res.names, res.cov, run)
+
+
+def com_keys(values: Mapping[str, float], names: Sequence[str], cov: np.ndarray,
+             run: Run) -> dict[str, Any]:
+    """The keys of :func:`structure_keys` from any estimate: ``values`` every parameter's
+    value (mass, izz, cx, cy; estimated or fixed), ``names`` the estimated ones and ``cov``
+    the covariance of the state ``(x, y, psi, u, v, r, *names)`` (a batch fit's, or a
+    filter's final P). Sigma 0 for a fixed value."""
+    m, izz, cx, cy = (float(values[k]) for k in ("mass", "izz", "cx", "cy"))
+    idx = {n: 6 + i for i, n in enumerate(names)}
+    cov = np.asarray(cov, float)
+    sig = {n: float(math.sqrt(max(cov[idx[n], idx[n]], 0.0))) if n in idx else 0.0
+           for n in ("cx", "cy")}
     grad = {"mass": cx * cx + cy * cy, "izz": 1.0, "cx": 2 * m * cx, "cy": 2 * m * cy}
-    g = np.zeros(len(res.z0))
+    g = np.zeros(len(cov))
     for n, v in grad.items():
         if n in idx:
             g[idx[n]] = v
@@ -438,7 +450,7 @@ def structure_keys(res: BatchResult, run: Run) -> dict[str, Any]:
         "structure": run.structure.name,
         "com_x_m": cx, "com_x_sigma_m": sig["cx"], "com_y_m": cy, "com_y_sigma_m": sig["cy"],
         "izz_origin_kgm2": izz + m * (cx * cx + cy * cy),
-        "izz_origin_sigma_kgm2": float(math.sqrt(max(float(g @ res.cov @ g), 0.0)))}
+        "izz_origin_sigma_kgm2": float(math.sqrt(max(float(g @ cov @ g), 0.0)))}
     truth = run.truth or {}
     if "mass_kg" in truth:
         tcx, tcy = float(truth.get("cx", 0.0)), float(truth.get("cy", 0.0))
@@ -638,6 +650,9 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
                      "ls_window_s": opts.ls_window_s, "ls_start": opts.ls_start}
     if selection is not None:
         out["model_selection"] = selection.to_dict()
+    if run.structure is not None:
+        # the centre of mass and Izz about the tracked origin (issue 18), as for ls
+        out.update(com_keys({**cfg.base_params(), **final}, cfg.names, r.P, run))
     if (truth := _truth(run)) is not None:
         tm, ti = truth
         rm, ri = r.rmse(tm, ti)

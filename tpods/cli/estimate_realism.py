@@ -79,6 +79,12 @@ def report_ext(est, args: argparse.Namespace) -> int:
 
     for line in budget_lines(filter_budget(out)):
         print(line)
+    if "com_x_m" in out:  # a structure (issue 18): as estimate batch --method ls prints it
+        print(f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
+              f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
+              f"structure {out['structure']!r}; Izz above is about it")
+        print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
+              f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
     if "truth_mass_kg" in out:
         print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
               f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")
