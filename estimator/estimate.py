@@ -35,6 +35,7 @@ from estimator.batch.crlb import CRLBResult, crlb
 from estimator.batch.least_squares import BatchResult, parse_window
 from estimator.batch.least_squares import estimate_run as least_squares_run
 from estimator.batch.model_select import ModelFit, ModelSelection, fit_models, select_model
+from estimator.batch.structure_degenerate import refuse_undetermined
 from estimator.filters.ekf import PRESETS, EkfConfig, FilterEstimate, estimate_filter, initial_rates
 from estimator.filters.ekf import STATE_NAMES as FILTER_STATE_NAMES
 from estimator.filters.ekf_ext import ExtEkfConfig, ExtEkfResult, estimate_ext
@@ -340,6 +341,9 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
                             tol=tol, max_iter=max_iter,
                             thrust_uncertainty=run.structure is None)
     if run.structure is not None:
+        # a structure run that cannot determine its unknowns is refused, naming them
+        refuse_undetermined(res, _windowed(run, window).thrust_profile(table, clamp=clamp)[1],
+                            str(run.path), fixed=tuple(fixed), structure=run.structure)
         _structure_consider(res, _windowed(run, window), table, clamp, sigma_pos_m, sigma_yaw_rad)
     if log is not None:
         for w in res.warnings:

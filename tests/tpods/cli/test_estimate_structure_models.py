@@ -35,3 +35,91 @@ def test_ls_ekf_json_has_the_structure_keys(tpods_exe, extra):
     text = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--method", "ls-ekf", *extra)
     assert text.returncode == 0, text.stderr
     assert "centre of mass (+0.030" in text.stdout and "Izz about the tracked origin" in text.stdout
+
+
+SYMMETRIC = """
+name = "symmetric"
+[[modules]]
+name = "left"
+position_m = [-0.25, 0.0]
+[[modules]]
+name = "right"
+position_m = [0.25, 0.0]
+"""
+# both modules push alike: thrusters 2+3 push +x, 1+4 -x, 1+2 +y, 3+4 -y (docs/run-format.md);
+# the two modules' moments about the tracked origin cancel: no torque in any row
+PUSH = {"+x": [0, 50, 50, 0], "-x": [50, 0, 0, 50], "+y": [50, 50, 0, 0], "-y": [0, 0, 50, 50]}
+
+
+def _pure_translation(folder: Path, dirs, body: str = "", closed: bool = False) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "s.toml").write_text(SYMMETRIC + body)
+    rows = ["t," + ",".join(f"d{i}" for i in range(1, 9))]
+    for k, d in enumerate(dirs * 4):
+        duty = [0] * 8 if closed else PUSH[d] * 2
+        rows.append(f"{2.0 * k:g}," + ",".join(map(str, duty)))
+    rows.append(f"{2.0 * len(dirs) * 4:g}," + ",".join(["0"] * 8))
+    (folder / "commands.csv").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def _sim(tpods_exe, folder: Path, seed: int = 1) -> str:
+    r = run(tpods_exe, "sim", "--structure", str(folder / "s.toml"), "--input",
+            str(folder / "commands.csv"), "--drop", "0.05", "--seed", str(seed), "--out",
+            str(folder / "run"))
+    assert r.returncode == 0, r.stderr
+    return str(folder / "run")
+
+
+def _one_line_error(r) -> str:
+    assert r.returncode == 2 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("tpods: error: "), r.stderr
+    return lines[0]
+
+
+def test_a_structure_run_without_torque_is_refused_naming_izz_cx_cy(tpods_exe, tmp_path):
+    """issue 18 done-when: pure translation (no torque about the tracked origin) with the
+    centre of mass at the origin never turns the structure: Izz is undetermined, and with it
+    cx, cy (only cx/Izz, cy/Izz are fixed); mass is determined and not named."""
+    run_dir = _sim(tpods_exe, _pure_translation(tmp_path / "a", ["+x", "+y", "-x", "-y"]))
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir))
+    assert "izz, cx, cy cannot be estimated" in line
+    assert "no command produces a torque about the tracked origin" in line
+    assert "mass" not in line.split("cannot be estimated")[0]
+    assert "--fixed izz=" in line
+    # Izz known: the same run locates the centre of mass (at the origin, to microns)
+    r = run(tpods_exe, "estimate", "batch", run_dir, "--fixed", "izz=0.03", "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["estimated"] == ["mass", "cx", "cy"] and est["converged"]
+    for k in ("com_x", "com_y"):
+        assert 0 < est[f"{k}_sigma_m"] < 1e-4 and abs(est[f"{k}_m"]) < 3.5 * est[f"{k}_sigma_m"]
+    # pushing along x only, Izz known: nothing turns the structure about y's moment arm,
+    # cx is not located (sigma beyond the structure's size) and is named alone
+    run_x = _sim(tpods_exe, _pure_translation(tmp_path / "b", ["+x", "-x"]))
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_x, "--fixed", "izz=0.03"))
+    assert "cx cannot be estimated" in line and "structure's size" in line
+
+
+def test_the_same_commands_turn_a_structure_whose_centre_of_mass_is_off(tpods_exe, tmp_path):
+    """No torque about the origin is not degenerate by itself: with the centre of mass 3 cm
+    off it, the thrust's moment about the centre of mass turns the structure and every
+    unknown is determined (not refused)."""
+    body = "[body]\nmass_kg = 1.6\nizz_kgm2 = 0.03\ncom_m = [0.03, 0.01]\n"
+    folder = _pure_translation(tmp_path, ["+x", "+y", "-x", "-y"], body)
+    run_dir = _sim(tpods_exe, folder)
+    (Path(run_dir) / "structure.toml").write_text(SYMMETRIC)  # the estimator is not told
+    r = run(tpods_exe, "estimate", "batch", run_dir, "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["converged"] and est["izz_sigma_kgm2"] < 0.05 * est["izz_kgm2"]
+    for key, sig, true in (("mass_kg", "mass_sigma_kg", 1.6), ("izz_kgm2", "izz_sigma_kgm2", 0.03),
+                           ("com_x_m", "com_x_sigma_m", 0.03), ("com_y_m", "com_y_sigma_m", 0.01)):
+        assert abs(est[key] - true) < 3.5 * est[sig], (key, est[key], est[sig])
+
+
+def test_a_structure_run_with_every_valve_closed_is_refused(tpods_exe, tmp_path):
+    run_dir = _sim(tpods_exe, _pure_translation(tmp_path, ["+x"], closed=True))
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir))
+    assert "mass, izz, cx, cy cannot be estimated" in line and "no thrust" in line
