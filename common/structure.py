@@ -155,6 +155,30 @@ class Body:
     com_m: tuple[float, float] | None = None
     com_sigma_m: tuple[float, float] | None = None
 
+    def _entries(self) -> list[tuple[str, float, float | None]]:
+        """``(parameter, value, sigma or None)`` of every given value, in the estimators'
+        names (mass, izz, cx, cy)."""
+        out = []
+        if self.mass_kg is not None:
+            out.append(("mass", float(self.mass_kg), self.mass_sigma_kg))
+        if self.izz_kgm2 is not None:
+            out.append(("izz", float(self.izz_kgm2), self.izz_sigma_kgm2))
+        if self.com_m is not None:
+            s = self.com_sigma_m or (None, None)
+            out += [("cx", float(self.com_m[0]), s[0]), ("cy", float(self.com_m[1]), s[1])]
+        return out
+
+    def known(self) -> dict[str, float]:
+        """The known values (no sigma, or sigma 0) by parameter name: ``mass`` (kg), ``izz``
+        (kg m^2 about the centre of mass), ``cx``, ``cy`` (m, tracked frame). The estimators
+        fix them unless told to estimate them."""
+        return {n: v for n, v, s in self._entries() if not s}
+
+    def priors(self) -> dict[str, tuple[float, float]]:
+        """The Gaussian priors ``name -> (mean, sigma)`` (a value with a sigma > 0), in the
+        units of :meth:`known`."""
+        return {n: (v, float(s)) for n, v, s in self._entries() if s}
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for k in BODY_KEYS:

@@ -31,7 +31,7 @@ from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.runfolder import Run, read_run
 from common.thrust_table import ThrustTable, load_thrust_table
-from estimator.batch.crlb import CRLBResult, crlb
+from estimator.batch.crlb import CRLBResult, crlb, crlb_from_fisher
 from estimator.batch.least_squares import BatchResult, parse_window
 from estimator.batch.least_squares import estimate_run as least_squares_run
 from estimator.batch.model_select import ModelFit, ModelSelection, fit_models, select_model
@@ -195,6 +195,85 @@ def _is_structure_run(run: Run | str | Path, structure) -> bool:
     return (Path(run) / "structure.toml").is_file()
 
 
+@dataclass(frozen=True)
+class BodyKnowledge:
+    """What a structure's ``[body]`` table makes of the unknowns (:func:`body_knowledge`).
+
+    ``names`` the parameters to estimate; ``fixed`` the fixed values (the caller's, plus
+    the ``known`` ones); ``known`` the values taken as known from structure.toml (fixed at
+    them: a value without a sigma, or a prior's mean when its parameter is not estimated);
+    ``priors`` the Gaussian priors ``name -> (mean, sigma)`` on estimated parameters.
+    """
+
+    names: tuple[str, ...]
+    fixed: Mapping[str, float]
+    known: Mapping[str, float]
+    priors: Mapping[str, tuple[float, float]]
+    source: str = "structure.toml"
+
+    def to_dict(self) -> dict[str, Any]:
+        """``known_from_structure`` (name -> value) and ``prior_from_structure`` (name ->
+        mean and sigma), SI units (kg, kg m^2, m): keys of the estimate's JSON."""
+        return {"known_from_structure": dict(self.known),
+                "prior_from_structure": {n: {"mean": m, "sigma": s}
+                                         for n, (m, s) in self.priors.items()}}
+
+    def prior_vector(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(zbar, Pbar)`` over the state ``(x, y, psi, u, v, r, *names)`` for
+        :func:`estimator.batch.least_squares.batch_ls`: the priors' means and variances,
+        every other entry diffuse (infinite variance); None without priors on ``names``."""
+        if not any(n in self.priors for n in names):
+            return None
+        n = 6 + len(names)
+        zbar, P = np.zeros(n), np.diag(np.full(n, np.inf))
+        for j, name in enumerate(names):
+            if name in self.priors:
+                zbar[6 + j], P[6 + j, 6 + j] = self.priors[name][0], self.priors[name][1] ** 2
+        return zbar, P
+
+
+def _structure_of(run: Run | str | Path, structure):
+    """The Structure of a structure run (``structure`` given, the Run's or its folder's)."""
+    from common.structure import Structure
+
+    if isinstance(structure, Structure):
+        return structure
+    if structure is not None:
+        return Structure.load(structure)
+    if isinstance(run, Run):
+        return run.structure
+    return Structure.load(Path(run) / "structure.toml")
+
+
+def body_knowledge(structure, estimate: Sequence[str] | None,
+                   fixed: Mapping[str, float]) -> BodyKnowledge:
+    """The unknowns of a structure run from its ``[body]`` (issue 18, partly known
+    properties): a known value (no sigma, or sigma 0) is fixed, a value with a sigma is a
+    Gaussian prior. ``estimate`` (None: :data:`STRUCTURE_ESTIMATE`) and ``fixed`` are the
+    caller's and win: a known value named in ``estimate`` is estimated (the fit starts at
+    it), one in ``fixed`` takes that value. A prior whose parameter is not estimated fixes
+    it at the prior's mean. Raises UserError when nothing is left to estimate."""
+    body = structure.body
+    known, priors = body.known(), body.priors()
+    if estimate is None:
+        names = tuple(n for n in STRUCTURE_ESTIMATE if n not in fixed and n not in known)
+    else:
+        names = tuple(estimate)
+    taken = {n: v for n, v in known.items() if n not in names and n not in fixed}
+    taken.update({n: m for n, (m, _) in priors.items() if n not in names and n not in fixed})
+    used = {n: priors[n] for n in names if n in priors}
+    if not names:
+        from_body = [n for n in STRUCTURE_ESTIMATE if n in known and n not in fixed]
+        from_opt = [n for n in STRUCTURE_ESTIMATE if n in fixed]
+        why = "; ".join(w for w in (
+            f"[body] gives {', '.join(from_body)} as known (no sigma)" if from_body else "",
+            f"--fixed gives {', '.join(from_opt)}" if from_opt else "") if w)
+        raise UserError(f"{structure.source}: nothing left to estimate: {why}; name what to "
+                        "estimate with --estimate (e.g. --estimate mass), or give a [body] "
+                        "value a sigma to make it a prior")
+    return BodyKnowledge(names, {**taken, **fixed}, taken, used, str(structure.source))
+
+
 def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None = None, *, method: str = "ls",
                  model: str | None = None, window: Window | str | None = None,
                  clamp: bool = False, estimate: Sequence[str] | None = ("mass", "izz"),
@@ -312,7 +391,8 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
         return _extended_filter(inputs, method=method, model=model, window=window,
                                 clamp=clamp, names=names, fixed=fixed, initial=initial,
                                 sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, tol=tol,
-                                max_iter=max_iter, opts=opts, selection=selection)
+                                max_iter=max_iter, opts=opts, selection=selection,
+                                knowledge=knowledge)
     if method != "ls":
         return _ideal_filter(inputs, method=method, model=model, window=window, clamp=clamp,
                              names=names, fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
@@ -321,13 +401,15 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     return _least_squares(inputs, model=model, window=window, clamp=clamp, names=names,
                           fixed=fixed, initial=initial, sigma_pos_m=sigma_pos_m,
                           sigma_yaw_rad=sigma_yaw_rad, tol=tol, max_iter=max_iter,
-                          selection=selection, note=note, log=log)
+                          selection=selection, note=note, log=log, knowledge=knowledge)
 
 
 def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma_pos_m,
-                   sigma_yaw_rad, tol, max_iter, selection, note, log=None) -> Estimate:
+                   sigma_yaw_rad, tol, max_iter, selection, note, log=None,
+                   knowledge: BodyKnowledge | None = None) -> Estimate:
     run, table = inputs()
     window = as_window(window)
+    prior = None
     if run.structure is not None:
         # a structure's start: its geometry (or its [body] values), not the paper's module
         guess = {k: v for k, v in run.structure.initial_guess().items()
@@ -336,10 +418,12 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
             initial = {**guess, **initial}
             note = note or ("started from the structure's geometry: " + ", ".join(
                 f"{k} {v:.4g}" for k, v in guess.items()))
+        if knowledge is not None:  # [body] values with a sigma: a Gaussian prior
+            prior = knowledge.prior_vector(names)
     res = least_squares_run(run, table, window, clamp=clamp, names=names, fixed=fixed,
                             initial=initial, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
                             tol=tol, max_iter=max_iter,
-                            thrust_uncertainty=run.structure is None)
+                            thrust_uncertainty=run.structure is None, prior=prior)
     if run.structure is not None:
         # a structure run that cannot determine its unknowns is refused, naming them
         refuse_undetermined(res, _windowed(run, window).thrust_profile(table, clamp=clamp)[1],
@@ -355,6 +439,8 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
     out["model"] = model
     if run.structure is not None:
         out.update(structure_keys(res, run))
+    if knowledge is not None:
+        out.update(knowledge.to_dict())
     if note:
         out["start"] = note
     if selection is not None:
@@ -594,7 +680,15 @@ def _ideal_filter(inputs, *, method, model, window, clamp, names, fixed, initial
 
 
 def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, initial,
-                     sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection) -> Estimate:
+                     sigma_pos_m, sigma_yaw_rad, tol, max_iter, opts, selection,
+                     knowledge: BodyKnowledge | None = None) -> Estimate:
+    if knowledge is not None and not {"mass", "izz"} <= set(names):
+        held = tuple(n for n in ("mass", "izz") if n not in names)
+        why = (f"known from {knowledge.source} [body]" if set(held) & set(knowledge.known)
+               else "fixed")
+        raise UserError(f"--method {method} estimates mass and izz; {' and '.join(held)} "
+                        f"{why}: add --estimate {','.join(names + held)} (the filter starts "
+                        "at the known value) or use --method ls")
     run, table = inputs()
     run = _windowed(run, as_window(window))
     cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
@@ -634,11 +728,19 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
         if k in structure_guess:
             i = cfg.labels.index(k)
             P0[i, i] = structure_guess[k] ** 2
+    priors = dict(knowledge.priors) if knowledge is not None else {}
+    for k, (mean, sg) in priors.items():  # [body] priors: their mean and sigma start the filter
+        i = cfg.labels.index(k)
+        if k in structure_guess:  # not given with --initial
+            x0[i] = mean
+        P0[i, i] = sg**2
     for i, v in opts.sigma0.items():
         P0[i, i] = v**2
     ls_kwargs: dict[str, Any] = {"tol": tol, "max_iter": max_iter}
     if initial:
         ls_kwargs["initial"] = dict(initial)
+    if priors:
+        ls_kwargs["prior"] = knowledge.prior_vector(cfg.names)
     r, ls = estimate_ext(run.pose_t, run.pose, cmd_t, thrust, cfg, method, x0=x0, P0=P0,
                          ls_window_s=opts.ls_window_s, ls_start=opts.ls_start,
                          ls_kwargs=ls_kwargs)
@@ -657,6 +759,8 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
     if run.structure is not None:
         # the centre of mass and Izz about the tracked origin (issue 18), as for ls
         out.update(com_keys({**cfg.base_params(), **final}, cfg.names, r.P, run))
+    if knowledge is not None:
+        out.update(knowledge.to_dict())
     if (truth := _truth(run)) is not None:
         tm, ti = truth
         rm, ri = r.rmse(tm, ti)
@@ -795,13 +899,18 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
                    mass_kg: float | None = None, izz_kgm2: float | None = None,
                    model: str | None = None, sigma_pos_m: float = 0.01,
                    sigma_yaw_rad: float = math.radians(1.0),
-                   keep_sensitivities: bool = False) -> Bound:
+                   keep_sensitivities: bool = False,
+                   estimate: Sequence[str] | None = None) -> Bound:
     """Cramér-Rao bound of the model's parameters (initial state marginalised): the use
     case of ``tpods estimate crlb``.
 
     The plant is ``mass_kg``/``izz_kgm2`` when given, else the run's truth, else the
-    paper's module; ``path`` is recorded in the result as given.
+    paper's module; ``path`` is recorded in the result as given. A structure's bound is on
+    ``estimate`` (default :data:`STRUCTURE_ESTIMATE` less its [body] known values, as
+    :func:`body_knowledge`), its [body] priors' information added to the Fisher matrix.
     """
+    if estimate is not None and seq.structure is None:
+        raise UserError("--estimate: the bound of a single-module run follows --model")
     t0, t1 = as_window(window)
     s0 = seq.s0
     if seq.kind == "recorded":
@@ -834,7 +943,8 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
             raise UserError(f"--model {model} is not built for structures yet")
         com = (truth["cx"], truth["cy"]) if "cx" in truth else ((body and body.com_m) or (0.0, 0.0))
         params.update(cx=float(com[0]), cy=float(com[1]))
-        names = STRUCTURE_ESTIMATE
+        knowledge = body_knowledge(seq.structure, estimate, {})
+        names = knowledge.names
     model = model or DEFAULT_MODEL
     try:
         with np.errstate(all="ignore"):
@@ -847,15 +957,23 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
         raise UserError(f"the bound cannot be computed: the predicted motion of a {mass:g} kg, "
                         f"Izz {izz:g} kg m^2 body under these thrusts is not finite (check --mass "
                         "and --izz, and the thrust table's unit)") from None
+    if seq.structure is not None and knowledge.priors:
+        c = _with_prior_information(c, knowledge.priors)
     out: dict[str, Any] = {
         "sequence": seq.kind, "path": str(path), "n_poses": c.n_poses,
         "duration_s": float(pose_t[-1] - pose_t[0]), "mass_kg": mass, "izz_kgm2": izz,
         "plant_source": source,
         "crlb_mass_sigma_kg": c.mass_sigma_kg, "crlb_izz_sigma_kgm2": c.izz_sigma_kgm2,
         "crlb_mass_rel": c.mass_sigma_kg / mass, "crlb_izz_rel": c.izz_sigma_kgm2 / izz,
-        "crlb_corr_mass_izz": float(c.cov[0, 1] / (c.sigma[0] * c.sigma[1])),
+        "crlb_corr_mass_izz": _corr(c, "mass", "izz"),
         "logdet_info": c.logdet, "sigma_pos_m": sigma_pos_m, "sigma_yaw_rad": sigma_yaw_rad,
         "model": model, "estimated": list(c.names)}
+    if seq.structure is not None:
+        for k, n in (("crlb_mass_sigma_kg", "mass"), ("crlb_izz_sigma_kgm2", "izz"),
+                     ("crlb_mass_rel", "mass"), ("crlb_izz_rel", "izz")):
+            if n not in c.names:
+                out[k] = 0.0  # known: fixed at its value
+        out.update(knowledge.to_dict())
     for n, s in zip(c.names, c.sigma, strict=True):
         if n not in ("mass", "izz"):
             out[f"crlb_{n}_sigma"] = float(s)
@@ -863,6 +981,27 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
     out["crlb_correlation"] = (c.cov / np.outer(sd, sd)).tolist()
     out.update(_bound_budget(seq, c, pose_t, params, s0, sigma_pos_m, sigma_yaw_rad))
     return Bound(seq.kind, c, pose_t, mass, izz, source, out)
+
+
+def _corr(c: CRLBResult, a: str, b: str) -> float | None:
+    """The bound's correlation of ``a`` and ``b`` (None when either is not estimated)."""
+    if a not in c.names or b not in c.names:
+        return None
+    i, j = c.names.index(a), c.names.index(b)
+    return float(c.cov[i, j] / (c.sigma[i] * c.sigma[j]))
+
+
+def _with_prior_information(c: CRLBResult, priors: Mapping[str, tuple[float, float]]
+                            ) -> CRLBResult:
+    """The bound with Gaussian priors ``name -> (mean, sigma)`` on its parameters: their
+    information ``1/sigma^2`` added to the Fisher matrix (the Bayesian bound of a linear
+    Gaussian problem)."""
+    F = np.array(c.fisher, float)
+    for j, n in enumerate(c.names):
+        if n in priors:
+            F[6 + j, 6 + j] += priors[n][1] ** -2
+    M, cov, sig, logdet = crlb_from_fisher(F, c.names)
+    return replace(c, fisher=F, marginal_info=M, cov=cov, sigma=sig, logdet=logdet)
 
 
 def _bound_budget(seq: CommandSequence, c: CRLBResult, pose_t, params, s0, sigma_pos_m,

@@ -298,9 +298,20 @@ def _as_prior(prior, n: int):
     zbar, P = prior
     zbar = np.asarray(zbar, float).reshape(-1)
     P = np.asarray(P, float)
-    if zbar.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(zbar)):
-        raise UserError(f"prior must be (mean ({n},), covariance ({n},{n})) of finite numbers")
-    return zbar, safe_inverse(P)
+    # an infinite variance on the diagonal (its row and column otherwise zero): no information
+    diffuse = np.isposinf(np.diag(P)) if P.shape == (n, n) else np.zeros(n, bool)
+    rest = P.copy() if P.shape == (n, n) else P
+    if P.shape == (n, n):
+        rest[diffuse, diffuse] = 0.0
+    if (zbar.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(rest))
+            or not np.all(np.isfinite(zbar)) or np.any(rest[diffuse]) or np.any(rest[:, diffuse])):
+        raise UserError(f"prior must be (mean ({n},), covariance ({n},{n})) of finite numbers "
+                        "(an uncorrelated entry may have an infinite variance: no information)")
+    info = np.zeros((n, n))
+    keep = ~diffuse
+    if keep.any():
+        info[np.ix_(keep, keep)] = safe_inverse(P[np.ix_(keep, keep)])
+    return zbar, info
 
 
 def _initial_vector(initial, names, fixed, pose) -> np.ndarray:
@@ -576,7 +587,9 @@ def batch_ls(pose_t, pose, cmd_t, thrust_n, *, names: Sequence[str] = ("mass", "
         initial: mapping of initial values (any of x, y, psi, u, v, r and parameter names)
             or a full (6+p,) vector. Default: the paper's m = 1 kg, Izz = 0.005 kg m^2,
             pose from the first measurement, velocities zero.
-        prior: optional ``(zbar (6+p,), Pbar (6+p, 6+p))``; default diffuse.
+        prior: optional ``(zbar (6+p,), Pbar (6+p, 6+p))``; default diffuse. An entry
+            with an infinite variance (its row and column otherwise zero) carries no
+            information.
         sigma_pos_m, sigma_yaw_rad: measurement noise standard deviations.
         tol: largest scaled correction at convergence.
         max_iter: cap on Gauss-Newton iterations per stage.

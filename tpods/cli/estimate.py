@@ -46,7 +46,11 @@ def register_sim(sub) -> None:
                         "izz_kgm2, else 3.78e-3)")
     p.add_argument("--structure", default=None, metavar="F",
                    help="structure.toml: simulate several modules on one rigid body (copied "
-                        "into the run folder; the centre of mass from its [body] com_m)")
+                        "into the run folder as given: its [body] values are known values or "
+                        "priors for tpods estimate; the truth goes to run.json)")
+    p.add_argument("--com", type=float_list(2), default=None, metavar="X,Y",
+                   help="--structure: the true centre of mass in the tracked frame, m (default "
+                        "its [body] com_m, else 0,0; a negative X as --com=-0.02,0)")
     p.add_argument("--friction", type=float_list(3), default=None, metavar="CT,CR,KB",
                    help="viscous friction N s/m, rotational friction N m s/rad, yaw bias N m s/m")
     p.add_argument("--tilt", type=float_list(2), default=None, metavar="AX,AY",
@@ -93,7 +97,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     body = structure.body if structure is not None else None
     mass = args.mass or (body and body.mass_kg) or PAPER_MASS_KG
     izz = args.izz or (body and body.izz_kgm2) or PAPER_IZZ_KGM2
-    cx, cy = (body and body.com_m) or (0.0, 0.0)
+    if args.com is not None and structure is None:
+        raise UserError("--com is a structure's centre of mass: give --structure F too")
+    cx, cy = args.com or (body and body.com_m) or (0.0, 0.0)
     params = PlantParams(mass, izz, ct=ct, cr=cr, kb=kb, ax=ax, ay=ay,
                          **({"cx": cx, "cy": cy} if (cx, cy) != (0.0, 0.0) else {}))
     cfg = SimConfig(pose_rate_hz=args.pose_rate, noise_pos_m=args.noise_pos,
@@ -114,6 +120,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if structure is not None:
         print(f"  structure       {structure.name}: {structure.n_modules} modules, centre of mass "
               f"({cx:+.4g}, {cy:+.4g}) m in the tracked frame")
+        for line in body_note(structure):
+            print("  " + line)
     return 0
 
 
@@ -129,6 +137,22 @@ def sim_structure(args: argparse.Namespace, table):
         s.check_table_option()
         s = s.with_table(table)
     return s
+
+
+def body_note(structure) -> list[str]:
+    """What ``tpods estimate`` will make of the [body] values of the structure.toml copied
+    into a simulated run (the copy is the user's file as given; the truth is in run.json)."""
+    known, priors = structure.body.known(), structure.body.priors()
+    if not known and not priors:
+        return []
+    parts = []
+    if known:
+        parts.append("fixes " + ", ".join(f"{n} = {v:g}" for n, v in known.items()) + " (known)")
+    if priors:
+        parts.append("takes a prior on " + ", ".join(priors))
+    return [f"[body]          tpods estimate {' and '.join(parts)} from the run's structure.toml; "
+            "to estimate them, give the truth with --mass/--izz/--com and leave them out of "
+            "[body]"]
 
 
 def write_sim_structure(folder, structure) -> None:

@@ -127,6 +127,9 @@ def register(sub, est, rep) -> None:
     c.add_argument("--structure", default=None, metavar="F",
                    help="structure.toml: a structure's sequence (4N duty columns); bounds "
                         "mass, izz, cx, cy (default: the run folder's own structure.toml)")
+    c.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
+                   help="a structure: the parameters to bound (default mass,izz,cx,cy less "
+                        "the [body] values known without a sigma)")
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
     c.add_argument("--out", default=None, metavar="DIR|FILE.json",
                    help="write crlb.json and sensitivities.png (Fig. 6) in folder DIR, or only the "
@@ -234,7 +237,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
         structure=args.structure)
     body_lines = _warn_implausible_body(est, args)
     if est.ext is not None:
-        return cli_realism.report_ext(est, args)
+        rc = cli_realism.report_ext(est, args)
+        if not args.json:
+            for line in structure_body_lines(est.to_dict()):
+                print(line)
+        return rc
     if est.filter is not None:
         return cli_ekf.report_filter(est, args)
     res = est.batch
@@ -280,6 +287,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
               f"structure {out['structure']!r}; Izz above is about it")
         print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
               f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
+    for line in structure_body_lines(out):
+        print(line)
     rms = res.rms_residuals()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
           f"yaw {math.degrees(rms[2]):.3f} deg")
@@ -293,6 +302,21 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  wrote {args.out_folder.main}"
               + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
     return 0
+
+
+def structure_body_lines(out: dict[str, Any]) -> list[str]:
+    """The text lines on a structure's [body] values used as known (fixed) or as priors
+    (the JSON's ``known_from_structure``, ``prior_from_structure``)."""
+    lines = []
+    if out.get("known_from_structure"):
+        lines.append("  known from structure.toml [body] (fixed, not estimated): " + ", ".join(
+            f"{n} {v:.6g}" for n, v in out["known_from_structure"].items())
+            + "; --estimate NAME,... estimates one")
+    if out.get("prior_from_structure"):
+        lines.append("  prior from structure.toml [body] (in the estimate): " + ", ".join(
+            f"{n} {p['mean']:.6g} +/- {p['sigma']:.3g}"
+            for n, p in out["prior_from_structure"].items()))
+    return lines
 
 
 _UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s", "kb": "N m s/m",
@@ -360,7 +384,8 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     b = bound_sequence(seq, path=args.run_dir, window=args.window, mass_kg=args.mass,
                        izz_kgm2=args.izz, model=args.model, sigma_pos_m=args.sigma_pos,
                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
-                       keep_sensitivities=out_folder is not None and out_folder.is_folder)
+                       keep_sensitivities=out_folder is not None and out_folder.is_folder,
+                       estimate=args.estimate)
     c, pose_t, mass, izz, kind, source = b.crlb, b.pose_t, b.mass_kg, b.izz_kgm2, b.kind, b.plant_source
     out = b.to_dict()
     if out_folder is not None:
@@ -369,7 +394,8 @@ def cmd_crlb(args: argparse.Namespace) -> int:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             main.write_text(json.dumps(out, indent=2) + "\n")
             if d is not None:
-                plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2], [mass, izz],
+                plot_sensitivities(pose_t, c.sens_x[:, :, :2], c.names[:2],
+                                   [{"mass": mass, "izz": izz}.get(n, 1.0) for n in c.names[:2]],
                                    d / "sensitivities.png",
                                    title=f"Sensitivities of {Path(args.run_dir).name}")
     if args.json:
@@ -377,17 +403,30 @@ def cmd_crlb(args: argparse.Namespace) -> int:
         return 0
     print(f"Cramér-Rao bound of {args.run_dir} ({kind}, {c.n_poses} poses over "
           f"{out['duration_s']:.1f} s; plant from {source}: m = {mass:g} kg, Izz = {izz:g} kg m^2)")
-    print(f"  mass  sigma >= {c.mass_sigma_kg:.4g} kg      ({out['crlb_mass_rel'] * 100:.4f} %)")
-    print(f"  Izz   sigma >= {c.izz_sigma_kgm2:.4g} kg m^2  ({out['crlb_izz_rel'] * 100:.4f} %)")
-    print(f"  correlation {out['crlb_corr_mass_izz']:+.3f}, log det(information) {c.logdet:.3f}")
-    if out["thrust_uncertainty"]["included"]:
+    if "mass" in c.names:
+        print(f"  mass  sigma >= {c.mass_sigma_kg:.4g} kg      ({out['crlb_mass_rel'] * 100:.4f} %)")
+    if "izz" in c.names:
+        print(f"  Izz   sigma >= {c.izz_sigma_kgm2:.4g} kg m^2  ({out['crlb_izz_rel'] * 100:.4f} %)")
+    corr = out["crlb_corr_mass_izz"]
+    print((f"  correlation {corr:+.3f}, " if corr is not None else "  ")
+          + f"log det(information) {c.logdet:.3f}")
+    for line in structure_body_lines(out):
+        print(line)
+    if out["thrust_uncertainty"]["included"] and {"mass", "izz"} <= set(c.names):
         print(f"  with the thrust table's uncertainty: mass sigma {out['mass_sigma_total_kg']:.4g} kg "
               f"(thrust part {out['mass_sigma_thrust_kg']:.4g}), Izz sigma "
               f"{out['izz_sigma_total_kgm2']:.4g} kg m^2 (thrust part {out['izz_sigma_thrust_kgm2']:.4g})")
-    else:
+    elif not out["thrust_uncertainty"]["included"]:
         print(f"tpods: warning: {out['thrust_uncertainty']['note']}", file=sys.stderr)
-    for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
-        print(line)
+    if c.names[:2] == ("mass", "izz"):
+        for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
+            print(line)
+    else:  # a structure with a known mass or Izz: the others
+        from estimator.plant.parameter_sets import PARAM_UNITS
+
+        for n, sg in zip(c.names, c.sigma, strict=True):
+            if n not in ("mass", "izz"):
+                print(f"  {n:<5} sigma >= {sg:.4g} {PARAM_UNITS[n]}")
     if out_folder is not None:
         print(f"  wrote {out_folder.main}" + (" and sensitivities.png" if out_folder.is_folder else ""))
     return 0
