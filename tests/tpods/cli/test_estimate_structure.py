@@ -16,18 +16,17 @@ yaw_deg = 0
 name = "tpods2"
 position_m = [0.2, 0.05]
 yaw_deg = 90
-[body]
-mass_kg = 1.6
-izz_kgm2 = 0.03
-com_m = [0.03, 0.0]
 """
+# the simulation's truth as options: [body] values would be known values (fixed) to tpods
+# estimate, not the truth the estimator is to find (tests/tpods/cli/test_structure_priors.py)
+TRUTH = ("--mass", "1.6", "--izz", "0.03", "--com", "0.03,0")
 
 
 @pytest.fixture(scope="module")
 def structure_run(tpods_exe, tmp_path_factory):
     d = tmp_path_factory.mktemp("structure")
     (d / "truss.toml").write_text(STRUCTURE)
-    r = run(tpods_exe, "sim", "--structure", str(d / "truss.toml"), "--duration", "60",
+    r = run(tpods_exe, "sim", "--structure", str(d / "truss.toml"), *TRUTH, "--duration", "60",
             "--pose-rate", "120", "--drop", "0.05", "--seed", "1", "--out", str(d / "run"))
     assert r.returncode == 0, r.stderr
     return d
@@ -73,15 +72,14 @@ def test_batch_estimates_mass_izz_and_centre_of_mass_efficiently(tpods_exe, stru
 
 def test_structure_refusals_are_one_line(tpods_exe, structure_run, tmp_path):
     run_dir = str(structure_run / "run")
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--model", "friction"))
-    assert "not built for structures" in line
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--model", "auto"))
+    assert "not built for structures" in line  # friction, friction+tilt are (issue 18)
     bad = tmp_path / "bad.toml"
     bad.write_text(STRUCTURE.replace("yaw_deg = 90", "yaw = 90"))
     line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bad)))
     assert str(bad) in line and "did you mean 'yaw_deg'" in line
     three = tmp_path / "three.toml"
-    three.write_text(STRUCTURE.replace("[body]", '[[modules]]\nname = "m3"\nposition_m = [0, 0.3]\n'
-                                                 "[body]"))
+    three.write_text(STRUCTURE + '[[modules]]\nname = "m3"\nposition_m = [0, 0.3]\n')
     line = _one_line_error(run(tpods_exe, "estimate", "crlb", run_dir, "--structure", str(three)))
     assert "missing column(s) d9, d10, d11, d12" in line
     line = _one_line_error(run(tpods_exe, "sim", "--structure", str(bad), "--out", str(tmp_path / "o")))
@@ -95,8 +93,8 @@ def test_a_structure_without_body_values_starts_from_its_geometry(tpods_exe, str
     1.6 kg, 0.03 kg m^2 truss); the start now comes from the modules' layout (here 3x the
     mass and 6x the Izz: no [body] values are given to the estimator)."""
     bare = tmp_path / "bare.toml"
-    bare.write_text(STRUCTURE.split("[body]")[0])
-    r = run(tpods_exe, "sim", "--structure", str(structure_run / "truss.toml"), "--duration",
+    bare.write_text(STRUCTURE)
+    r = run(tpods_exe, "sim", "--structure", str(structure_run / "truss.toml"), *TRUTH, "--duration",
             "60", "--drop", "0.05", "--seed", str(seed), "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--structure", str(bare),
@@ -147,11 +145,12 @@ def test_parts_ground_truth_compares_with_the_estimate_in_one_command(tpods_exe,
     assert r.returncode == 0, r.stderr
     gt = json.loads(r.stdout)
     assert gt["com_sigma_m"][0] > 0
-    body = (f"[body]\nmass_kg = {gt['mass_kg']!r}\nizz_kgm2 = {gt['izz_com_kgm2']!r}\n"
-            f"com_m = [{gt['com_m'][0]!r}, {gt['com_m'][1]!r}]\n")
-    (tmp_path / "truss.toml").write_text(STRUCTURE.split("[body]")[0] + body)
-    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--duration", "60",
-            "--seed", "4", "--out", str(tmp_path / "run"))
+    # the parts' values are the simulation's truth (options), not [body] values (known)
+    truth = ("--mass", repr(gt["mass_kg"]), "--izz", repr(gt["izz_com_kgm2"]),
+             f"--com={gt['com_m'][0]!r},{gt['com_m'][1]!r}")
+    (tmp_path / "truss.toml").write_text(STRUCTURE)
+    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), *truth, "--duration",
+            "60", "--seed", "4", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--out",
             str(tmp_path / "est.json"))
@@ -173,7 +172,7 @@ def test_parts_ground_truth_compares_with_the_estimate_in_one_command(tpods_exe,
 def test_design_for_a_structure_drives_every_module(tpods_exe, tmp_path):
     """issue 18: `tpods design --structure F`: D-optimal duties for all modules on (m, Izz,
     cx, cy), never worse than the hand-made phase-shifted sine over every channel."""
-    (tmp_path / "bare.toml").write_text(STRUCTURE.split("[body]")[0])
+    (tmp_path / "bare.toml").write_text(STRUCTURE)
     r = run(tpods_exe, "design", "--structure", str(tmp_path / "bare.toml"), "--duration", "20",
             "--candidates", "6", "--refine", "1", "--refine-evals", "8", "--out",
             str(tmp_path / "design"), "--json")
@@ -195,7 +194,7 @@ def test_ls_ekf_on_a_structure_carries_the_centre_of_mass(tpods_exe, structure_r
     frame off the centre of mass); ls-ekf from the geometric start ends within 3.5 sigma,
     its sigma near batch LS's (reuse counts the LS window twice: a little smaller)."""
     bare = tmp_path / "bare.toml"
-    bare.write_text(STRUCTURE.split("[body]")[0])
+    bare.write_text(STRUCTURE)
     run_dir = str(structure_run / "run")
     r = run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bare), "--json")
     ls = json.loads(r.stdout)
