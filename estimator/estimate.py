@@ -41,7 +41,14 @@ from estimator.filters.ekf import STATE_NAMES as FILTER_STATE_NAMES
 from estimator.filters.ekf_ext import ExtEkfConfig, ExtEkfResult, estimate_ext
 from estimator.plant.inputs import from_commands_csv
 from estimator.plant.model import STATE_NAMES
-from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS, fixed_for, model_of, resolve_names
+from estimator.plant.parameter_sets import (
+    DEFAULT_MODEL,
+    MODELS,
+    fixed_for,
+    model_of,
+    resolve_names,
+    with_model,
+)
 from estimator.plant.sim import pose_times
 
 METHODS = ("ls", "ekf", "ls-ekf")
@@ -318,16 +325,20 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
         raise UserError(f"method must be one of {', '.join(METHODS)}")
     fixed = dict(fixed or {})
     is_structure = _is_structure_run(run, structure)
+    structure_model = None  # a structure's friction/tilt model: its parameters join the unknowns
     if is_structure:
-        if model not in (None, DEFAULT_MODEL):
-            raise UserError(f"--model {model} is not built for structures yet; give the "
-                            "unknowns with --estimate (default mass,izz,cx,cy) and --fixed")
+        if model == "auto":
+            raise UserError("--model auto is not built for structures yet; give --model "
+                            "friction or friction+tilt (or compare them by their residuals)")
+        structure_model = model if model not in (None, DEFAULT_MODEL) else None
         model = None
         knowledge = body_knowledge(_structure_of(run, structure), estimate, fixed)
         estimate, fixed = knowledge.names, dict(knowledge.fixed)
     else:
         knowledge = None
     names = tuple(estimate) if estimate is not None else ("mass", "izz")
+    if structure_model is not None:
+        names, fixed = with_model(structure_model, names, fixed)
     initial = dict(initial or {})
     opts = filter_options or FilterOptions()
     if method == "ls" and max_iter < 1:
@@ -351,7 +362,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     selection = None
     note = None
     if model is None:
-        model = model_of(names) or "custom"
+        model = structure_model or model_of(names) or "custom"
     else:
         if model == "auto":
             if not 0 < select_alpha < 1:
@@ -939,12 +950,12 @@ def bound_sequence(seq: CommandSequence, *, path: str = "", window: Window | str
               **{k: float(truth.get(k, 0.0)) for k in ("ct", "cr", "kb", "ax", "ay")}}
     names = MODELS[model or DEFAULT_MODEL]
     if seq.structure is not None:
-        if model not in (None, DEFAULT_MODEL):
-            raise UserError(f"--model {model} is not built for structures yet")
         com = (truth["cx"], truth["cy"]) if "cx" in truth else ((body and body.com_m) or (0.0, 0.0))
         params.update(cx=float(com[0]), cy=float(com[1]))
         knowledge = body_knowledge(seq.structure, estimate, {})
         names = knowledge.names
+        if model not in (None, DEFAULT_MODEL):  # friction/tilt: the model's parameters too
+            names, _ = with_model(model, names)
     model = model or DEFAULT_MODEL
     try:
         with np.errstate(all="ignore"):

@@ -647,8 +647,11 @@ def run_filter(sched: Schedule, pose, plant: AugmentedPlant, x, P, R, q_nz=(),
         if k:
             if stop_on_blowup:
                 with np.errstate(over="ignore", invalid="ignore"):
-                    x, P, _ = _predict(x, P, sched.seg_dt[k], sched.seg_w[k], plant, q_nz,
-                                       max_step_s, q_per_step)
+                    try:
+                        x, P, _ = _predict(x, P, sched.seg_dt[k], sched.seg_w[k], plant, q_nz,
+                                           max_step_s, q_per_step)
+                    except (ValueError, OverflowError):  # the scalar stage's math.cos(inf)
+                        x = np.full(nx, np.nan)
                 if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
                     xs[k:] = np.nan
                     sig[k:] = np.nan

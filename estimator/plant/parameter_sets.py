@@ -76,6 +76,17 @@ def fixed_for(model: str, fixed: Mapping[str, float] | None = None) -> dict[str,
     return out
 
 
+def with_model(model: str, names: Sequence[str], fixed: Mapping[str, float] | None = None
+               ) -> tuple[tuple[str, ...], dict[str, float]]:
+    """``names`` (e.g. a structure's mass, izz, cx, cy) plus the parameters ``model`` adds
+    (``friction``: ct, cr, kb; ``friction+tilt``: also ax, ay), and the fixed values with the
+    model's other extras at 0 (:func:`fixed_for`; UserError when ``fixed`` sets one it
+    estimates)."""
+    extra = tuple(n for n in names_for(model) if n not in names)
+    fx = fixed_for(model, {k: v for k, v in (fixed or {}).items() if k not in names})
+    return tuple(names) + extra, fx
+
+
 def resolve_names(model: str | None, estimate: Sequence[str] | None,
                   default_estimate: Sequence[str] = ("mass", "izz")) -> tuple[str, ...]:
     """Estimated names from ``--model`` and ``--estimate`` (they must agree when both are given).

@@ -123,3 +123,74 @@ def test_a_structure_run_with_every_valve_closed_is_refused(tpods_exe, tmp_path)
     run_dir = _sim(tpods_exe, _pure_translation(tmp_path, ["+x"], closed=True))
     line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir))
     assert "mass, izz, cx, cy cannot be estimated" in line and "no thrust" in line
+
+
+TRUSS = """
+name = "truss"
+[[modules]]
+name = "tpods1"
+position_m = [-0.2, 0.0]
+yaw_deg = 0
+[[modules]]
+name = "tpods2"
+position_m = [0.2, 0.05]
+yaw_deg = 90
+"""
+FRICTION = {"ct": 0.2, "cr": 2e-3, "kb": 3e-3}
+
+
+def _crlb_sigma(bound: dict, name: str) -> float:
+    return bound.get({"mass": "crlb_mass_sigma_kg", "izz": "crlb_izz_sigma_kgm2"}.get(name, ""),
+                     bound.get(f"crlb_{name}_sigma"))
+
+
+@pytest.mark.parametrize("model, com, tilt, seed", [
+    ("friction", (-0.02, 0.015), None, 5),
+    ("friction+tilt", (0.03, -0.01), (1e-3, -5e-4), 3)])
+def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model, com, tilt,
+                                                      seed):
+    """issue 18: --model friction|friction+tilt for structures: the model's parameters join
+    mass, izz, cx, cy (friction and tilt act at the centre of mass); batch LS within 3.5
+    sigma of the truth and sigma within 10 % of the CRLB of the same model (estimate crlb
+    --model); ls-ekf carries them too."""
+    (tmp_path / "truss.toml").write_text(TRUSS)  # no [body]: the estimator starts from the layout
+    truth = {"mass": 1.6, "izz": 0.03, "cx": com[0], "cy": com[1], **FRICTION}
+    opts = ["--friction", ",".join(str(FRICTION[k]) for k in ("ct", "cr", "kb"))]
+    if tilt:
+        truth.update(ax=tilt[0], ay=tilt[1])
+        opts += ["--tilt", f"{tilt[0]},{tilt[1]}"]
+    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
+            "--izz", "0.03", f"--com={com[0]},{com[1]}", *opts, "--duration", "60", "--drop",
+            "0.05", "--seed", str(seed), "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    run_dir = str(tmp_path / "run")
+    r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["converged"] and est["model"] == model
+    assert est["estimated"] == ["mass", "izz", "cx", "cy", *(n for n in truth if n in
+                                                             ("ct", "cr", "kb", "ax", "ay"))]
+    r = run(tpods_exe, "estimate", "crlb", run_dir, "--model", model, "--json")
+    assert r.returncode == 0, r.stderr
+    bound = json.loads(r.stdout)
+    assert bound["estimated"] == est["estimated"]
+    for n in est["estimated"]:
+        value, sigma = est["z0"][n], est["sigma"][n]
+        assert abs(value - truth[n]) < 3.5 * sigma, (n, value, truth[n], sigma)
+        assert sigma == pytest.approx(_crlb_sigma(bound, n), rel=0.10), n
+    if tilt:
+        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
+                "--json")
+        assert r.returncode == 0, r.stderr
+        f = json.loads(r.stdout)
+        assert not f["diverged"] and f["model"] == model and f["estimated"] == est["estimated"]
+        for n in est["estimated"]:
+            assert abs(f["params"][n] - truth[n]) < 3.5 * f["sigmas"][n], n
+            # reuse filters the LS window's 20 s twice: a little below the batch sigma
+            assert 0.7 < f["sigmas"][n] / est["sigma"][n] < 1.1, n
+        assert f["com_x_m"] == f["params"]["cx"]
+
+
+def test_model_auto_is_refused_for_structures_in_one_line(tpods_exe):
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model", "auto"))
+    assert "--model auto is not built for structures" in line
