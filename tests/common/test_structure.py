@@ -249,3 +249,15 @@ def test_structure_run_needs_4n_columns(tmp_path):
         read_run(tmp_path / "r", structure=tmp_path / "none.toml")
     run = read_run(tmp_path / "r")  # without a structure: a single-module run as today
     assert run.structure is None and run.duty_pct.shape == (2, 4)
+
+
+def test_body_values_are_known_or_priors(tmp_path):
+    """[body]: no sigma or sigma 0 is known, a sigma is a prior, per centre-of-mass axis."""
+    s = Structure.load(write(tmp_path, TWO))
+    assert s.body.known() == {} and s.body.priors() == {
+        "mass": (1.9, 0.01), "cx": (0.03, 0.005), "cy": (0.0, 0.005)}
+    text = TWO.split("[body]")[0] + ("[body]\nmass_kg = 1.9\nizz_kgm2 = 0.05\nizz_sigma_kgm2 = 0\n"
+                                     "com_m = [0.03, 0.01]\ncom_sigma_m = [0, 0.002]\n")
+    b = Structure.load(write(tmp_path, text, "mixed.toml")).body
+    assert b.known() == {"mass": 1.9, "izz": 0.05, "cx": 0.03}
+    assert b.priors() == {"cy": (0.01, 0.002)}
