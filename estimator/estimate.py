@@ -427,7 +427,11 @@ def _least_squares(inputs, *, model, window, clamp, names, fixed, initial, sigma
                  if k in names and k not in initial}
         if guess:
             initial = {**guess, **initial}
-            note = note or ("started from the structure's geometry: " + ", ".join(
+            body = run.structure.body
+            from_body = set(guess) & (set(body.known()) | set(body.priors()))
+            src = ("geometry" if not from_body else
+                   "[body] values" if from_body == set(guess) else "[body] values and geometry")
+            note = note or (f"started from the structure's {src}: " + ", ".join(
                 f"{k} {v:.4g}" for k, v in guess.items()))
         if knowledge is not None:  # [body] values with a sigma: a Gaussian prior
             prior = knowledge.prior_vector(names)
