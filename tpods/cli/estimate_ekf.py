@@ -191,6 +191,23 @@ def register(sub, est, rep) -> None:
                    help="write montecarlo.json, history.csv, runs.csv and the figures in folder DIR, "
                         "or only the summary to FILE.json")
     add_force(p)
+    g = p.add_argument_group(
+        "structure (issue 18)",
+        "--structure F: a Monte Carlo of batch LS on the structure: m and Izz drawn within "
+        "+/- SPREAD of the structure's start (its [body] values, else the modules' layout), cx, "
+        "cy within +/- COM_SPREAD of its centre of mass; each run simulated with the "
+        "structure's virtual thrusts and fitted for mass, izz, cx, cy. Reports bias, sample "
+        "std against the mean reported sigma, NEES (4 dof) with its 95 %% bounds and the "
+        "fractions within 2 and 3 sigma; --out DIR writes montecarlo.json and runs.csv. The "
+        "filter options do not apply")
+    g.add_argument("--structure", default=None, metavar="F", help="structure.toml")
+    g.add_argument("--com-spread", type=nonneg_float, default=0.02, metavar="M",
+                   help="half-width of the uniform cx, cy draw, m (default 0.02)")
+    g.add_argument("--noise-pos", type=positive_float, default=None, metavar="M",
+                   help="position noise sigma, m (default 0.01; the module's filter Monte Carlo "
+                        "uses 0.01)")
+    g.add_argument("--noise-yaw-deg", type=positive_float, default=None, metavar="DEG",
+                   help="yaw noise sigma, deg (default 1)")
     _filter_options(p, "no-process-noise")
     p.set_defaults(func=cmd_montecarlo)
 
@@ -227,6 +244,12 @@ def register(sub, est, rep) -> None:
 
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
+    if args.structure is not None:
+        return _montecarlo_structure(args)
+    for opt in ("noise_pos", "noise_yaw_deg"):
+        if getattr(args, opt) is not None:
+            raise UserError(f"--{opt.replace('_', '-')} is for --structure runs; the module's "
+                            "filter Monte Carlo simulates 1 cm / 1 deg pose noise")
     from estimator.montecarlo import MC_FILTER, McConfig, config_dict, run_montecarlo
     from estimator.reports.plots_ekf import plot_mc_averages, plot_mc_runs
 
@@ -293,6 +316,52 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     if out_folder is not None:
         print(f"  wrote {out_folder.main}" + (", history.csv, runs.csv, mc_runs.png, mc_averages.png"
                                               if out_folder.is_folder else ""))
+    return code
+
+
+def _montecarlo_structure(args: argparse.Namespace) -> int:
+    """``tpods estimate montecarlo --structure F``: batch LS on simulated structure runs
+    (:mod:`estimator.montecarlo_structure`)."""
+    import math
+
+    from common.structure import Structure
+    from estimator.montecarlo_structure import (
+        StructureMcConfig,
+        run_structure_montecarlo,
+        summary_lines,
+    )
+
+    if args.method != "ekf":
+        raise UserError("--method: a structure's Monte Carlo fits batch LS (drop --method)")
+    out_folder = result_output(args.out, "montecarlo.json", force=args.force,
+                               command="tpods estimate montecarlo")
+    cfg = StructureMcConfig(
+        Structure.load(args.structure), runs=args.runs, spread=args.spread,
+        com_spread_m=args.com_spread, duration_s=args.duration, input=args.input,
+        seed=args.seed, pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
+        noise_pos_m=args.noise_pos if args.noise_pos is not None else 0.01,
+        noise_yaw_rad=math.radians(args.noise_yaw_deg if args.noise_yaw_deg is not None else 1.0))
+    res = run_structure_montecarlo(cfg, progress=True)
+    summ = res.summary()
+    if res.interrupted:
+        print(f"tpods: interrupted after {res.done} runs; writing the statistics so far",
+              file=sys.stderr)
+    if out_folder is not None:
+        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
+            main.write_text(json.dumps({"summary": summ, "config": cfg.to_dict(),
+                                        "failed_runs": res.messages}, indent=2, default=str) + "\n")
+            if d is not None:
+                cols, data = res.runs_table()
+                np.savetxt(d / "runs.csv", data, delimiter=",", header=",".join(cols),
+                           comments="", fmt="%.10g")
+    code = 130 if res.interrupted else 0
+    if args.json:
+        sys.stdout.write(json.dumps(summ) + "\n")
+        return code
+    for line in summary_lines(res):
+        print(line)
+    if out_folder is not None:
+        print(f"  wrote {out_folder.main}" + (", runs.csv" if out_folder.is_folder else ""))
     return code
 
 
