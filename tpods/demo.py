@@ -41,6 +41,7 @@ from pathlib import Path
 
 from common.argtypes import positive_float, random_seed
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
+from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 
@@ -65,6 +66,13 @@ def register(sub) -> None:
                    help="live estimator method (default ls-ekf, the paper's LS-initialised EKF)")
     p.add_argument("--quick", action="store_true",
                    help="fewer duty steps and a short run (a smoke test, about a minute)")
+    p.add_argument("--structure", action="store_true",
+                   help="the structure variant (issue 18): two emulated modules on a truss, the "
+                        "parts' ground truth from calibrate combine, live and batch estimates of "
+                        "mass, Izz and the centre of mass (--mass/--izz: each module's truth)")
+    p.add_argument("--no-live", action="store_true",
+                   help="with --structure: no live estimator; batch LS on the poses the demo "
+                        "records itself and the player's commands")
     add_zenoh_options(p)
     p.set_defaults(func=cmd_demo)
 
@@ -82,6 +90,8 @@ def _done(t0: float, what: str) -> float:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """``tpods demo``: the five stages in order, the summary table, report.md, summary.json."""
+    if args.no_live and not args.structure:
+        raise UserError("--no-live goes with --structure (the plain demo's run is the live run)")
     if args.quick:
         args.duration = min(args.duration, 40.0)
     if args.time_scale > 4:
@@ -95,8 +105,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     # run.json: "running" until the end, then "complete" (or "aborted"/"failed": the
     # folder holds a partial lab day; a kill leaves "running")
-    with run_status(out / "run.json", "lab-day-demo", seed=args.seed, quick=args.quick,
-                    duration_s=args.duration, time_scale=args.time_scale):
+    with run_status(out / "run.json", "lab-day-demo" + ("-structure" if args.structure else ""),
+                    seed=args.seed, quick=args.quick, duration_s=args.duration,
+                    time_scale=args.time_scale):
+        if args.structure:
+            from tpods.demo_structure import run_structure_demo  # lazy: the estimator, Zenoh
+
+            return run_structure_demo(args, out)
         return _stages(args, out)
 
 
