@@ -330,6 +330,7 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
             if procs["live"].returncode != 0 or not stdout.strip():
                 raise UserError(f"the live estimator failed (see {d / 'live.log'})")
             summary = json.loads(stdout.strip().splitlines()[-1])
+            summary.setdefault("method", args.method)
             (d / "live_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             summary["run_dir"] = d / "live"
         else:
@@ -343,8 +344,11 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
         summary["plant_log"] = (d / "plant.log").read_text().strip().splitlines()[-1:]
         return summary
     finally:
-        for p in procs.values():
-            _stop(p)
+        # the player first (SIGINT: it closes every module's valves and confirms OFF), then
+        # the estimator, the plant (its ptys) last
+        for name in ("play", "live", "plant"):
+            if name in procs:
+                _stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
         for fh in logs.values():
             fh.close()
         session.close()

@@ -143,8 +143,12 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) 
         f"`tpods estimate live --structure structure/structure.toml --body truss --method "
         f"{args.method}` estimated from the Zenoh streams (the structure's poses and both modules' "
         f"commands) and recorded the run in `run/live/`"
-        + (f": {c.get('updates')} poses used of {c.get('poses_rx')} received, {c.get('cmds_rx')} "
-           "command messages" if c else "") + ".", ""]
+        + (f": {c.get('poses_rx')} poses received, {c.get('align_poses_out', '-')} aligned with "
+           f"their commands ({c.get('updates')} filter updates after the LS start, "
+           f"{c.get('catchup_updates', 0)} on its catch-up); {c.get('cmds_rx')} command messages "
+           f"from the {len(MODULES)} modules" + (f", merged into {c['merge_emitted']} rows"
+                                                 if "merge_emitted" in c else "")
+           if c else "") + ".", ""]
     lines = [
         "# TPODS lab day: a rigid structure moved by two modules (emulated)",
         "",
