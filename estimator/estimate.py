@@ -192,6 +192,33 @@ def _start_at(fit: ModelFit, initial: dict[str, float], note: str | None
     return initial, note
 
 
+def _select_structure_model(inputs, *, window, clamp, names, fixed, initial, alpha,
+                            sigma_pos_m, sigma_yaw_rad, log):
+    """``--model auto`` on a structure: the nested models (ideal, friction, friction+tilt)
+    each with the structure's other unknowns (cx, cy), fitted from the structure's start
+    and chosen by likelihood-ratio tests (:func:`select_model`). Returns the selection, the
+    chosen model, its names and fixed values, and the start at its optimum."""
+    run, table = inputs
+    wrun = _windowed(run, as_window(window))
+    cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+    extra = tuple(n for n in names if n not in ("mass", "izz"))
+    start = {**{k: v for k, v in run.structure.initial_guess().items() if k in names},
+             **initial}
+    selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=alpha,
+                             fixed={k: v for k, v in fixed.items() if k not in names},
+                             initial=start, extra_names=extra, sigma_pos_m=sigma_pos_m,
+                             sigma_yaw_rad=sigma_yaw_rad)
+    chosen = selection.chosen
+    if log is not None:
+        log(f"model selection on {wrun.path} (--model auto, with {', '.join(extra)} in every "
+            "model):")
+        for line in selection.table_lines():
+            log(line)
+    names, fixed = with_model(chosen, names, fixed)
+    initial, note = _start_at(selection.fits[chosen], dict(initial), None)
+    return selection, chosen, names, fixed, initial, note
+
+
 def _is_structure_run(run: Run | str | Path, structure) -> bool:
     """True for a structure run: ``structure`` given, the Run has one, or its folder holds
     structure.toml (known before the run is read)."""
@@ -327,9 +354,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     is_structure = _is_structure_run(run, structure)
     structure_model = None  # a structure's friction/tilt model: its parameters join the unknowns
     if is_structure:
-        if model == "auto":
-            raise UserError("--model auto is not built for structures yet; give --model "
-                            "friction or friction+tilt (or compare them by their residuals)")
+        # friction/tilt join the unknowns; auto selects among them with cx, cy in each
         structure_model = model if model not in (None, DEFAULT_MODEL) else None
         model = None
         knowledge = body_knowledge(_structure_of(run, structure), estimate, fixed)
@@ -337,7 +362,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     else:
         knowledge = None
     names = tuple(estimate) if estimate is not None else ("mass", "izz")
-    if structure_model is not None:
+    if structure_model not in (None, "auto"):
         names, fixed = with_model(structure_model, names, fixed)
     initial = dict(initial or {})
     opts = filter_options or FilterOptions()
@@ -361,6 +386,12 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
 
     selection = None
     note = None
+    if structure_model == "auto":
+        if not 0 < select_alpha < 1:
+            raise UserError("--select-alpha must lie in (0, 1)")
+        selection, structure_model, names, fixed, initial, note = _select_structure_model(
+            inputs(), window=window, clamp=clamp, names=names, fixed=fixed, initial=initial,
+            alpha=select_alpha, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, log=log)
     if model is None:
         model = structure_model or model_of(names) or "custom"
     else:

@@ -257,18 +257,20 @@ def fit_models(pose_t, pose, cmd_t, thrust_n, models: Sequence[str] = tuple(MODE
                fixed: Mapping[str, float] | None = None,
                initial: Mapping[str, float] | None = None,
                sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0),
-               lags: int = DEFAULT_LAGS, **kwargs) -> dict[str, ModelFit]:
+               lags: int = DEFAULT_LAGS, extra_names: Sequence[str] = (),
+               **kwargs) -> dict[str, ModelFit]:
     """Fit each model by batch least squares and diagnose it.
 
     ``fixed`` holds known values of parameters a model does not estimate (e.g. ``arm``);
-    entries a model estimates are dropped for that model. Other keywords go to batch_ls.
+    entries a model estimates are dropped for that model. ``extra_names`` are estimated in
+    every model besides its own (a structure's cx, cy). Other keywords go to batch_ls.
     """
     from estimator.batch.least_squares import batch_ls
 
     out: dict[str, ModelFit] = {}
     prev: ModelFit | None = None
     for m in models:
-        names = MODELS[m]
+        names = MODELS[m] + tuple(n for n in extra_names if n not in MODELS[m])
         fx = fixed_for(m, {k: v for k, v in (fixed or {}).items() if k not in names})
         init = {k: v for k, v in (initial or {}).items() if k not in fx}
         kw = dict(names=names, fixed=fx, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,

@@ -72,8 +72,9 @@ def test_batch_estimates_mass_izz_and_centre_of_mass_efficiently(tpods_exe, stru
 
 def test_structure_refusals_are_one_line(tpods_exe, structure_run, tmp_path):
     run_dir = str(structure_run / "run")
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--model", "auto"))
-    assert "not built for structures" in line  # friction, friction+tilt are (issue 18)
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--model", "friction",
+                               "--fixed", "ct=0.1"))
+    assert "--model friction estimates ct; do not also fix it" in line
     bad = tmp_path / "bad.toml"
     bad.write_text(STRUCTURE.replace("yaw_deg = 90", "yaw = 90"))
     line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bad)))

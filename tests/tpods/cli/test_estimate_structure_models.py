@@ -189,8 +189,33 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
             # reuse filters the LS window's 20 s twice: a little below the batch sigma
             assert 0.7 < f["sigmas"][n] / est["sigma"][n] < 1.1, n
         assert f["com_x_m"] == f["params"]["cx"]
+        # plain ekf from the layout start: whatever its fate, a result and no traceback
+        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ekf")
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
 
 
-def test_model_auto_is_refused_for_structures_in_one_line(tpods_exe):
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model", "auto"))
-    assert "--model auto is not built for structures" in line
+def test_model_auto_selects_a_structure_model_with_the_centre_of_mass(tpods_exe, tmp_path):
+    """--model auto on a structure: ideal, friction and friction+tilt, each with cx, cy,
+    fitted from the structure's start and chosen by likelihood-ratio tests: the frictionless
+    fixture keeps ideal; a run with friction (no tilt) chooses friction."""
+    r = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model", "auto", "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["model"] == "ideal" and est["estimated"] == ["mass", "izz", "cx", "cy"]
+    assert est["model_selection"]["chosen"] == "ideal" and est["converged"]
+    assert "with cx, cy in every model" in r.stderr
+    (tmp_path / "truss.toml").write_text(TRUSS)
+    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
+            "--izz", "0.03", "--com=-0.02,0.015", "--friction", "0.2,2e-3,3e-3", "--duration",
+            "40", "--drop", "0.05", "--seed", "5", "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--model", "auto", "--json")
+    assert r.returncode == 0, r.stderr
+    est = json.loads(r.stdout)
+    assert est["model"] == "friction" and est["converged"]
+    assert est["estimated"] == ["mass", "izz", "cx", "cy", "ct", "cr", "kb"]
+    assert abs(est["com_x_m"] + 0.02) < 3.5 * est["com_x_sigma_m"]
+    assert abs(est["z0"]["ct"] - 0.2) < 3.5 * est["sigma"]["ct"]
+    line = _one_line_error(run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model",
+                               "friction", "--fixed", "ct=0.1"))
+    assert "--model friction estimates ct; do not also fix it" in line
