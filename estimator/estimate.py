@@ -341,9 +341,12 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
         structure: a :class:`common.structure.Structure` or its TOML file: the run is a
             structure run (also when its folder holds structure.toml). ``estimate=None``
             then means :data:`STRUCTURE_ESTIMATE` less the ``fixed`` names (else mass,
-            izz); only ``method="ls"`` with no ``model`` (or ``ideal``) is built for
-            structures; the JSON gains ``com_x_m``, ``com_y_m`` and ``izz_origin_kgm2``
-            (Izz about the tracked origin, ``izz + m (cx^2 + cy^2)``) with their sigmas.
+            izz); ``model`` ``friction``/``friction+tilt`` adds its parameters to them and
+            ``auto`` selects among the three with cx, cy in each; every method; the JSON gains
+            ``com_x_m``, ``com_y_m`` and ``izz_origin_kgm2`` (Izz about the tracked origin,
+            ``izz + m (cx^2 + cy^2)``) with their sigmas. A structure run that cannot
+            determine its unknowns raises UserError naming them
+            (:mod:`estimator.batch.structure_degenerate`).
             ``table`` then replaces Table 2 for the modules without their own table.
 
     Raises UserError for a bad window, option or run.
