@@ -25,6 +25,18 @@ calibration; noise, thrust and total sigma, the error in total sigmas) and ``rep
 ``running`` until then and ``complete`` at the end (``aborted`` on Ctrl-C, ``failed`` on an
 error: a partial lab day, see docs/run-format.md).
 
+``tpods demo --structure`` is the variant for a rigid structure (issue 18; stages in
+:mod:`tpods.demo_structure`, report in :mod:`tpods.demo_structure_report`): two emulated
+modules on a truss with a payload (``--mass``/``--izz``: each module's truth); every part
+weighed on the emulated balance, the modules' Izz from emulated bifilar swings, positions
+taped, and the ground truth by parts from ``tpods calibrate combine``; ``tpods run plant
+--structure``, ``tpods estimate live --structure`` and ``tpods run play --structure`` as
+subprocesses on one lab clock; batch least squares of m, Izz, cx, cy on the recorded run;
+a summary table (truth, parts, live, batch; sigma and error in sigmas) and ``report.md``
+with the figure of the structure and the centres of mass with their 95 % ellipses
+(:func:`estimator.reports.plots_structure.plot_structure`). ``--no-live`` leaves the live
+estimator out. ``--quick``: 40 s of lab time.
+
 This module is the command (``register``, :func:`cmd_demo`: the stages in order, their
 timings, the summary printed); the stages are in :mod:`tpods.demo_stages`, the figures,
 summary table and report in :mod:`tpods.demo_report`.
