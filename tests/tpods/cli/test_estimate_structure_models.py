@@ -189,6 +189,14 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
             # reuse filters the LS window's 20 s twice: a little below the batch sigma
             assert 0.7 < f["sigmas"][n] / est["sigma"][n] < 1.1, n
         assert f["com_x_m"] == f["params"]["cx"]
+        # handoff uses every pose once: the filter is efficient too
+        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
+                "--ls-start", "handoff", "--json")
+        assert r.returncode == 0, r.stderr
+        h = json.loads(r.stdout)
+        for n in est["estimated"]:
+            assert abs(h["params"][n] - truth[n]) < 3.5 * h["sigmas"][n], n
+            assert h["sigmas"][n] == pytest.approx(_crlb_sigma(bound, n), rel=0.10), n
         # plain ekf from the layout start: whatever its fate, a result and no traceback
         r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ekf")
         assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
