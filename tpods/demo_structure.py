@@ -403,6 +403,7 @@ def run_structure_demo(args: argparse.Namespace, out: Path) -> int:
     """The stages of ``tpods demo --structure`` into ``out``, the summary and the report."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     from tpods.demo_structure_report import (
+        plot_live_errors,
         plot_structure_figure,
         summary_rows,
         table_lines,
@@ -436,7 +437,8 @@ def run_structure_demo(args: argparse.Namespace, out: Path) -> int:
 
     t = time.monotonic()
     rows = summary_rows(parts, live, batch)
-    figs = parts["figures"] + [plot_structure_figure(out, parts, live, batch)] + batch["figures"]
+    figs = (parts["figures"] + [plot_structure_figure(out, parts, live, batch)]
+            + (plot_live_errors(out, parts, live) if live is not None else []) + batch["figures"])
     timings["figures"] = time.monotonic() - t
     timings["total"] = time.monotonic() - t_all
     report = write_report(out, args, rows, parts, run, live, batch, figs, timings)

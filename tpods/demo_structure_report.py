@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from estimator.reports.plots_structure import ComPoint, plot_structure
+from estimator.reports.plots_structure import ComPoint, plot_structure, plot_structure_errors
 from tpods.demo_structure import MODULES, POSITION_SIGMA_M, TRUSS_PARTS, outlines
 
 QUANTITIES = (("mass", "mass_kg", "mass_sigma_kg", "kg", 1.0, "{:.4f}"),
@@ -106,6 +106,26 @@ def plot_structure_figure(out: Path, parts: dict[str, Any], live: dict[str, Any]
                                 f"with {100 * level:g} % ellipses")
 
 
+def plot_live_errors(out: Path, parts: dict[str, Any], live: dict[str, Any]) -> list[Path]:
+    """``run/live_errors.png``: the live estimates' errors of m, Izz, cx, cy against time with
+    their 3-sigma bands (from the recorded estimates.csv; nothing when it lacks a column)."""
+    import pandas as pd  # lazy: only the report needs pandas here
+
+    path = Path(live["run_dir"]) / "estimates.csv"
+    cols = [v for _, v, _, *_ in QUANTITIES]
+    sigs = [s for _, _, s, *_ in QUANTITIES]
+    if not path.is_file():
+        return []
+    est = pd.read_csv(path)
+    if not set(cols + sigs) <= set(est.columns) or len(est) < 2:
+        return []
+    t = parts["truth"]
+    return [plot_structure_errors(est["t"].to_numpy(), est[cols].to_numpy(), est[sigs].to_numpy(),
+                                  [t[c] for c in cols], out / "run" / "live_errors.png",
+                                  title=f"Live {live.get('method')} on the structure: error and "
+                                        "3 sigma")]
+
+
 def _fig_lines(out: Path, figs: list[Path], folder: str | None) -> list[str]:
     rel = [Path(f).relative_to(out) for f in figs]
     return [f"![{p.stem}]({p.as_posix()})" for p in rel
@@ -198,6 +218,8 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) 
         f"{(run.get('play') or {}).get('valves_closed_confirmed')}).",
         "",
         *live_lines,
+        *_fig_lines(out, figs, "run"),
+        "",
         "## 3. Batch least squares on the recorded run",
         "",
         f"`tpods estimate batch {batch['run_dir']}` estimates "

@@ -188,3 +188,42 @@ def plot_structure(path: str | Path, modules: Sequence[tuple[str, float, float, 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+_PARAM_LABELS = (("m", "kg", 1.0), ("Izz (centre of mass)", "kg m$^2$", 1.0),
+                 ("cx", "mm", 1e3), ("cy", "mm", 1e3))
+
+
+def plot_structure_errors(t, est, sigma, truth, path: str | Path, title: str = "") -> Path:
+    """Errors of m, Izz, cx, cy (columns of ``est`` (N, 4) in kg, kg m^2, m, m) against time
+    with their +/- 3 sigma bands (``sigma`` (N, 4)), one panel each; ``truth`` (4,)."""
+    t = np.asarray(t, float)
+    est = np.asarray(est, float)
+    sigma = np.asarray(sigma, float)
+    truth = np.asarray(truth, float)
+    if est.shape != sigma.shape or est.ndim != 2 or est.shape[1] != 4 or truth.shape != (4,):
+        raise ValueError("need est and sigma of shape (N, 4) and truth of shape (4,)")
+    fig, axes = plt.subplots(4, 1, figsize=(8, 8.5), sharex=True)
+    for j, ax in enumerate(axes):
+        name, unit, f = _PARAM_LABELS[j]
+        e = (est[:, j] - truth[j]) * f
+        s3 = 3 * sigma[:, j] * f
+        ax.fill_between(t, -s3, s3, color="tab:blue", alpha=0.2, label=r"$\pm 3\sigma$")
+        ax.plot(t, e, color="tab:red", lw=1, label="error")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"{name}\nerror [{unit}]", fontsize=9)
+        if len(t) > 1:
+            late = t >= t[0] + 0.1 * (t[-1] - t[0])
+            lim = 1.3 * max(float(np.max(np.abs(e[late]))), float(np.max(s3[late])))
+            if np.isfinite(lim) and lim > 0:
+                ax.set_ylim(-lim, lim)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -15,6 +15,7 @@ from estimator.reports.plots_structure import (
     chi2_2dof_factor,
     ellipse_axes,
     plot_structure,
+    plot_structure_errors,
     thruster_layout,
 )
 
@@ -66,6 +67,16 @@ def test_plot_structure_writes_the_figure(tmp_path):
     assert path.stat().st_size > 20_000
     with pytest.raises(ValueError):
         plot_structure(tmp_path / "none.png", [], [])
+
+
+def test_plot_structure_errors_writes_four_panels(tmp_path):
+    t = np.linspace(0.0, 10.0, 50)
+    truth = np.array([5.3, 0.21, 0.014, 0.016])
+    sig = np.tile([0.03, 8e-4, 5e-4, 5e-4], (50, 1))
+    path = plot_structure_errors(t, truth + 0.5 * sig, sig, truth, tmp_path / "e.png")
+    assert path.is_file() and path.stat().st_size > 20_000
+    with pytest.raises(ValueError):
+        plot_structure_errors(t, sig[:, :2], sig[:, :2], truth, tmp_path / "bad.png")
 
 
 def _within(row: dict, truth: dict, n_sigma: float) -> None:
