@@ -20,9 +20,12 @@ after the other:
 Statistics over the converged runs (``e`` = estimate - truth, ``sigma`` the fit's reported
 1-sigma, ``P`` its covariance of the four parameters):
 
-- per parameter: bias (mean ``e``), sample std of ``e``, mean reported sigma and their
-  ratio, the fractions of runs with ``|e| <= 2 sigma`` and ``<= 3 sigma`` (0.954 and 0.997
-  for a consistent Gaussian estimate);
+- per parameter: bias (mean ``e``; also in units of its standard error), sample std of
+  ``e``, the mean reported sigma and the RMS one ``sqrt(mean sigma^2)``; ``std_over_sigma``
+  = std / RMS sigma (the runs' sigmas differ with their truths, and the spread of errors
+  drawn with different sigmas is their RMS, not their mean) and ``std_normalised`` = std of
+  ``e / sigma`` (1 for a consistent estimate); the fractions of runs with ``|e| <= 2
+  sigma`` and ``<= 3 sigma`` (0.954 and 0.997 for a consistent Gaussian estimate);
 - NEES ``e^T P^-1 e`` per run (4 dof): its average over R runs with the two-sided 95 %
   bounds ``chi2.ppf([.025, .975], 4 R) / R``, and the fraction of runs inside the per-run
   95 % bounds ``chi2.ppf([.025, .975], 4)``.
@@ -129,12 +132,14 @@ class StructureMcResult:
         for j, n in enumerate(NAMES):
             u = UNITS[n]
             std = float(np.std(e[:, j], ddof=1))
-            mean_sigma = float(np.mean(s[:, j]))
+            rms_sigma = float(np.sqrt(np.mean(s[:, j] ** 2)))
             out[f"bias_{n}_{u}"] = float(np.mean(e[:, j]))
             out[f"bias_{n}_sigmas"] = float(np.mean(e[:, j]) / (std / math.sqrt(r)))
             out[f"std_{n}_{u}"] = std
-            out[f"mean_sigma_{n}_{u}"] = mean_sigma
-            out[f"std_over_sigma_{n}"] = std / mean_sigma
+            out[f"mean_sigma_{n}_{u}"] = float(np.mean(s[:, j]))
+            out[f"rms_sigma_{n}_{u}"] = rms_sigma
+            out[f"std_over_sigma_{n}"] = std / rms_sigma
+            out[f"std_normalised_{n}"] = float(np.std(e[:, j] / s[:, j], ddof=1))
             out[f"within_2sigma_{n}"] = float(np.mean(np.abs(e[:, j]) <= 2 * s[:, j]))
             out[f"within_3sigma_{n}"] = float(np.mean(np.abs(e[:, j]) <= 3 * s[:, j]))
         nees = self.nees[ok]
@@ -235,13 +240,14 @@ def summary_lines(res: StructureMcResult) -> list[str]:
              f"{res.elapsed_s:.1f} s"]
     if "note" in s:
         return [*lines, f"  {s['note']} ({s['runs_failed']} failed)"]
-    lines.append(f"  {'':5} {'bias':>11} {'(sigmas)':>9} {'std':>10} {'mean sigma':>11} "
-                 f"{'std/sigma':>9} {'<=2 sig':>8} {'<=3 sig':>8}")
+    lines.append(f"  {'':5} {'bias':>11} {'(s.e.)':>7} {'std':>10} {'mean sigma':>11} "
+                 f"{'rms sigma':>10} {'std/rms':>8} {'std(e/s)':>8} {'<=2 sig':>8} {'<=3 sig':>8}")
     for n in NAMES:
         u = UNITS[n]
-        lines.append(f"  {n:<5} {s[f'bias_{n}_{u}']:+11.3g} {s[f'bias_{n}_sigmas']:+9.2f} "
+        lines.append(f"  {n:<5} {s[f'bias_{n}_{u}']:+11.3g} {s[f'bias_{n}_sigmas']:+7.2f} "
                      f"{s[f'std_{n}_{u}']:10.3g} {s[f'mean_sigma_{n}_{u}']:11.3g} "
-                     f"{s[f'std_over_sigma_{n}']:9.3f} {100 * s[f'within_2sigma_{n}']:7.1f}% "
+                     f"{s[f'rms_sigma_{n}_{u}']:10.3g} {s[f'std_over_sigma_{n}']:8.3f} "
+                     f"{s[f'std_normalised_{n}']:8.3f} {100 * s[f'within_2sigma_{n}']:7.1f}% "
                      f"{100 * s[f'within_3sigma_{n}']:7.1f}%")
     b = s["nees_mean_bounds_95"]
     lines.append(f"  NEES (4 dof) mean {s['nees_mean']:.3g}, 95 % bounds [{b[0]:.3g}, {b[1]:.3g}] "

@@ -9,7 +9,12 @@ import pytest
 from scipy.stats import chi2
 
 from common.structure import Body, Module, Structure
-from estimator.montecarlo_structure import NAMES, StructureMcConfig, run_structure_montecarlo
+from estimator.montecarlo_structure import (
+    NAMES,
+    UNITS,
+    StructureMcConfig,
+    run_structure_montecarlo,
+)
 from tests.support.cli import run
 
 TRI = Structure("tri", (Module("a", (-0.25, 0.0), 0.0), Module("b", (0.25, 0.05), 90.0),
@@ -32,6 +37,8 @@ def test_batch_ls_on_a_structure_is_consistent_over_runs():
     for n in NAMES:
         assert abs(s[f"bias_{n}_sigmas"]) < 3.5, n
         assert 0.6 < s[f"std_over_sigma_{n}"] < 1.45, (n, s[f"std_over_sigma_{n}"])
+        assert 0.7 < s[f"std_normalised_{n}"] < 1.35, (n, s[f"std_normalised_{n}"])
+        assert s[f"rms_sigma_{n}_{UNITS[n]}"] >= s[f"mean_sigma_{n}_{UNITS[n]}"] > 0
         assert s[f"within_3sigma_{n}"] >= 0.9 and s[f"within_2sigma_{n}"] >= 0.8, n
     assert s["nees_mean_inside"], (s["nees_mean"], s["nees_mean_bounds_95"])
     lo, hi = s["nees_mean_bounds_95"]
