@@ -110,3 +110,11 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     figs = [line.split("(")[1].rstrip(")") for line in report.splitlines() if line.startswith("![")]
     assert "structure.png" in figs and all((out / f).is_file() for f in figs)
     assert json.loads((out / "run.json").read_text())["status"] == "complete"
+
+
+def test_no_live_without_structure_is_a_one_line_error(tpods_exe, tmp_path):
+    r = subprocess.run([tpods_exe, "demo", "--no-live", "--out", str(tmp_path / "d")],
+                       capture_output=True, text=True, timeout=60)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "--no-live goes with --structure" in lines[0]
+    assert not (tmp_path / "d").exists()
