@@ -35,7 +35,7 @@ from estimator.batch.crlb import CRLBResult, crlb, crlb_from_fisher
 from estimator.batch.least_squares import BatchResult, parse_window
 from estimator.batch.least_squares import estimate_run as least_squares_run
 from estimator.batch.model_select import ModelFit, ModelSelection, fit_models, select_model
-from estimator.batch.structure_degenerate import refuse_undetermined
+from estimator.batch.structure_degenerate import refuse_undetermined, refuse_undetermined_run
 from estimator.filters.ekf import PRESETS, EkfConfig, FilterEstimate, estimate_filter, initial_rates
 from estimator.filters.ekf import STATE_NAMES as FILTER_STATE_NAMES
 from estimator.filters.ekf_ext import ExtEkfConfig, ExtEkfResult, estimate_ext
@@ -740,6 +740,9 @@ def _extended_filter(inputs, *, method, model, window, clamp, names, fixed, init
                         "at the known value) or use --method ls")
     run, table = inputs()
     run = _windowed(run, as_window(window))
+    if run.structure is not None:  # an undetermined Izz (no torque) is refused as for ls
+        refuse_undetermined_run(run, table, names=names, fixed=fixed, clamp=clamp,
+                                sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
     q = {FILTER_STATE_NAMES[i]: v for i, v in opts.process_noise.items() if v}
     structure_guess: dict[str, float] = {}

@@ -97,3 +97,23 @@ def refuse_undetermined(res: BatchResult, thrust_n: np.ndarray, where: str = "th
             if "izz" in bad and "izz" not in fixed else "")
     raise UserError(f"{where}: {', '.join(bad)} cannot be estimated ({'it is' if len(bad) == 1 else 'they are'} "
                     f"undetermined): {why}{hint}")
+
+
+def refuse_undetermined_run(run, table, *, names: Sequence[str], fixed, clamp: bool = False,
+                            sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0)
+                            ) -> None:
+    """The check of :func:`refuse_undetermined` for a filter on a structure run
+    (:class:`common.runfolder.Run` with its structure): a filter cannot tell an undetermined
+    parameter (it reports its prior shrunk by a wrong linearisation), so when the commands
+    give no moment about the tracked origin the batch fit of the same run decides. Other
+    runs return at once (no fit)."""
+    from estimator.batch.least_squares import estimate_run as least_squares_run
+
+    cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
+    if np.any(thrust != 0) and not no_origin_moment(thrust):
+        return
+    start = {k: v for k, v in run.structure.initial_guess().items() if k in names}
+    res = least_squares_run(run, table, (None, None), clamp=clamp, names=tuple(names),
+                            fixed=dict(fixed), initial=start, sigma_pos_m=sigma_pos_m,
+                            sigma_yaw_rad=sigma_yaw_rad, thrust_uncertainty=False)
+    refuse_undetermined(res, thrust, str(run.path), fixed=tuple(fixed), structure=run.structure)

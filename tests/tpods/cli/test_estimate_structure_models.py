@@ -88,6 +88,10 @@ def test_a_structure_run_without_torque_is_refused_naming_izz_cx_cy(tpods_exe, t
     assert "no command produces a torque about the tracked origin" in line
     assert "mass" not in line.split("cannot be estimated")[0]
     assert "--fixed izz=" in line
+    # the filters too (alone, the EKF reported Izz 14 +/- 0.005 kg m^2 here: its prior shrunk)
+    for method in ("ekf", "ls-ekf"):
+        assert "izz, cx, cy cannot be estimated" in _one_line_error(
+            run(tpods_exe, "estimate", "batch", run_dir, "--method", method))
     # Izz known: the same run locates the centre of mass (at the origin, to microns)
     r = run(tpods_exe, "estimate", "batch", run_dir, "--fixed", "izz=0.03", "--json")
     assert r.returncode == 0, r.stderr
