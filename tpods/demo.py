@@ -117,13 +117,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     # run.json: "running" until the end, then "complete" (or "aborted"/"failed": the
     # folder holds a partial lab day; a kill leaves "running")
-    with run_status(out / "run.json", "lab-day-demo" + ("-structure" if args.structure else ""),
-                    seed=args.seed, quick=args.quick, duration_s=args.duration,
-                    time_scale=args.time_scale):
-        if args.structure:
-            from tpods.demo_structure import run_structure_demo  # lazy: the estimator, Zenoh
+    if args.structure:
+        # its plant, estimator and player are processes of their own: SIGTERM (and SIGINT,
+        # also when started in the background) unwinds, so the player closes every valve and
+        # every process is stopped; run.json says "failed" with "terminated (SIGTERM)"
+        from bench.session import Terminated, sigterm_raises
+        from tpods.demo_structure import run_structure_demo  # lazy: the estimator, Zenoh
 
-            return run_structure_demo(args, out)
+        try:
+            with sigterm_raises(), run_status(out / "run.json", "lab-day-demo-structure",
+                                              seed=args.seed, quick=args.quick,
+                                              duration_s=args.duration, time_scale=args.time_scale):
+                return run_structure_demo(args, out)
+        except Terminated:
+            print("tpods: terminated; every module's valves closed, the demo's processes stopped",
+                  file=sys.stderr)
+            return 143
+    with run_status(out / "run.json", "lab-day-demo", seed=args.seed, quick=args.quick,
+                    duration_s=args.duration, time_scale=args.time_scale):
         return _stages(args, out)
 
 

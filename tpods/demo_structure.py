@@ -302,17 +302,16 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
                    "--duration", f"{args.duration:g}", "--out", str(d / "play"), "--no-progress",
                    *clock, *zargs],
             stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
-        bar = tqdm(total=round(args.duration), desc="structure run (lab time)", file=sys.stderr,
-                   mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
-                                               "[{elapsed}<{remaining}]")
-        t_real0 = time.monotonic()
-        while procs["play"].poll() is None:
-            time.sleep(0.25)
-            el = (time.monotonic() - t_real0) * args.time_scale
-            bar.update(max(0, min(args.duration, el) - bar.n))
-            if procs["plant"].poll() is not None:
-                break
-        bar.close()
+        with tqdm(total=round(args.duration), desc="structure run (lab time)", file=sys.stderr,
+                  mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
+                                              "[{elapsed}<{remaining}]") as bar:
+            t_real0 = time.monotonic()
+            while procs["play"].poll() is None:
+                time.sleep(0.25)
+                el = (time.monotonic() - t_real0) * args.time_scale
+                bar.update(max(0, min(args.duration, el) - bar.n))
+                if procs["plant"].poll() is not None:
+                    break
         if procs["play"].poll() is None:  # the plant died under the player
             _stop(procs["play"], signal.SIGINT)
             raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
