@@ -79,6 +79,25 @@ def test_plot_structure_errors_writes_four_panels(tmp_path):
         plot_structure_errors(t, sig[:, :2], sig[:, :2], truth, tmp_path / "bad.png")
 
 
+def _switch_lag_ms(run_dir) -> float:
+    """Mean gap, lab ms, between a valve row the simulated plant applied (run/plant/
+    switches.csv) and the player's stamp of the same duties (run/play/commands.csv): 1-2 ms
+    here (module 2's controller is written after module 1's)."""
+    import pandas as pd
+
+    meta = json.loads((run_dir / "play" / "run.json").read_text())
+    cmd = pd.read_csv(run_dir / "play" / "commands.csv")
+    t_cmd = cmd["t"].to_numpy() + meta["t0_lab"]
+    duties = cmd.drop(columns="t").to_numpy()
+    sw = pd.read_csv(run_dir / "plant" / "switches.csv").to_numpy()
+    lags = []
+    for row in sw:
+        same = np.all(np.isclose(duties, row[1:]), axis=1)
+        if same.any():
+            lags.append(float(np.min(np.abs(t_cmd[same] - row[0]))))
+    return 1e3 * float(np.mean(lags)) if lags else 0.0
+
+
 def _within(row: dict, truth: dict, n_sigma: float) -> None:
     for v, s in (("mass_kg", "mass_sigma_kg"), ("izz_kgm2", "izz_sigma_kgm2"),
                  ("com_x_m", "com_x_sigma_m"), ("com_y_m", "com_y_sigma_m")):
@@ -94,6 +113,13 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     r = subprocess.run([tpods_exe, "demo", "--structure", "--quick", "--out", str(out)],
                        capture_output=True, text=True, timeout=280)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+    report = (out / "report.md").read_text()
+    figs = [line.split("(")[1].rstrip(")") for line in report.splitlines() if line.startswith("![")]
+    assert "structure.png" in figs and all((out / f).is_file() for f in figs)
+    lag_ms = _switch_lag_ms(out / "run")
+    if lag_ms > 5.0:  # as tests/tpods/test_e2e.py: the physics no longer match the commands
+        pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
+                    f"switched {lag_ms:.1f} lab ms after the player's stamps on average")
     s = json.loads((out / "summary.json").read_text())
     rows = {row["source"]: row for row in s["rows"]}
     assert set(rows) == {"truth (simulation)", "parts (calibrate combine)", "live ls-ekf",
@@ -106,9 +132,6 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     assert cov.shape == (2, 2) and np.all(np.linalg.eigvalsh(cov) > 0)
     assert {c["quantity"] for c in s["batch"]["compare"]} == {
         "mass", "Izz (centre of mass)", "centre of mass x", "centre of mass y"}
-    report = (out / "report.md").read_text()
-    figs = [line.split("(")[1].rstrip(")") for line in report.splitlines() if line.startswith("![")]
-    assert "structure.png" in figs and all((out / f).is_file() for f in figs)
     assert json.loads((out / "run.json").read_text())["status"] == "complete"
 
 
