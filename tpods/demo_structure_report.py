@@ -222,9 +222,11 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) 
         "",
         "## 3. Batch least squares on the recorded run",
         "",
-        f"`tpods estimate batch {batch['run_dir']}` estimates "
-        f"{', '.join(batch['estimated'])} from the structure's geometry ({batch.get('start')}): "
-        f"{'converged' if batch['converged'] else 'NOT converged'}.",
+        f"Batch least squares on `{batch['run_dir']}` (`estimator.estimate.estimate_run`, what "
+        f"`tpods estimate batch {batch['run_dir']}` runs) estimates {', '.join(batch['estimated'])}, "
+        f"{batch.get('start') or 'from the structure file'}: "
+        f"{'converged' if batch['converged'] else 'NOT converged'}; the 2x2 covariance of cx, cy "
+        "for the figure comes from its fit.",
         "",
         *_compare_lines("batch estimate (batch/estimate.json)", batch.get("compare")),
         *_compare_lines("live estimate (run/live_summary.json)", (live or {}).get("compare")),
