@@ -29,13 +29,25 @@ from scipy.stats import chi2
 
 from common.errors import UserError
 from common.wire import EST_FMT as _EST_FMT
-from common.wire import EST_SCHEMA
-from estimator.filters.ekf import PAPER, STATE_NAMES, EkfConfig, ekf_predict, ekf_update
+from common.wire import EST_SCHEMA, encode_estimate
+from estimator.filters.ekf import (
+    PAPER,
+    STATE_NAMES,
+    EkfConfig,
+    _offset_spec,
+    _predict,
+    _update_offset,
+    ekf_predict,
+    ekf_update,
+    filter_plant,
+)
 from estimator.live.align import LiveAligner
+from estimator.live.merge import ModuleMerger
 from estimator.live.restart import LsEkfRestart
-from estimator.plant.model import wrench
+from estimator.plant.model import com_from_tracked, wrench
 
 if TYPE_CHECKING:
+    from common.structure import Structure
     from estimator.live.recorder import LiveRecorder
 
 LIVE_METHODS = ("ekf", "ls-ekf")
@@ -53,6 +65,9 @@ DIVERGED_NIS = 10.0
 """A mean normalised innovation squared above this over the last ``NIS_WINDOW``
 updates (3 expected) flags the filter as diverged, as the batch EKF does."""
 NIS_WINDOW = 200
+STRUCTURE_NAMES = ("mass", "izz", "cx", "cy")
+"""The live estimator's unknowns on a structure (issue 18): mass, Izz about the centre of
+mass and the centre of mass in the tracked frame."""
 
 
 @functools.cache
@@ -108,6 +123,7 @@ class LiveCounters:
     max_queue: int = 0
     rewinds: int = 0
     rewind_updates: int = 0
+    before_ls: int = 0
 
 
 class LiveEstimator(LsEkfRestart):
@@ -119,22 +135,45 @@ class LiveEstimator(LsEkfRestart):
         body: the body name (estimate messages, sanity check of incoming messages).
         publish: called with each estimate message (a dict).
         recorder: optional :class:`LiveRecorder`.
+        structure: a :class:`common.structure.Structure` (issue 18): the commands come
+            from its modules (each message's ``body`` a module name, four duties), merged
+            into the structure's 4N duties (:class:`estimator.live.merge.ModuleMerger`);
+            the thrusts are its virtual thrusts; the unknowns are mass, Izz about the
+            centre of mass and the centre of mass (cx, cy) in the tracked frame, with the
+            extended filter's offset-aware pose update in the direct parameter form (as
+            ``tpods estimate batch --method ls-ekf`` on a structure run). Only ``ls-ekf``:
+            no estimate is made before the LS window's fit (from the structure's
+            geometric start the EKF alone diverges; docs/estimators.md). ``table`` is then
+            unused (give the structure its tables).
     """
 
     def __init__(self, table, config: LiveConfig | None = None, body: str = "tpods1",
                  publish: Callable[[dict[str, Any]], None] | None = None,
-                 recorder: LiveRecorder | None = None) -> None:
+                 recorder: LiveRecorder | None = None,
+                 structure: Structure | None = None) -> None:
         self.table = table
         self.config = config or LiveConfig()
         self.body = body
+        self.structure = structure
+        self.merger: ModuleMerger | None = None
+        self._arrived = -math.inf
+        """Latest host arrival time of a message taken in (the merger's stale clock)."""
+        n_aligned = self.config.n_channels
+        if structure is not None:
+            if self.config.method != "ls-ekf":
+                raise UserError("a structure is estimated live with --method ls-ekf only: from "
+                                "its geometric start the EKF alone diverges (docs/estimators.md)")
+            self.merger = ModuleMerger(tuple(m.name for m in structure.modules),
+                                       width=self.config.n_channels)
+            n_aligned = structure.n_channels
+            self._init_structure_filter()
         self.publish = publish
         self._body_json = json.dumps(body)
         self.recorder = recorder
         self._R = self.config.ekf.R
         self.publish_bytes: Callable[[bytes], None] | None = None
         """Alternative to ``publish``: called with the encoded payload (the fast path)."""
-        self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s,
-                                   n_channels=self.config.n_channels)
+        self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s, n_channels=n_aligned)
         self.counters = LiveCounters()
         self._wrench: dict[float, tuple[float, float, float]] = {}
         self.z: np.ndarray | None = None
@@ -160,31 +199,54 @@ class LiveEstimator(LsEkfRestart):
         self._init_thrust_part()
 
     # ------------------------------------------------------------------ input
-    def command(self, d: dict[str, Any]) -> bool:
-        """A decoded ``tpods.cmd/1`` message. Returns whether it was accepted."""
+    def command(self, d: dict[str, Any], arrival: float | None = None) -> bool:
+        """A decoded ``tpods.cmd/1`` message (received at host time ``arrival``, default
+        its own time). Returns whether it was accepted."""
         self.counters.cmds_rx += 1
+        if self.merger is not None:  # a structure: one of its modules
+            if d.get("body") not in self.merger.index:
+                self.counters.other_body += 1
+                return False
+            if arrival is not None and arrival > self._arrived:
+                self._arrived = arrival
+            for t, duty in self.merger.push(d["body"], d["t"], d["duty"], d.get("kind"), arrival):
+                self._command(t, duty, None)
+            if self.merger.end_t is not None:
+                self.end_seen_t = self.merger.end_t
+            return True
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
-        t, duty = d["t"], d["duty"]
+        return self._command(d["t"], d["duty"], d.get("kind"))
+
+    def _command(self, t: float, duty, kind: str | None) -> bool:
+        """One command of the body (a structure: the merged 4N duties) into the aligner."""
         late_before = self.aligner.stats.cmds_late
-        self.aligner.rewind_floor = self._ck[0][0] if self._ck else math.inf
+        if self.structure is not None and self.z is None:
+            # no live filter yet (it starts from the LS window): every command is still
+            # usable by the fit and its catch-up
+            self.aligner.rewind_floor = -math.inf
+        else:
+            self.aligner.rewind_floor = self._ck[0][0] if self._ck else math.inf
         if not self.aligner.push_command(t, duty):
             if self.aligner.stats.cmds_late > late_before:
                 # too late for the live filter (it cannot rewrite the past), but the run
                 # folder keeps it for post-processing
                 if self.recorder is not None:
                     self.recorder.command(t, duty)
-                if d.get("kind") == "end":
+                if kind == "end":
                     self.end_seen_t = t
             return False
         try:
-            thrust = self.table.thrust_n(np.asarray([duty], float), clamp=True)[0]
+            if self.structure is not None:
+                thrust = self.structure.virtual_thrust(np.asarray([duty], float), clamp=True)[0]
+            else:
+                thrust = self.table.thrust_n(np.asarray([duty], float), clamp=True)[0]
         except Exception:  # a duty the table cannot map (outside 0..100 never gets here)
-            thrust = np.zeros(self.config.n_channels)
+            thrust = np.zeros(4)
         w = wrench(thrust, self.config.ekf.arm_m)
         self._wrench[float(t)] = (float(w[0]), float(w[1]), float(w[2]))
-        if d.get("kind") == "end":
+        if kind == "end":
             self.end_seen_t = t
         if self.recorder is not None:
             self.recorder.command(t, duty)
@@ -199,6 +261,8 @@ class LiveEstimator(LsEkfRestart):
     def pose(self, d: dict[str, Any], arrival: float) -> bool:
         """A decoded ``tpods.pose/1`` message received at host time ``arrival``."""
         self.counters.poses_rx += 1
+        if arrival > self._arrived:
+            self._arrived = arrival
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
@@ -209,8 +273,13 @@ class LiveEstimator(LsEkfRestart):
                                       occluded=bool(d["occluded"]), arrival=min(t, arrival))
 
     def next_deadline(self) -> float | None:
-        """Host time by which :meth:`process` must run again (a pose's wait ends)."""
-        return self.aligner.next_deadline()
+        """Host time by which :meth:`process` must run again (a pose's wait ends, or a
+        structure command's wait for its lagging modules)."""
+        a = self.aligner.next_deadline()
+        if self.merger is None:
+            return a
+        b = self.merger.next_deadline()
+        return b if a is None else a if b is None else min(a, b)
 
     # ------------------------------------------------------------- filtering
     def _segments(self, t0: float, t1: float):
@@ -235,6 +304,8 @@ class LiveEstimator(LsEkfRestart):
 
     def _step(self, z, P, t_prev: float | None, t: float, meas, use: bool = True):
         cfg = self.config.ekf
+        if self.structure is not None:
+            return self._step_structure(z, P, t_prev, t, meas, use)
         if t_prev is not None and t > t_prev:
             seg_dt, seg_w = self._segments(t_prev, t)
             z, P, _ = ekf_predict(z, P, seg_dt, seg_w, cfg)
@@ -248,8 +319,49 @@ class LiveEstimator(LsEkfRestart):
         z[:3] = meas
         self.z, self.P = z, self.config.ekf.P0.copy()
 
+    # ------------------------------------------------------------ structures
+    def _init_structure_filter(self) -> None:
+        """The extended filter of a structure: mass, izz, cx, cy estimated, the known
+        terms of the EkfConfig fixed; the process noise of its first 8 states (added after
+        every RK4 step, as :func:`estimator.filters.ekf_ext.run_ext_ekf` does), none on
+        cx, cy; the direct parameter form (the 1/m form was overconfident with cx, cy
+        estimated, see estimator.estimate._extended_filter)."""
+        cfg = self.config.ekf
+        self._fixed = {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr, "kb": cfg.kb,
+                       "ax": cfg.ax, "ay": cfg.ay}
+        self._plant = filter_plant(STRUCTURE_NAMES, self._fixed)
+        self._q_nz = tuple((i, float(q)) for i, q in enumerate(cfg.q_psd) if q)
+        self._off = _offset_spec(self._plant)
+        guess = self.structure.initial_guess()
+        self._guess = {k: guess[k] for k in STRUCTURE_NAMES}
+
+    def _step_structure(self, z, P, t_prev, t, meas, use):
+        cfg = self.config.ekf
+        if t_prev is not None and t > t_prev:
+            seg_dt, seg_w = self._segments(t_prev, t)
+            with np.errstate(over="ignore", invalid="ignore"):
+                z, P, _ = _predict(z, P, seg_dt, seg_w, self._plant, self._q_nz, cfg.max_step_s,
+                                   True)
+        nis = math.nan
+        if use and np.all(np.isfinite(z)) and np.all(np.isfinite(P)):
+            z, P, (nis, _) = _update_offset(z, P, meas, self._R, self._off)
+        return z, P, nis
+
+    def com_m(self) -> tuple[float, float, np.ndarray] | None:
+        """A structure's centre of mass (cx, cy, m, tracked frame) and its (2, 2) noise
+        covariance, m^2 (None before the first estimate or for a module)."""
+        if self.structure is None or self.z is None:
+            return None
+        return float(self.z[8]), float(self.z[9]), self.P[8:10, 8:10].copy()
+
     def process(self, now: float) -> int:
         """Release the aligned poses, filter them, advance a catch-up, publish. Returns updates."""
+        if self.merger is not None:
+            # the stale wait runs on the arrival times of what was taken in, not the wall
+            # clock: a backlog in the input queue must not make a row stale whose last
+            # module's message is queued right behind
+            for t, duty in self.merger.due(now if now == math.inf else min(now, self._arrived)):
+                self._command(t, duty, None)
         if self._rewind_t is not None:
             self._rewind()
         ready = self.aligner.pop_ready(now)
@@ -257,6 +369,16 @@ class LiveEstimator(LsEkfRestart):
         n = 0
         for p in ready:
             meas = (p.x, p.y, p.yaw)
+            if self.structure is not None and self.z is None:
+                # a structure: no filter before the LS window's fit (see the class docstring)
+                self.hist_t.append(p.t)
+                self.hist_pose.append(meas)
+                self.t_last, self.frame_last = p.t, p.frame
+                self.counters.before_ls += 1
+                if self.recorder is not None:
+                    self.recorder.pose(p.t, p.x, p.y, p.yaw)
+                n += 1
+                continue
             if self.z is None:
                 self._start_filter(meas)
                 self.z, self.P, self.last_nis = self._step(self.z, self.P, None, p.t, meas)
@@ -273,7 +395,8 @@ class LiveEstimator(LsEkfRestart):
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
                 self.recorder.estimate(p.t, p.frame, self.phase, self.z,
                                        np.sqrt(np.maximum(self.P.diagonal(), 0.0)),
-                                       self.thrust_rel)
+                                       self.thrust_rel,
+                                       tuple(np.sqrt(np.diag(self.thrust_com_cov)).tolist()))
             if self.config.publish_rate_hz == 0:
                 self._publish(now)
         if self.config.method == "ls-ekf":
@@ -361,9 +484,12 @@ class LiveEstimator(LsEkfRestart):
 
         t = self.table
         unc = getattr(t, "uncertainty", None)
-        r = float(unc.scale_rel) if unc is not None else 0.0
+        # a structure's modules may have different tables: no common fraction before a fit
+        r = float(unc.scale_rel) if unc is not None and self.structure is None else 0.0
         self.thrust_rel = (r, r)
-        if not getattr(t, "states_uncertainty", False):
+        self.thrust_com_cov = np.zeros((2, 2))
+        """A structure's thrust part of the centre of mass's covariance, m^2 (absolute)."""
+        if not self._states_uncertainty():
             self.thrust_note = NO_UNCERTAINTY
         elif r > 0:
             self.thrust_note = ("thrust part: the table's common scale_rel until a consider "
@@ -372,10 +498,17 @@ class LiveEstimator(LsEkfRestart):
             self.thrust_note = ("thrust part: none until a consider covariance is computed on "
                                 "this run (LS window, end of run)")
 
+    def _states_uncertainty(self) -> bool:
+        src = self.structure if self.structure is not None else self.table
+        return bool(getattr(src, "states_uncertainty", False))
+
     def _thrust_sensitivity(self, duty):
-        """The table's thrust sensitivity of ``duty`` rows, or None without uncertainty."""
-        if not getattr(self.table, "states_uncertainty", False):
+        """The table's thrust sensitivity of ``duty`` rows (a structure's: of its virtual
+        thrusts), or None without uncertainty."""
+        if not self._states_uncertainty():
             return None
+        if self.structure is not None:
+            return self.structure.virtual_sensitivity(duty, clamp=True)
         from common.thrust_uncertainty import thrust_sensitivity
 
         return thrust_sensitivity(self.table, duty, clamp=True)
@@ -387,31 +520,33 @@ class LiveEstimator(LsEkfRestart):
         rel = (float(st[im] / res.z0[im]), float(st[ii] / res.z0[ii]))
         if all(math.isfinite(v) and v >= 0 for v in rel):
             self.thrust_rel = rel
+            if self.structure is not None and res.cov_thrust is not None:
+                ic = [6 + res.names.index(n) for n in ("cx", "cy")]
+                self.thrust_com_cov = np.array(res.cov_thrust)[np.ix_(ic, ic)]
             self.thrust_note = (f"{res.thrust_note}; the thrust part from the consider covariance "
                                 f"of {where}, as fractions of m and Izz")
 
     def final_thrust_part(self) -> None:
         """The consider covariance of the whole run at its end: batch LS from the filter's
         estimate on every pose and command seen, then the table's consider term."""
-        if self.z is None or not getattr(self.table, "states_uncertainty", False) \
-                or len(self.hist_t) < 10:
+        if self.z is None or not self._states_uncertainty() or len(self.hist_t) < 10:
             return
         from estimator.batch.consider import batch_consider
         from estimator.batch.least_squares import batch_ls
 
         cmd_t, duty = self.aligner.commands()
         sens = self._thrust_sensitivity(duty)
-        cfg = self.config.ekf
-        kw = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2]}
+        start = {"mass": float(self.z[6]), "izz": float(self.z[7])}
+        if self.structure is not None:
+            start.update(cx=float(self.z[8]), cy=float(self.z[9]))
+        kw = self._ls_kwargs(start)
         try:
             res = batch_ls(np.asarray(self.hist_t), np.asarray(self.hist_pose), cmd_t,
-                           sens.thrust_n, fixed={"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr,
-                                                 "kb": cfg.kb, "ax": cfg.ax, "ay": cfg.ay},
-                           initial={"mass": float(self.z[6]), "izz": float(self.z[7])},
-                           **kw)
+                           sens.thrust_n, **kw)
             if not res.converged:
                 return
-            c = batch_consider(res, cmd_t, sens, **kw)
+            c = batch_consider(res, cmd_t, sens, sigma_pos_m=kw["sigma_pos_m"],
+                               sigma_yaw_rad=kw["sigma_yaw_rad"])
         except Exception:  # the end of a run never fails on this; the last fractions stay
             return
         if np.all(np.isfinite(c.cov_thrust)):
@@ -432,7 +567,7 @@ class LiveEstimator(LsEkfRestart):
         z = self.z
         sig = np.sqrt(np.maximum(self.P.diagonal(), 0.0))
         sm, si, nm, tm, ni, ti = self._sigmas(float(z[6]), float(sig[6]), float(z[7]), float(sig[7]))
-        return {
+        out = {
             "schema": EST_SCHEMA, "body": self.body, "seq": self._seq,
             "t": self.t_last, "frame": self.frame_last,
             "t_pub": time.time() if now is None else now,
@@ -448,6 +583,34 @@ class LiveEstimator(LsEkfRestart):
             "diverged": self.diverged,
             "inconsistent": self.inconsistent,
         }
+        if self.structure is not None:
+            out.update(self._com_keys())
+        return out
+
+    def _com_keys(self) -> dict[str, Any]:
+        """A structure's centre of mass (tracked frame, m): total sigmas (noise + thrust
+        table), their parts, the (2, 2) total covariance ``cov_com_m2`` and Izz about the
+        tracked origin (kg m^2; its sigma from the noise covariance of m, Izz, cx, cy and
+        the thrust parts of m and Izz, first order)."""
+        z, P = self.z, self.P
+        cn = P[8:10, 8:10]
+        ct = self.thrust_com_cov
+        cov = cn + ct
+        m, izz, cx, cy = (float(v) for v in z[6:10])
+        g = np.array([cx * cx + cy * cy, 1.0, 2 * m * cx, 2 * m * cy])
+        var_o = float(g @ P[6:10, 6:10] @ g) + (g[0] * m * self.thrust_rel[0]) ** 2 \
+            + (izz * self.thrust_rel[1]) ** 2
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        return {"structure": self.structure.name,
+                "com_x_m": cx, "com_x_sigma_m": float(sd[0]),
+                "com_y_m": cy, "com_y_sigma_m": float(sd[1]),
+                "com_x_sigma_noise_m": math.sqrt(max(cn[0, 0], 0.0)),
+                "com_y_sigma_noise_m": math.sqrt(max(cn[1, 1], 0.0)),
+                "com_x_sigma_thrust_m": math.sqrt(max(ct[0, 0], 0.0)),
+                "com_y_sigma_thrust_m": math.sqrt(max(ct[1, 1], 0.0)),
+                "cov_com_m2": cov.tolist(),
+                "izz_origin_kgm2": izz + m * (cx * cx + cy * cy),
+                "izz_origin_sigma_kgm2": math.sqrt(max(var_o, 0.0))}
 
     def _publish(self, now: float) -> None:
         self._last_pub = now
@@ -456,7 +619,12 @@ class LiveEstimator(LsEkfRestart):
         self._seq += 1
         try:
             if self.publish_bytes is not None:
-                self.publish_bytes(self._encode())
+                if self.structure is not None:  # the extra keys: the general encoder
+                    msg = self.estimate()
+                    msg["seq"] = self._seq
+                    self.publish_bytes(encode_estimate(msg))
+                else:
+                    self.publish_bytes(self._encode())
             else:
                 msg = self.estimate()
                 msg["seq"] = self._seq
@@ -482,8 +650,11 @@ class LiveEstimator(LsEkfRestart):
         """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
         self.process(math.inf)
         if self.config.method == "ls-ekf":
-            if self.phase == "ekf" and self.hist_t and \
-                    self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s:
+            if self.phase == "ekf" and self.hist_t and (
+                    self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s
+                    or (self.structure is not None and len(self.hist_t) >= 10)):
+                # (a structure has no estimate but the LS one: a run shorter than the
+                # window is fitted whole)
                 self._start_ls()
             self._ls_tick(block=True)
             self.close_pool()
@@ -495,6 +666,8 @@ class LiveEstimator(LsEkfRestart):
         d = asdict(self.counters)
         d.update({f"align_{k}": v for k, v in self.aligner.stats.as_dict().items()})
         d["pending"] = self.aligner.pending
+        if self.merger is not None:
+            d.update({f"merge_{k}": v for k, v in self.merger.stats.as_dict().items()})
         return d
 
     def summary(self) -> dict[str, Any]:
@@ -505,8 +678,15 @@ class LiveEstimator(LsEkfRestart):
                                        "mass_sigma_thrust_kg", "izz_sigma_noise_kgm2",
                                        "izz_sigma_thrust_kgm2", "state", "state_sigma",
                                        "n_updates", "diverged", "inconsistent")}
-        out["thrust_uncertainty"] = {"included": bool(getattr(self.table, "states_uncertainty", False)),
+        out["thrust_uncertainty"] = {"included": self._states_uncertainty(),
                                      "note": self.thrust_note}
+        if self.structure is not None:
+            out["structure"] = self.structure.name
+            out["modules"] = [m.name for m in self.structure.modules]
+            out.update({k: est.get(k) for k in (
+                "com_x_m", "com_x_sigma_m", "com_y_m", "com_y_sigma_m", "com_x_sigma_noise_m",
+                "com_y_sigma_noise_m", "com_x_sigma_thrust_m", "com_y_sigma_thrust_m",
+                "cov_com_m2", "izz_origin_kgm2", "izz_origin_sigma_kgm2")})
         out["t_last_lab"] = self.t_last
         out["restart_t_lab"] = self.restart_t
         if self.ls_result is not None:

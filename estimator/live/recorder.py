@@ -29,6 +29,9 @@ ESTIMATE_COLUMNS = ("t", "frame", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2
 """``mass_sigma_kg``/``izz_sigma_kgm2`` are the total (noise + thrust table); the parts last."""
 ESTIMATE_FORMATS = ("%.9f", "%d", "%s", "%.10g", "%.6g", "%.10g", "%.6g",
                     *["%.10g"] * 6, *["%.6g"] * 6, *["%.6g"] * 4)
+COM_COLUMNS = ("com_x_m", "com_x_sigma_m", "com_y_m", "com_y_sigma_m")
+"""A structure's estimates.csv ends with these (centre of mass, tracked frame; total sigmas)."""
+COM_FORMATS = ("%.10g", "%.6g", "%.10g", "%.6g")
 
 
 class LiveRecorder:
@@ -46,10 +49,13 @@ class LiveRecorder:
       behind, it means the process died; then the live run's ``success``, ``stopped``,
       ``aborted`` or ``failed``), counters and the final estimate. Anything but
       ``success`` marks a partial run: readers warn (docs/run-format.md).
+    - a structure (``structure``, issue 18): ``structure.toml`` (self-contained) makes the
+      folder a structure run; commands.csv has the merged ``d1..d{4N}``; estimates.csv
+      ends with :data:`COM_COLUMNS`.
     """
 
     def __init__(self, out: str | Path, meta: dict[str, Any], n_channels: int = 4,
-                 flush_every_s: float = 0.1) -> None:
+                 flush_every_s: float = 0.1, structure: Any = None) -> None:
         self.out = Path(out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
@@ -60,11 +66,17 @@ class LiveRecorder:
         self.meta = dict(meta)
         self.meta.setdefault("status", "running")
         self.t0: float | None = None
+        self.structure = structure
+        if structure is not None:
+            n_channels = structure.n_channels
+            structure.write(self.out)
         self.n_channels = n_channels
         self._cmd = CommandLog(self.out / "commands.csv", n_channels, t_format="%.9f")
         self._pose = CsvLog(self.out / "poses.csv", POSE_COLUMNS, POSE_FORMATS)
-        self._est = CsvLog(self.out / "estimates.csv", ESTIMATE_COLUMNS, ESTIMATE_FORMATS,
-                           flush_every_s=flush_every_s)
+        cols, fmts = ESTIMATE_COLUMNS, ESTIMATE_FORMATS
+        if structure is not None:
+            cols, fmts = cols + COM_COLUMNS, fmts + COM_FORMATS
+        self._est = CsvLog(self.out / "estimates.csv", cols, fmts, flush_every_s=flush_every_s)
         self.last_cmd_t = -math.inf
         self.last_duty: tuple[float, ...] | None = None
         self.last_pose_t = -math.inf
@@ -112,13 +124,19 @@ class LiveRecorder:
             self._pose.write_many(rows)
 
     def estimate(self, t: float, frame: int, phase: str, z: np.ndarray, sig: np.ndarray,
-                 thrust_rel: tuple[float, float] = (0.0, 0.0)) -> None:
+                 thrust_rel: tuple[float, float] = (0.0, 0.0),
+                 com_thrust_sigma_m: tuple[float, float] = (0.0, 0.0)) -> None:
         """One estimates.csv row; ``thrust_rel``: the thrust table's sigma as fractions of m
-        and Izz (added in quadrature to the filter's noise sigma ``sig``)."""
+        and Izz (added in quadrature to the filter's noise sigma ``sig``); a structure's
+        ``z[8:10]`` is its centre of mass, with ``com_thrust_sigma_m`` its thrust part."""
         t0 = self.t0 if self.t0 is not None else t
         tm, ti = abs(z[6]) * thrust_rel[0], abs(z[7]) * thrust_rel[1]
+        com = ()
+        if self.structure is not None:
+            com = (z[8], math.hypot(sig[8], com_thrust_sigma_m[0]),
+                   z[9], math.hypot(sig[9], com_thrust_sigma_m[1]))
         self._est.write(t - t0, frame, phase, z[6], math.hypot(sig[6], tm), z[7],
-                        math.hypot(sig[7], ti), *z[:6], *sig[:6], sig[6], tm, sig[7], ti)
+                        math.hypot(sig[7], ti), *z[:6], *sig[:6], sig[6], tm, sig[7], ti, *com)
         self.counts["estimates"] += 1
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
@@ -146,4 +164,5 @@ def record_streams(session: Any, keys: dict[str, str], log: McapLog) -> list[Any
     :func:`estimator.live.zenoh_run.keys`); the estimates this session publishes reach it
     too (Zenoh delivers them to the session's own subscribers). Returns the subscribers
     (undeclare them before closing ``log``)."""
-    return [_subscribe(session, keys[k], log) for k in ("pose", "cmd", "estimate") if k in keys]
+    return [_subscribe(session, v, log) for k, v in keys.items()
+            if k in ("pose", "cmd", "estimate") or k.startswith("cmd:")]

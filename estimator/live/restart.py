@@ -44,13 +44,25 @@ class LsEkfRestart:
 
     def _ls_tick(self, block: bool = False) -> None:
         if self.phase == "ekf" and self._ls_future is None and self.hist_t \
-                and self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s:
+                and self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s \
+                and self._window_commands_known():
             self._start_ls()
         if self._ls_future is not None and self.phase == "ls-running":
             if block or self._ls_future.done():
                 self._ls_done()
         if self._cu is not None:
             self._catch_up(block)
+
+    def _window_commands_known(self) -> bool:
+        """A structure's window fit waits until every module's commands over the window
+        are known (the merger has emitted a row at or after its end; at most a heartbeat,
+        0.1 s): a module whose stream lags would otherwise be fitted with its last value
+        held. (A module's own fit starts at once, as it always has.)"""
+        if self.structure is None:
+            return True
+        t_end = self.hist_t[0] + self.config.ls_window_s
+        cmd_t = self.aligner._cmd_t
+        return bool(cmd_t) and cmd_t[-1] >= min(t_end, self.hist_t[-1])
 
     def _executor(self):
         """One background worker for the batch fit: a separate spawned process when
@@ -75,11 +87,8 @@ class LsEkfRestart:
         pose_t = np.asarray(self.hist_t[:n]) - t0
         pose = np.asarray(self.hist_pose[:n])
         cmd_t, duty = self.aligner.commands()
-        thrust = self.table.thrust_n(duty, clamp=True)
-        cfg = self.config.ekf
-        kw = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2],
-              "fixed": {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr, "kb": cfg.kb,
-                        "ax": cfg.ax, "ay": cfg.ay}}
+        thrust = self._thrust_of(duty)
+        kw = self._ls_kwargs()
         self._ls_n = n
         self.phase = "ls-running"
         sens = self._thrust_sensitivity(duty)
@@ -90,6 +99,27 @@ class LsEkfRestart:
             self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
             self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
                                                 thrust, kw, sens)
+
+    def _thrust_of(self, duty):
+        """(N, 4) thrusts of duty rows: the table's, or a structure's virtual thrusts."""
+        if self.structure is not None:
+            return self.structure.virtual_thrust(duty, clamp=True)
+        return self.table.thrust_n(duty, clamp=True)
+
+    def _ls_kwargs(self, initial=None) -> dict[str, Any]:
+        """Keyword arguments of the batch LS fits of the live estimator (window, end of
+        run): the filter's noise and known terms; for a structure its unknowns and start
+        (:meth:`common.structure.Structure.initial_guess`, as ``tpods estimate batch``)."""
+        cfg = self.config.ekf
+        kw: dict[str, Any] = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2],
+                              "fixed": {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr,
+                                        "kb": cfg.kb, "ax": cfg.ax, "ay": cfg.ay}}
+        if self.structure is not None:
+            kw["names"] = tuple(self._guess)
+            kw["initial"] = dict(self._guess)
+        if initial:
+            kw["initial"] = {**kw.get("initial", {}), **initial}
+        return kw
 
     def _ls_done(self) -> None:
         try:

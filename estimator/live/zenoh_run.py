@@ -22,10 +22,22 @@ from common.wire import ENCODING, cmd_key, decode_command, decode_pose, estimate
 from estimator.live.core import LiveEstimator
 
 
-def keys(body: str, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods") -> dict[str, str]:
-    """The pose, command and estimate keys of a body."""
-    return {"pose": pose_key(mocap_prefix, body), "cmd": cmd_key(body, prefix),
-            "estimate": estimate_key(body, prefix)}
+def keys(body: str, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
+         modules: tuple[str, ...] | list[str] | None = None) -> dict[str, str]:
+    """The pose, command and estimate keys of a body; a structure's (``modules``, issue 18)
+    has one command key per module, ``cmd:<module>`` (``tpods/<module>/cmd``), instead of
+    the body's ``cmd``."""
+    out = {"pose": pose_key(mocap_prefix, body), "estimate": estimate_key(body, prefix)}
+    if modules:
+        out.update({f"cmd:{m}": cmd_key(m, prefix) for m in modules})
+    else:
+        out["cmd"] = cmd_key(body, prefix)
+    return out
+
+
+def command_keys(k: dict[str, str]) -> list[str]:
+    """The command keys among :func:`keys`' (one, or one per module of a structure)."""
+    return [v for name, v in k.items() if name == "cmd" or name.startswith("cmd:")]
 
 
 @dataclass
@@ -51,7 +63,9 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     next pose's wait deadline.
     """
     stop = stop or threading.Event()
-    k = keys(estimator.body, mocap_prefix, prefix)
+    st = estimator.structure
+    k = keys(estimator.body, mocap_prefix, prefix,
+             [m.name for m in st.modules] if st is not None else None)
     q: queue.SimpleQueue = queue.SimpleQueue()
     now = time.time
     bad: dict[str, int] = {}
@@ -66,8 +80,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                                     express=True)
 
     estimator.publish_bytes = pub.put
-    subs = [session.declare_subscriber(k["pose"], on_pose),
-            session.declare_subscriber(k["cmd"], on_cmd)]
+    subs = [session.declare_subscriber(k["pose"], on_pose)]
+    subs += [session.declare_subscriber(key, on_cmd) for key in command_keys(k)]
     t_start = time.monotonic()
     t_end = None if duration_s is None else t_start + duration_s
     next_console = t_start + console_period_s
@@ -108,7 +122,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                     if c is None:
                         estimator.counters.malformed += 1
                     else:
-                        estimator.command(c)
+                        estimator.command(c, arr)
                 batch += 1
                 if batch >= 64:
                     break
@@ -142,7 +156,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
             with contextlib.suppress(Exception):
                 d = decode_pose(payload, bad) if kind == 0 else decode_command(payload, bad)
                 if d is not None:
-                    (estimator.pose(d, arr) if kind == 0 else estimator.command(d))
+                    (estimator.pose(d, arr) if kind == 0 else estimator.command(d, arr))
         if status == "success":
             estimator.finish()
         else:
@@ -162,7 +176,11 @@ def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) 
     e = est.estimate()
     a = est.aligner.stats
     c = est.counters
-    if e is None:
+    if e is None and est.structure is not None and est.hist_t:
+        span = est.hist_t[-1] - est.hist_t[0]
+        head = (f"structure {est.structure.name}: LS window {span:.1f}/{est.config.ls_window_s:g} s "
+                f"| {est.phase}")
+    elif e is None:
         head = "waiting for poses and commands"
     else:
         t_rel = (est.t_last - est.aligner.first_command_t) if est.aligner.first_command_t else 0.0

@@ -27,12 +27,19 @@ def register(est) -> None:
                     "are a zero-order hold; a pose waits up to --max-wait-ms for a late command), "
                     "run the EKF (or LS then EKF) pose by pose and publish tpods/<body>/estimate. "
                     "With --out, what it saw is recorded as a run folder for `tpods estimate batch`.")
-    p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    p.add_argument("--body", default=None,
+                   help="body name: its poses are tpods/mocap/<body>/pose (default tpods1; with "
+                        "--structure the structure's name)")
+    p.add_argument("--structure", default=None, metavar="F",
+                   help="structure.toml (issue 18): a rigid body moved by several modules; commands "
+                        "from tpods/<module>/cmd of every module in F, merged; estimates mass, Izz "
+                        "about the centre of mass and the centre of mass (ls-ekf only)")
     p.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML, e.g. from `tpods bench fit` (default the paper's Table 2)")
-    p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
+                   help="thrust table TOML, e.g. from `tpods bench fit` (default the paper's Table 2; "
+                        "with --structure: for the modules without their own)")
+    p.add_argument("--method", choices=("ekf", "ls-ekf"), default=None,
                    help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
-                        "then the filter restarts from it (default ekf)")
+                        "then the filter restarts from it (default ekf; ls-ekf with --structure)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="record a run folder here; a file X.mcap: only the Zenoh streams, in MCAP")
     p.add_argument("--mcap", action="store_true",
@@ -70,17 +77,36 @@ def cmd_live(args: argparse.Namespace) -> int:
     from common.zenoh_net import open_session
     from estimator.live.recorder import record_streams
     from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
+    from estimator.live.zenoh_run import command_keys
     from tpods.cli.estimate_ekf import _filter_config
 
+    structure = None
+    if args.structure is not None:
+        from common.structure import Structure
+
+        structure = Structure.load(args.structure)
+        if args.method == "ekf":
+            raise UserError("--structure is estimated with --method ls-ekf only: from a structure's "
+                            "geometric start the EKF alone diverges (docs/estimators.md)")
+        args.method = "ls-ekf"
+        if args.body is None:
+            args.body = structure.name
+        if args.thrust_table is not None:
+            structure.check_table_option()
+    args.method = args.method or "ekf"
+    args.body = args.body or "tpods1"
     if args.method == "ls-ekf" and args.duration is not None and args.ls_window >= args.duration:
         raise UserError(f"--ls-window {args.ls_window:g} s is not shorter than --duration "
                         f"{args.duration:g} s: the LS start would never run; give --ls-window "
                         f"below {args.duration:g} s")
     table = load_thrust_table(args.thrust_table)
+    if structure is not None and args.thrust_table is not None:
+        structure = structure.with_table(table)
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
-    k = keys(args.body, args.mocap_prefix, args.prefix)
+    k = keys(args.body, args.mocap_prefix, args.prefix,
+             [m.name for m in structure.modules] if structure is not None else None)
     rec = log = None
     if args.mcap and args.out is None:
         raise UserError("--mcap records into the --out folder; give --out RUN_DIR (or --out X.mcap)")
@@ -98,11 +124,12 @@ def cmd_live(args: argparse.Namespace) -> int:
                          "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
                          "sigma_meas": list(cfg.ekf.sigma_meas),
-                         "underweight": cfg.ekf.underweight}})
+                         "underweight": cfg.ekf.underweight}},
+            structure=structure)
         if args.mcap:
             log = McapLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
-    est = LiveEstimator(table, cfg, args.body, recorder=rec)
+    est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
     console = _Console(args.quiet)
     stop = threading.Event()
     old = {}
@@ -116,7 +143,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         try:
             if log is not None:
                 subs = record_streams(session, k, log)
-            print(f"live: {k['pose']} + {k['cmd']} -> {k['estimate']} ({args.method}, "
+            cmds = " + ".join(command_keys(k))
+            print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
                   f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
             res = run_live(session, est, stop=stop, duration_s=args.duration,
                            exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
@@ -162,7 +190,12 @@ def cmd_live(args: argparse.Namespace) -> int:
         return 0
     print(f"live {status} ({summary['phase']}, {summary['n_updates']} updates)")
     print(f"  mass = {summary['mass_kg']:.6g} kg      +/- {summary['mass_sigma_kg']:.3g} (1 sigma)")
-    print(f"  Izz  = {summary['izz_kgm2']:.6g} kg m^2  +/- {summary['izz_sigma_kgm2']:.3g} (1 sigma)")
+    print(f"  Izz  = {summary['izz_kgm2']:.6g} kg m^2  +/- {summary['izz_sigma_kgm2']:.3g} (1 sigma)"
+          + (" about the centre of mass" if structure is not None else ""))
+    if structure is not None:
+        print(f"  centre of mass = ({summary['com_x_m']:.5f}, {summary['com_y_m']:.5f}) m "
+              f"+/- ({summary['com_x_sigma_m']:.2g}, {summary['com_y_sigma_m']:.2g}) in the tracked "
+              f"frame; Izz about the tracked origin {summary['izz_origin_kgm2']:.6g} kg m^2")
     from tpods.cli.estimate_batch import budget_lines, filter_budget
 
     for line in budget_lines(filter_budget(summary)):
