@@ -67,7 +67,8 @@ updates (3 expected) flags the filter as diverged, as the batch EKF does."""
 NIS_WINDOW = 200
 STRUCTURE_NAMES = ("mass", "izz", "cx", "cy")
 """The live estimator's unknowns on a structure (issue 18): mass, Izz about the centre of
-mass and the centre of mass in the tracked frame."""
+mass and the centre of mass in the tracked frame (cx or cy given as known in the
+structure's [body] are fixed instead)."""
 
 
 @functools.cache
@@ -321,19 +322,47 @@ class LiveEstimator(LsEkfRestart):
 
     # ------------------------------------------------------------ structures
     def _init_structure_filter(self) -> None:
-        """The extended filter of a structure: mass, izz, cx, cy estimated, the known
-        terms of the EkfConfig fixed; the process noise of its first 8 states (added after
-        every RK4 step, as :func:`estimator.filters.ekf_ext.run_ext_ekf` does), none on
-        cx, cy; the direct parameter form (the 1/m form was overconfident with cx, cy
-        estimated, see estimator.estimate._extended_filter)."""
+        """The extended filter of a structure: mass, izz, cx, cy estimated (a cx or cy the
+        structure's [body] gives as known is fixed; a [body] value with a sigma is a prior
+        of the LS window's fit, as in ``tpods estimate batch``), the known terms of the
+        EkfConfig fixed; the process noise of its first 8 states (added after every RK4
+        step, as :func:`estimator.filters.ekf_ext.run_ext_ekf` does), none on cx, cy; the
+        direct parameter form (the 1/m form was overconfident with cx, cy estimated, see
+        estimator.estimate._extended_filter)."""
         cfg = self.config.ekf
+        body = self.structure.body
+        known, priors = body.known(), body.priors()
+        if "mass" in known or "izz" in known:
+            which = " and ".join(n for n in ("mass", "izz") if n in known)
+            raise UserError(f"{self.structure.source}: [body] gives {which} as known (no sigma), "
+                            "but the live filter always estimates mass and Izz; give it a sigma "
+                            "(a prior), or post-process with `tpods estimate batch --method ls`")
+        self._names = tuple(n for n in STRUCTURE_NAMES if n not in known)
         self._fixed = {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr, "kb": cfg.kb,
                        "ax": cfg.ax, "ay": cfg.ay}
-        self._plant = filter_plant(STRUCTURE_NAMES, self._fixed)
+        self._fixed.update({n: known[n] for n in ("cx", "cy") if n in known})
+        self._priors = {n: priors[n] for n in self._names if n in priors}
+        self._plant = filter_plant(self._names, self._fixed)
         self._q_nz = tuple((i, float(q)) for i, q in enumerate(cfg.q_psd) if q)
         self._off = _offset_spec(self._plant)
         guess = self.structure.initial_guess()
-        self._guess = {k: guess[k] for k in STRUCTURE_NAMES}
+        self._guess = {k: guess[k] for k in self._names}
+
+    def _prior_vector(self):
+        """The [body] priors as ``(zbar, Pbar)`` over ``(x, y, psi, u, v, r, *names)`` for
+        batch LS (other entries diffuse), or None."""
+        if not self._priors:
+            return None
+        n = 6 + len(self._names)
+        zbar, P = np.zeros(n), np.diag(np.full(n, np.inf))
+        for j, name in enumerate(self._names):
+            if name in self._priors:
+                zbar[6 + j], P[6 + j, 6 + j] = self._priors[name][0], self._priors[name][1] ** 2
+        return zbar, P
+
+    def _com_index(self) -> list[int | None]:
+        """State indices of cx, cy (None: fixed)."""
+        return [6 + self._names.index(n) if n in self._names else None for n in ("cx", "cy")]
 
     def _step_structure(self, z, P, t_prev, t, meas, use):
         cfg = self.config.ekf
@@ -349,10 +378,18 @@ class LiveEstimator(LsEkfRestart):
 
     def com_m(self) -> tuple[float, float, np.ndarray] | None:
         """A structure's centre of mass (cx, cy, m, tracked frame) and its (2, 2) noise
-        covariance, m^2 (None before the first estimate or for a module)."""
+        covariance, m^2 (0 for a fixed one; None before the first estimate or for a module)."""
         if self.structure is None or self.z is None:
             return None
-        return float(self.z[8]), float(self.z[9]), self.P[8:10, 8:10].copy()
+        idx = self._com_index()
+        c = [float(self.z[i]) if i is not None else float(self._fixed[n])
+             for i, n in zip(idx, ("cx", "cy"), strict=True)]
+        cov = np.zeros((2, 2))
+        for a, ia in enumerate(idx):
+            for b, ib in enumerate(idx):
+                if ia is not None and ib is not None:
+                    cov[a, b] = self.P[ia, ib]
+        return c[0], c[1], cov
 
     def process(self, now: float) -> int:
         """Release the aligned poses, filter them, advance a catch-up, publish. Returns updates."""
@@ -393,10 +430,15 @@ class LiveEstimator(LsEkfRestart):
             self._after_update(p.t, len(self.hist_t) - 1)
             if self.recorder is not None:
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
+                com = None
+                if self.structure is not None:
+                    cx, cy, cc = self.com_m()
+                    tc = np.diag(self.thrust_com_cov)
+                    com = (cx, math.sqrt(max(cc[0, 0] + tc[0], 0.0)),
+                           cy, math.sqrt(max(cc[1, 1] + tc[1], 0.0)))
                 self.recorder.estimate(p.t, p.frame, self.phase, self.z,
                                        np.sqrt(np.maximum(self.P.diagonal(), 0.0)),
-                                       self.thrust_rel,
-                                       tuple(np.sqrt(np.diag(self.thrust_com_cov)).tolist()))
+                                       self.thrust_rel, com)
             if self.config.publish_rate_hz == 0:
                 self._publish(now)
         if self.config.method == "ls-ekf":
@@ -521,8 +563,13 @@ class LiveEstimator(LsEkfRestart):
         if all(math.isfinite(v) and v >= 0 for v in rel):
             self.thrust_rel = rel
             if self.structure is not None and res.cov_thrust is not None:
-                ic = [6 + res.names.index(n) for n in ("cx", "cy")]
-                self.thrust_com_cov = np.array(res.cov_thrust)[np.ix_(ic, ic)]
+                ct = np.zeros((2, 2))
+                ic = [6 + res.names.index(n) if n in res.names else None for n in ("cx", "cy")]
+                for a, ia in enumerate(ic):
+                    for b, ib in enumerate(ic):
+                        if ia is not None and ib is not None:
+                            ct[a, b] = res.cov_thrust[ia, ib]
+                self.thrust_com_cov = ct
             self.thrust_note = (f"{res.thrust_note}; the thrust part from the consider covariance "
                                 f"of {where}, as fractions of m and Izz")
 
@@ -538,7 +585,8 @@ class LiveEstimator(LsEkfRestart):
         sens = self._thrust_sensitivity(duty)
         start = {"mass": float(self.z[6]), "izz": float(self.z[7])}
         if self.structure is not None:
-            start.update(cx=float(self.z[8]), cy=float(self.z[9]))
+            cx, cy, _ = self.com_m()
+            start.update({k: v for k, v in (("cx", cx), ("cy", cy)) if k in self._names})
         kw = self._ls_kwargs(start)
         try:
             res = batch_ls(np.asarray(self.hist_t), np.asarray(self.hist_pose), cmd_t,
@@ -593,13 +641,19 @@ class LiveEstimator(LsEkfRestart):
         tracked origin (kg m^2; its sigma from the noise covariance of m, Izz, cx, cy and
         the thrust parts of m and Izz, first order)."""
         z, P = self.z, self.P
-        cn = P[8:10, 8:10]
+        cx, cy, cn = self.com_m()
         ct = self.thrust_com_cov
         cov = cn + ct
-        m, izz, cx, cy = (float(v) for v in z[6:10])
-        g = np.array([cx * cx + cy * cy, 1.0, 2 * m * cx, 2 * m * cy])
-        var_o = float(g @ P[6:10, 6:10] @ g) + (g[0] * m * self.thrust_rel[0]) ** 2 \
-            + (izz * self.thrust_rel[1]) ** 2
+        m, izz = float(z[6]), float(z[7])
+        g = np.zeros(len(z))
+        g[6], g[7] = cx * cx + cy * cy, 1.0
+        for i, v in zip(self._com_index(), (2 * m * cx, 2 * m * cy), strict=True):
+            if i is not None:
+                g[i] = v
+        # the thrust part of m and Izz added linearly: exact for a common scale error (m and
+        # Izz move together), conservative otherwise
+        t_o = abs(g[6] * m * self.thrust_rel[0]) + abs(izz * self.thrust_rel[1])
+        var_o = float(g @ P @ g) + t_o * t_o
         sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
         return {"structure": self.structure.name,
                 "com_x_m": cx, "com_x_sigma_m": float(sd[0]),

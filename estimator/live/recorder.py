@@ -125,16 +125,16 @@ class LiveRecorder:
 
     def estimate(self, t: float, frame: int, phase: str, z: np.ndarray, sig: np.ndarray,
                  thrust_rel: tuple[float, float] = (0.0, 0.0),
-                 com_thrust_sigma_m: tuple[float, float] = (0.0, 0.0)) -> None:
+                 com: tuple[float, float, float, float] | None = None) -> None:
         """One estimates.csv row; ``thrust_rel``: the thrust table's sigma as fractions of m
         and Izz (added in quadrature to the filter's noise sigma ``sig``); a structure's
-        ``z[8:10]`` is its centre of mass, with ``com_thrust_sigma_m`` its thrust part."""
+        ``com``: (cx, its total sigma, cy, its total sigma), m."""
         t0 = self.t0 if self.t0 is not None else t
         tm, ti = abs(z[6]) * thrust_rel[0], abs(z[7]) * thrust_rel[1]
-        com = ()
-        if self.structure is not None:
-            com = (z[8], math.hypot(sig[8], com_thrust_sigma_m[0]),
-                   z[9], math.hypot(sig[9], com_thrust_sigma_m[1]))
+        if self.structure is None:
+            com = ()
+        elif com is None:
+            com = (math.nan,) * 4
         self._est.write(t - t0, frame, phase, z[6], math.hypot(sig[6], tm), z[7],
                         math.hypot(sig[7], ti), *z[:6], *sig[:6], sig[6], tm, sig[7], ti, *com)
         self.counts["estimates"] += 1

@@ -115,8 +115,11 @@ class LsEkfRestart:
                               "fixed": {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr,
                                         "kb": cfg.kb, "ax": cfg.ax, "ay": cfg.ay}}
         if self.structure is not None:
-            kw["names"] = tuple(self._guess)
+            kw["names"] = self._names
+            kw["fixed"].update({k: v for k, v in self._fixed.items() if k in ("cx", "cy")})
             kw["initial"] = dict(self._guess)
+            if (prior := self._prior_vector()) is not None:
+                kw["prior"] = prior
         if initial:
             kw["initial"] = {**kw.get("initial", {}), **initial}
         return kw

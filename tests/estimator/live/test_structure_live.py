@@ -263,3 +263,52 @@ def test_live_over_zenoh_subscribes_to_every_module(zenoh_pair, recorded, batch_
     _assert_equal_to_batch(est, batch_ls_ekf)
     msgs = [json.loads(p) for p in estimates]
     assert msgs and all("com_x_m" in m and "cov_com_m2" in m for m in msgs)
+
+
+# ------------------------------------------------- [body] known values and priors
+
+def test_known_centre_of_mass_and_mass_prior_live_equal_batch(recorded, tmp_path):
+    """[body] with the centre of mass known (fixed: only mass and Izz estimated) and a
+    mass prior of 1.6 +/- 0.02 kg (the LS window's fit takes it): live ends where
+    ``estimate batch --method ls-ekf`` ends on the same folder; a known mass is refused."""
+    import shutil
+    from dataclasses import replace
+
+    from common.structure import Body
+
+    body = Body(mass_kg=1.6, mass_sigma_kg=0.02, com_m=(0.03, 0.0))
+    st = replace(recorded.structure, body=body)
+    folder = tmp_path / "run"
+    shutil.copytree(FIXTURE, folder)
+    st.write(folder)
+    run = read_run(folder)
+    assert run.structure.body.known() == {"cx": 0.03, "cy": 0.0}
+    ext = estimate_run(folder, method="ls-ekf", estimate=None,
+                       filter_options=FilterOptions(ls_window_s=WINDOW_S, process_noise={6: 1e-4})).ext
+    assert ext.names == ("mass", "izz")
+    est, _ = _live(run)
+    assert est._names == ("mass", "izz") and "prior" in est._ls_kwargs()
+    sd = np.sqrt(np.diag(ext.P))
+    for i in (6, 7):
+        assert abs(est.z[i] - ext.x[-1, i]) < 1e-6 * sd[i]
+        assert math.sqrt(est.P[i, i]) == pytest.approx(sd[i], rel=1e-6)
+    s = est.summary()
+    assert (s["com_x_m"], s["com_y_m"], s["com_x_sigma_m"]) == (0.03, 0.0, 0.0)
+    # the prior tightens the mass: below both the prior's sigma and the data-only sigma
+    free, _ = _live(recorded)
+    assert s["mass_sigma_kg"] < min(0.02, free.summary()["mass_sigma_kg"])
+    with pytest.raises(UserError, match="mass as known"):
+        LiveEstimator(ThrustTable.default(), LiveConfig(method="ls-ekf"), "truss",
+                      structure=replace(st, body=Body(mass_kg=1.6)))
+
+
+def test_cli_refusals_are_one_line(tpods_exe, tmp_path):
+    from tests.support.cli import run
+
+    for args, match in (
+            (("--structure", str(FIXTURE / "structure.toml"), "--method", "ekf"), "ls-ekf only"),
+            (("--structure", str(tmp_path / "none.toml")), "structure file not found")):
+        r = run(tpods_exe, "estimate", "live", *args, "--duration", "1", "--quiet")
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+        assert lines[0].startswith("tpods: error: ") and match in lines[0]
