@@ -104,6 +104,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """``tpods demo``: the five stages in order, the summary table, report.md, summary.json."""
     if args.no_live and not args.structure:
         raise UserError("--no-live goes with --structure (the plain demo's run is the live run)")
+    if args.structure and not args.no_live and args.method != "ls-ekf":
+        raise UserError("--structure is estimated live with --method ls-ekf only (from the "
+                        "structure's geometric start the EKF alone diverges)")
     if args.quick:
         args.duration = min(args.duration, 40.0)
     if args.time_scale > 4:

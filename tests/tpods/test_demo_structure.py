@@ -135,9 +135,12 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     assert json.loads((out / "run.json").read_text())["status"] == "complete"
 
 
-def test_no_live_without_structure_is_a_one_line_error(tpods_exe, tmp_path):
-    r = subprocess.run([tpods_exe, "demo", "--no-live", "--out", str(tmp_path / "d")],
+@pytest.mark.parametrize("argv, message", [
+    (["--no-live"], "--no-live goes with --structure"),
+    (["--structure", "--method", "ekf"], "with --method ls-ekf only")])
+def test_option_errors_are_one_line_and_write_nothing(tpods_exe, tmp_path, argv, message):
+    r = subprocess.run([tpods_exe, "demo", *argv, "--out", str(tmp_path / "d")],
                        capture_output=True, text=True, timeout=60)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert r.returncode == 2 and len(lines) == 1 and "--no-live goes with --structure" in lines[0]
+    assert r.returncode == 2 and len(lines) == 1 and message in lines[0], r.stderr
     assert not (tmp_path / "d").exists()
