@@ -5,18 +5,8 @@ import json
 import pytest
 
 from tests.support.cli import run
+from tests.support.structures import TRUSS_TOML as STRUCTURE
 
-STRUCTURE = """
-name = "truss"
-[[modules]]
-name = "tpods1"
-position_m = [-0.2, 0.0]
-yaw_deg = 0
-[[modules]]
-name = "tpods2"
-position_m = [0.2, 0.05]
-yaw_deg = 90
-"""
 # the simulation's truth as options: [body] values would be known values (fixed) to tpods
 # estimate, not the truth the estimator is to find (tests/tpods/cli/test_structure_priors.py)
 TRUTH = ("--mass", "1.6", "--izz", "0.03", "--com", "0.03,0")

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.cli import run
+from tests.support.structures import TRUSS_TOML as TRUSS
 
 FIXTURE = Path(__file__).resolve().parents[3] / "runs" / "fixtures" / "structure-run"
 
@@ -129,17 +130,6 @@ def test_a_structure_run_with_every_valve_closed_is_refused(tpods_exe, tmp_path)
     assert "mass, izz, cx, cy cannot be estimated" in line and "no thrust" in line
 
 
-TRUSS = """
-name = "truss"
-[[modules]]
-name = "tpods1"
-position_m = [-0.2, 0.0]
-yaw_deg = 0
-[[modules]]
-name = "tpods2"
-position_m = [0.2, 0.05]
-yaw_deg = 90
-"""
 FRICTION = {"ct": 0.2, "cr": 2e-3, "kb": 3e-3}
 
 

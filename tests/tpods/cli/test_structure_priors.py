@@ -11,18 +11,8 @@ import pytest
 from common.errors import UserError
 from estimator.batch.least_squares import _as_prior
 from tests.support.cli import run
+from tests.support.structures import TRUSS_TOML as MODULES
 
-MODULES = """
-name = "truss"
-[[modules]]
-name = "tpods1"
-position_m = [-0.2, 0.0]
-yaw_deg = 0
-[[modules]]
-name = "tpods2"
-position_m = [0.2, 0.05]
-yaw_deg = 90
-"""
 TRUE_MASS_KG, TRUE_IZZ_KGM2, TRUE_COM_M = 1.6, 0.03, (0.03, 0.0)
 TRUTH = ("--mass", repr(TRUE_MASS_KG), "--izz", repr(TRUE_IZZ_KGM2),
          f"--com={TRUE_COM_M[0]!r},{TRUE_COM_M[1]!r}")
