@@ -203,4 +203,10 @@ class LsEkfRestart:
             self._rewind_t = None
             self.phase = "ls-ekf"
             self.restart_t = t_prev
+            if self.history and self.history[-1][0] == t_prev:
+                # the history's last entry (same pose) is the new filter's from now on: a
+                # takeover at the end of a run (the fit came late) still ends the history
+                # at the estimate reported
+                self.history[-1] = (t_prev, float(z[6]), float(np.sqrt(max(P[6, 6], 0.0))),
+                                    float(z[7]), float(np.sqrt(max(P[7, 7], 0.0))))
 

@@ -264,3 +264,27 @@ def test_live_with_a_bare_table_says_its_sigma_is_noise_only(sim):
     assert s["mass_sigma_thrust_kg"] == 0.0 and s["mass_sigma_kg"] == s["mass_sigma_noise_kg"]
     assert s["thrust_uncertainty"]["included"] is False
     assert "no uncertainty" in s["thrust_uncertainty"]["note"]
+
+
+def test_a_late_fit_taking_over_at_the_end_ends_the_history_at_the_reported_estimate(
+        sim, monkeypatch):
+    """A loaded machine: the LS window's fit returns only after the stream has ended, so the
+    catch-up takes over in finish(); the history's last entry is then the estimate reported,
+    not the plain EKF's it replaced (this made the rewind test above flaky under load)."""
+    import time as _time
+
+    from estimator.live import worker as live_worker
+
+    slow = live_worker.ls_job
+
+    def late_job(*a, **k):
+        _time.sleep(1.5)
+        return slow(*a, **k)
+
+    monkeypatch.setattr(live_worker, "ls_job", late_job)
+    est = LiveEstimator(TABLE, LiveConfig(method="ls-ekf", ls_window_s=10.0, publish_rate_hz=0))
+    _feed(est, sim)
+    s = est.summary()
+    assert s["phase"] == "ls-ekf" and est.restart_t == est.hist_t[-1]
+    assert len(est.history) == len(est.hist_t)
+    assert est.history[-1][1] == s["mass_kg"] and est.history[-1][3] == s["izz_kgm2"]
