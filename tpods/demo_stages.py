@@ -141,6 +141,18 @@ def stage_bifilar(out: Path, mass: dict[str, Any], izz_kgm2: float, seed: int) -
             "small_angle_kgm2": fit.details["izz_small_angle_kgm2"]}
 
 
+def demo_session(args: argparse.Namespace):
+    """The demo's Zenoh session and the endpoint its children connect to: a private
+    loopback network (two demos on one machine do not mix) unless the Zenoh options say
+    otherwise (then ``ep`` is None)."""
+    if args.connect or args.listen or args.zenoh_config:
+        return open_session(args), None
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    return open_session(listen=[ep], no_multicast=True), ep
+
+
 def _child_zenoh_args(args: argparse.Namespace, ep: str | None) -> list[str]:
     if ep is not None:
         return ["--connect", ep, "--no-multicast"]
@@ -168,15 +180,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
     duration = args.duration if duration is None else duration
     d = out / name
     d.mkdir(parents=True, exist_ok=True)
-    own = not (args.connect or args.listen or args.zenoh_config)
-    ep = None
-    if own:  # a private loopback network: two demos on one machine do not mix
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-        session = open_session(listen=[ep], no_multicast=True)
-    else:
-        session = open_session(args)
+    session, ep = demo_session(args)
     zargs = _child_zenoh_args(args, ep)
     exe = _tpods_exe()
     clock = LabClock(args.time_scale, time.time())

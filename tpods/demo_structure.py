@@ -32,7 +32,6 @@ import os
 import queue
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -49,10 +48,9 @@ from calibration.composite import Part, combine, part_izz
 from calibration.plots import plot_trace_fit
 from common.errors import UserError
 from common.wire import cmd_key, decode_pose, pose_key
-from common.zenoh_net import open_session
 from estimator.estimate import estimate_run
 from estimator.reports.plots_batch import plot_residuals
-from tpods.demo_stages import _child_zenoh_args, _tpods_exe, stage_mass
+from tpods.demo_stages import _child_zenoh_args, _tpods_exe, demo_session, stage_mass
 
 BODY = "truss"
 """The tracked body's name (its mocap key ``tpods/mocap/truss/pose``) = the structure's name."""
@@ -252,15 +250,7 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
     ``out/run``; returns the live summary (or, with ``--no-live``, what the demo recorded)."""
     d = out / "run"
     d.mkdir(parents=True, exist_ok=True)
-    own = not (args.connect or args.listen or args.zenoh_config)
-    ep = None
-    if own:  # a private loopback network: two demos on one machine do not mix
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-        session = open_session(listen=[ep], no_multicast=True)
-    else:
-        session = open_session(args)
+    session, ep = demo_session(args)
     zargs = _child_zenoh_args(args, ep)
     exe = _tpods_exe()
     spath, tpath = parts["structure_path"], parts["truth_path"]
