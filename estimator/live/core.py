@@ -44,7 +44,7 @@ from estimator.filters.ekf import (
 from estimator.live.align import LiveAligner
 from estimator.live.merge import ModuleMerger
 from estimator.live.restart import LsEkfRestart
-from estimator.plant.model import com_from_tracked, wrench
+from estimator.plant.model import wrench
 
 if TYPE_CHECKING:
     from common.structure import Structure
