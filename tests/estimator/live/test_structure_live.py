@@ -312,3 +312,28 @@ def test_cli_refusals_are_one_line(tpods_exe, tmp_path):
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
         assert lines[0].startswith("tpods: error: ") and match in lines[0]
+
+
+def test_the_modules_table_uncertainty_is_in_the_live_sigma(recorded):
+    """Modules whose tables state a 1 % scale uncertainty: the live sigmas are the totals
+    (noise + thrust, from the consider covariance of the whole run at its end) and agree
+    with batch LS's total on the same run within 10 %; the centre of mass has its thrust
+    part too."""
+    from dataclasses import replace
+
+    from common.thrust_table import ThrustTable as TT
+
+    d = ThrustTable.default().to_dict()
+    d["uncertainty"] = {"scale_rel": 0.01}
+    table = TT.from_dict(d)
+    st = recorded.structure.with_table(table)  # what `--thrust-table` does to the modules
+    assert st.states_uncertainty
+    est, _ = _live(replace(recorded, structure=st))
+    s = est.summary()
+    assert s["thrust_uncertainty"]["included"]
+    b = estimate_run(FIXTURE, table, method="ls", estimate=NAMES).to_dict()
+    assert b["mass_sigma_thrust_kg"] > b["mass_sigma_noise_kg"]  # the table dominates here
+    # the filter's noise part is larger (process noise on m); the thrust part is the batch's
+    assert s["mass_sigma_thrust_kg"] == pytest.approx(b["mass_sigma_thrust_kg"], rel=0.1)
+    assert s["izz_sigma_thrust_kgm2"] == pytest.approx(b["izz_sigma_thrust_kgm2"], rel=0.1)
+    assert 0 < s["com_x_sigma_thrust_m"] and s["com_x_sigma_m"] > s["com_x_sigma_noise_m"]
