@@ -91,6 +91,8 @@ def _live_update_s(sim, cmd_t, duty, structure) -> np.ndarray:
         est.process(t0 + t + 0.01)
         if live:
             out.append(time.perf_counter() - a)
+        elif est.phase in ("ls-running", "catching-up"):
+            est._ls_tick(block=True)  # the window's fit and catch-up now (not what is timed)
     est.close_pool()
     return np.asarray(out)
 
