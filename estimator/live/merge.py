@@ -14,9 +14,9 @@ emits the structure command at every time any module switched:
   stream lagging or lost) is emitted with the lagging module's last value held, and
   counted (``incomplete``);
 - a command that changes what an already emitted stamp holds (it arrived late, or out of
-  order) makes the merger emit the corrected stamps again (same stamp: the consumer's
-  later message wins, :meth:`estimator.live.align.LiveAligner.push_command`), counted in
-  ``reemitted``;
+  order) makes the merger emit the corrected stamps again at the next :meth:`due` (once
+  per batch of messages; same stamp: the consumer's later message wins,
+  :meth:`estimator.live.align.LiveAligner.push_command`), counted in ``reemitted``;
 - before a module's first command its valves are taken as closed (0 %).
 
 Bad commands (unknown module, wrong width, non-finite or out-of-range duty, non-finite
@@ -74,6 +74,7 @@ class ModuleMerger:
         self._emitted_t: list[float] = []         # sorted emitted stamps
         self._ends: set[str] = set()
         self.end_t: float | None = None
+        self._dirty_from = math.inf  # earliest emitted stamp a late command may have changed
 
     # ------------------------------------------------------------------ input
     def push(self, module: str, t: float, duty, kind: str | None = None,
@@ -107,33 +108,38 @@ class ModuleMerger:
             self._ends.add(module)
             if len(self._ends) == len(self.modules):
                 self.end_t = t if self.end_t is None else max(self.end_t, t)
-        out: list[tuple[float, tuple[float, ...]]] = []
-        # stamps already emitted whose value this command changes: emit them again
         if self._emitted_t and t <= self._emitted_t[-1]:
-            k = bisect.bisect_left(self._emitted_t, t)
-            jt = bisect.bisect_left(ts, t)
-            nxt = ts[jt + 1] if jt + 1 < len(ts) else math.inf
-            for s in self._emitted_t[k:]:
-                if s >= nxt:
-                    break
-                v = self.value_at(s)
-                if v != self._emitted[s]:
-                    self._emitted[s] = v
-                    self.stats.reemitted += 1
-                    out.append((s, v))
+            # stamps already emitted may change: corrected in due(), once per batch of
+            # messages (a lagging module's burst of late messages costs one pass, not one
+            # pass and one filter rewind per message)
+            self._dirty_from = min(self._dirty_from, t)
         if t not in self._emitted and t not in self._first_seen:
             bisect.insort(self._pending, t)
             self._first_seen[t] = t if arrival is None else float(arrival)
-        out.extend(self._release(math.nan))
-        return out
+        return self._release(math.nan)
 
     def due(self, now: float) -> list[tuple[float, tuple[float, ...]]]:
-        """Stamps whose wait ran out at host time ``now`` (emitted with holds)."""
-        return self._release(now)
+        """The corrections of emitted stamps that late commands changed, then the stamps
+        whose wait ran out at host time ``now`` (emitted with holds)."""
+        return self._corrections() + self._release(now)
 
     def flush(self) -> list[tuple[float, tuple[float, ...]]]:
-        """End of stream: emit every pending stamp."""
-        return self._release(math.inf)
+        """End of stream: every correction and every pending stamp."""
+        return self._corrections() + self._release(math.inf)
+
+    def _corrections(self) -> list[tuple[float, tuple[float, ...]]]:
+        if self._dirty_from == math.inf:
+            return []
+        k = bisect.bisect_left(self._emitted_t, self._dirty_from)
+        self._dirty_from = math.inf
+        out = []
+        for s in self._emitted_t[k:]:
+            v = self.value_at(s)
+            if v != self._emitted[s]:
+                self._emitted[s] = v
+                self.stats.reemitted += 1
+                out.append((s, v))
+        return out
 
     # ----------------------------------------------------------------- output
     def value_at(self, t: float) -> tuple[float, ...]:
