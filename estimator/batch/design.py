@@ -85,12 +85,16 @@ class DesignSettings:
     max_yaw_rate_rad_s: float | None = None
     structure: Any = None
     """A :class:`common.structure.Structure` (issue 18): its modules' duties are designed
-    together, the thrust is its virtual thrust and the criterion is on (m, Izz, cx, cy);
+    together, the thrust is its virtual thrust and the criterion is on (m, Izz, cx, cy)
+    less the values its [body] gives as known (no sigma: the estimators fix them);
     ``plant`` then carries the assumed cx, cy."""
 
     @property
     def names(self) -> tuple[str, ...]:
-        return ("mass", "izz") if self.structure is None else ("mass", "izz", "cx", "cy")
+        if self.structure is None:
+            return ("mass", "izz")
+        known = self.structure.body.known()
+        return tuple(n for n in ("mass", "izz", "cx", "cy") if n not in known)
 
     @property
     def n_channels(self) -> int:

@@ -508,6 +508,13 @@ def cmd_design(args: argparse.Namespace) -> int:
         raise UserError("--omega-range must be LO,HI with 0 < LO < HI")
     if min(args.table_size) <= 2 * args.margin:
         raise UserError("--table-size must exceed twice the --margin")
+    if getattr(args, "structure", None):
+        from common.structure import Structure
+
+        known = Structure.load(args.structure).body.known()
+        if all(n in known for n in ("mass", "izz", "cx", "cy")):
+            raise UserError(f"{args.structure}: [body] gives mass, Izz and the centre of mass as "
+                            "known: nothing left to design for (give a value a sigma, or drop it)")
     _check_design_size(args)
     table = load_thrust_table(args.thrust_table)
     structure = None
@@ -582,6 +589,7 @@ def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path)
                         "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
                         "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
                         "mass_kg": args.mass, "izz_kgm2": args.izz},
+           "criterion_parameters": list(best.crlb.names),
            "commands_csv": str(final / "commands.csv")}
     (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
     for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):

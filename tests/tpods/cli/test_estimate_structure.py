@@ -198,3 +198,19 @@ def test_ls_ekf_on_a_structure_carries_the_centre_of_mass(tpods_exe, structure_r
                             ("cy", 0.0, "cy")):
         assert abs(f["params"][name] - true) < 3.5 * f["sigmas"][name], name
         assert 0.7 < f["sigmas"][name] / ls["sigma"][key] < 1.3, name
+
+
+def test_design_leaves_out_what_the_structure_gives_as_known(tpods_exe, tmp_path):
+    """[body] com_m known (no sigma): the estimators fix cx, cy, so the D-optimal criterion
+    is on mass and Izz only; everything known: nothing to design for, one line."""
+    known = tmp_path / "known.toml"
+    known.write_text(STRUCTURE + "[body]\ncom_m = [0.03, 0.0]\n")
+    r = run(tpods_exe, "design", "--structure", str(known), "--duration", "20", "--candidates", "8",
+            "--refine", "1", "--refine-evals", "2", "--out", str(tmp_path / "d"), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["criterion_parameters"] == ["mass", "izz"]
+    full = tmp_path / "full.toml"
+    full.write_text(STRUCTURE + "[body]\nmass_kg = 1.6\nizz_kgm2 = 0.03\ncom_m = [0.03, 0.0]\n")
+    line = _one_line_error(run(tpods_exe, "design", "--structure", str(full), "--duration", "20",
+                               "--out", str(tmp_path / "e")))
+    assert "nothing left to design for" in line
