@@ -14,8 +14,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
+# in parallel over the machine's cores (pytest-xdist); the 15 slowest tests are listed at the end
 test: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n auto --durations=15
 
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/tpods demo

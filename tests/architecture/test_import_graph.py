@@ -85,3 +85,93 @@ def test_every_floor_exists(pkg):
 @pytest.mark.parametrize("sub", sorted(ESTIMATOR_FLOORS))
 def test_every_estimator_floor_exists(sub):
     assert (ROOT / "estimator" / sub / "__init__.py").exists() or (ROOT / "estimator" / f"{sub}.py").exists()
+
+
+def module_files(root: Path = ROOT) -> dict[str, Path]:
+    """Dotted module name -> file, for every module of the floors' packages."""
+    out = {}
+    for pkg in FLOORS:
+        for f in sorted((root / pkg).rglob("*.py")):
+            parts = f.relative_to(root).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+    return out
+
+
+def file_imports(path: Path, module: str, modules: dict[str, Path]) -> set[str]:
+    """The project modules a file imports (nested and relative imports too): ``from a.b import c``
+    names the module ``a.b.c`` when that is a file, else ``a.b``."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, *([base] if base else [])])
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base
+                       for a in node.names]
+        else:
+            continue
+        out.update(t for t in targets if t in modules and t != module)
+    return out
+
+
+def import_cycles(root: Path = ROOT) -> list[list[str]]:
+    """Every set of modules that import each other, directly or round a loop (Tarjan's
+    strongly connected components of the file-level import graph, imports inside functions
+    included), each sorted."""
+    modules = module_files(root)
+    graph = {m: sorted(file_imports(f, m, modules)) for m, f in modules.items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            scc = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                scc.append(w)
+                if w == v:
+                    break
+            if len(scc) > 1:
+                cycles.append(sorted(scc))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(cycles)
+
+
+def test_no_file_imports_a_file_that_imports_it_back():
+    assert import_cycles() == []
+
+
+def test_the_cycle_checker_catches_pairs_loops_and_relative_imports(tmp_path):
+    for pkg in FLOORS:
+        (tmp_path / pkg).mkdir()
+        (tmp_path / pkg / "__init__.py").write_text("")
+    (tmp_path / "common" / "a.py").write_text("def f():\n    from common import b\n")
+    (tmp_path / "common" / "b.py").write_text("import common.a\n")
+    (tmp_path / "bench" / "x.py").write_text("from .y import g\n")
+    (tmp_path / "bench" / "y.py").write_text("from bench.z import h\n")
+    (tmp_path / "bench" / "z.py").write_text("from bench.x import k\n")
+    (tmp_path / "tpods" / "ok.py").write_text("from common.a import f\nimport bench.x\n")
+    (tmp_path / "tpods" / "sub").mkdir()
+    (tmp_path / "tpods" / "sub" / "__init__.py").write_text("from .inner import v\n")
+    (tmp_path / "tpods" / "sub" / "inner.py").write_text("from tpods.ok import f\n")
+    assert import_cycles(tmp_path) == [["bench.x", "bench.y", "bench.z"], ["common.a", "common.b"]]
