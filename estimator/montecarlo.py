@@ -35,9 +35,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 from tqdm import tqdm
 
+from common import chi2  # scipy.stats.chi2 without its import cost
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.thrust_table import load_thrust_table

@@ -39,9 +39,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 from tqdm import tqdm
 
+from common import chi2  # scipy.stats.chi2 without its import cost
 from common.errors import UserError
 from estimator.batch.least_squares import batch_ls
 from estimator.plant.inputs import make_input
