@@ -16,8 +16,8 @@ The quantities and their ranges:
   the same mass (:func:`smallest_gyration_m`);
 - a balance's mean reading against its stated accuracy: within the accuracy of zero is
   an empty pan (:func:`check_balance_reading`, refused);
-- a pose's position on the table, ``|x|, |y| <=`` :data:`POSE_MAX_M` (refused by row: a
-  run in millimetres stays below it and is flagged by the estimators' residual check);
+- a pose's position, ``|x|, |y| <=`` :data:`POSE_MAX_M` (refused by row: a run in
+  millimetres stays below it and is flagged by the estimators' residual check);
 - a duty, 0..100 % (refused by row), and a duty range LOW..HIGH given reversed
   (:func:`check_duty_range`, refused saying so);
 - a thrust calibration factor (efficiency, nozzle scale), :data:`FACTOR_RANGE` (warn);
@@ -114,9 +114,10 @@ def balance_mass_warnings(mass_kg: float, unit: str | None = None) -> list[str]:
 
 # ------------------------------------------------------------------ poses, duties, times
 
-POSE_MAX_M = 1000.0
-"""No air table or motion-capture volume is a kilometre across; poses in millimetres on a
-3 m table stay below this (the estimators flag them by their residuals)."""
+POSE_MAX_M = 1e5
+"""No air table or motion-capture volume is 100 km across: a larger |x| or |y| is a damaged
+row. Poses in millimetres (a 10 m volume: 1e4) stay below it; the estimators flag them by
+their residuals."""
 
 
 def check_pose_rows(pose: np.ndarray, line_no: Sequence[int] | np.ndarray, path: object) -> None:
