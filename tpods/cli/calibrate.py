@@ -403,6 +403,7 @@ def _register_thrust(cal) -> None:
 
 def cmd_thrust(args: argparse.Namespace) -> int:
     from common.outputs import not_an_input
+    from common.plausible import body_problems
     from common.runfolder import read_run
     from common.thrust_table import ThrustTable
     from estimator.batch.thrust_calibration import calibrate_run
@@ -413,6 +414,9 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     not_an_input(out, args.run_dir, None if builtin else args.thrust_table)
     table = ThrustTable.default() if builtin else ThrustTable.load(args.thrust_table)
     run = read_run(args.run_dir)
+    for p in body_problems(args.mass, args.izz):  # before the fit, which may then fail
+        print(f"tpods: warning: the known body (--mass, --izz): {p}: implausible for an "
+              "air-table body (kg and kg m^2?)", file=sys.stderr)
     if args.window:
         run = run.window(*args.window)
     res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,

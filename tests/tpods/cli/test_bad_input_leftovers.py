@@ -216,6 +216,10 @@ def test_calibrate_thrust_on_the_wrong_body_warns(tmp_path):
                         "--out", str(tmp_path / "cal.toml")])
     assert rc == 0, err
     assert re.search(r"tpods: warning: efficiency.1 = 31[0-9] %", err) and "outside 50-150 %" in err
+    # the known body itself implausible (grams typed as kg): said before the fit
+    rc, _, err = tpods(["calibrate", "thrust", str(run_dir), "--mass", "720", "--izz", "1.2e-3",
+                        "--thrust-table", "table2", "--out", str(tmp_path / "cal2.toml")])
+    assert "tpods: warning: the known body (--mass, --izz): mass 720 kg is outside" in err
 
 
 def test_an_uncertainty_entry_for_a_missing_nozzle_count_is_refused(tmp_path):
