@@ -19,12 +19,11 @@ import shutil
 import socket
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
-from common.thrust_table import ThrustTable
 from tests.support.cli import run
 from tests.support.net import free_port
+from tests.tpods.cli.test_outputs import write_session
 from tpods.cli import main
 from tpods.fixtures import FIXTURES_ROOT
 
@@ -87,26 +86,8 @@ def test_structure_montecarlo_refuses_an_absurd_duration_too(tmp_path):
     assert "--duration 1e9 s" in line and "memory" in line
 
 
-def bench_session(folder: Path) -> Path:
-    """A minimal session (raw.csv only) fitted from Table 2."""
-    table = ThrustTable.default()
-    rows, t, w = [], 0.0, 0
-    for k in (1, 2):
-        for d in range(10, 91, 20):
-            for phase, step, val in (("zero", -1, 0.0), ("dwell", w, float(table.per_nozzle(d, k)))):
-                for i in range(5):
-                    rows.append((t, w, phase, step, k if step >= 0 else 0, d if step >= 0 else 0,
-                                 val + 0.01 * (i - 2), 1))
-                    t += 0.1
-            w += 1
-    folder.mkdir()
-    pd.DataFrame(rows, columns=["t_s", "window", "phase", "step", "n_open", "duty_pct",
-                                "reading_gf", "stable"]).to_csv(folder / "raw.csv", index=False)
-    return folder
-
-
 def test_bench_fit_plot_dir_naming_a_file_is_refused_before_any_work(tmp_path):
-    session = bench_session(tmp_path / "session")
+    session = write_session(tmp_path / "session")
     (tmp_path / "plots.txt").write_text("a file\n")
     for plot_dir in (tmp_path / "plots.txt", tmp_path / "plots.txt" / "sub"):
         rc, _, err = tpods(["bench", "fit", str(session), "--plot-dir", str(plot_dir), "--order", "2"])
