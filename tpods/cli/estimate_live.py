@@ -231,5 +231,6 @@ def nothing_received(c: dict, k: dict, body: str) -> str:
         return (f"no estimate: received no poses on {k['pose']} ({c['cmds_rx']} commands on "
                 f"{cmds}): is `tpods mocap bridge` running on the same Zenoh network "
                 f"(--connect/--listen), for body {body!r} (--body, --mocap-prefix)?")
-    return (f"no estimate: received {c['poses_rx']} poses but {c['cmds_rx']} commands on {cmds} "
-            f"the filter could use: is `tpods run play` publishing for body {body!r} (--prefix)?")
+    return (f"no estimate: received {c['poses_rx']} poses and {c['cmds_rx']} commands on {cmds}, "
+            "none the filter could pair (it needs the commands in time with the poses): is "
+            f"`tpods run play` publishing for body {body!r} (--prefix), on the same clock?")

@@ -184,10 +184,12 @@ def cmd_bridge(args: argparse.Namespace) -> int:
 
 def nothing_published(kind: str, arg: str, name: str, counters: dict) -> str:
     """The refusal of a bridge run that published no pose: what arrived, where to look."""
+    from mocap_bridge.sources.vicon_udp import DEFAULT_PORT
+
     if kind == "vicon-udp":
         got = counters.get("datagrams", 0)
         why = (f"{got} datagrams arrived but none held a pose (not Vicon Tracker's UDP object "
-               "stream?)" if got else f"no datagram arrived on UDP port {arg or 51001}: is Vicon "
+               "stream?)" if got else f"no datagram arrived on UDP port {arg or DEFAULT_PORT}: is Vicon "
                "Tracker streaming to this host and port (Tracker's UDP object stream settings, "
                "--bind, the firewall)?")
     else:
