@@ -47,6 +47,7 @@ from bench import clock
 from bench.ohaus import OhausScout, Reading
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
+from common.plausible import check_duty_range
 from common.runfolder import warn_if_partial
 from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.thrust_table import GF_TO_N
@@ -104,6 +105,7 @@ class SessionConfig:
 
     def __post_init__(self) -> None:
         lo, hi = self.duty_limits_pct
+        check_duty_range(lo, hi, "duty limits (--duty-limits LOW,HIGH)", f"give {hi:g},{lo:g}")
         if not 0 < lo <= hi <= 100:
             raise UserError(f"duty limits must satisfy 0 < low <= high <= 100, got {lo:g}-{hi:g}")
         if not self.nozzles or any(k < 1 for k in self.nozzles):
@@ -403,6 +405,9 @@ def parse_duty_steps(text: str) -> tuple[float, ...]:
     try:
         if ":" in text:
             parts = [float(x) for x in text.split(":")]
+            if len(parts) == 3 and parts[2] > 0:
+                check_duty_range(parts[0], parts[1], f"duty steps {text!r} (START:STOP:STEP)",
+                                 f"give {parts[1]:g}:{parts[0]:g}:{parts[2]:g}")
             if len(parts) != 3 or parts[2] <= 0 or parts[1] < parts[0]:
                 raise ValueError
             n = int(math.floor((parts[1] - parts[0]) / parts[2] + 1e-9)) + 1

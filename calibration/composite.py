@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.plausible import BODY_MASS_RANGE_KG, body_problems, gyration_problem
 
 
 @dataclass(frozen=True)
@@ -125,6 +126,24 @@ def combine(parts: list[Part], about: str | tuple[float, float] = "com") -> Comp
                      (float(o[0]), float(o[1])), izz_o, float(math.sqrt(var_o)), izz_c,
                      float(math.sqrt(var_c)), rows,
                      (float(math.sqrt(var_com[0])), float(math.sqrt(var_com[1]))))
+
+
+def plausibility_warnings(parts: list[Part], res: Composite) -> list[str]:
+    """One line per implausible part (heavier than any air-table body, or more compact than
+    a lead sphere of its mass: grams typed as kg?) and for the whole (the rules of
+    :mod:`common.plausible`)."""
+    out = []
+    hi = BODY_MASS_RANGE_KG[1]
+    for p in parts:
+        what = [f"mass {p.mass_kg:.4g} kg is above {hi:g} kg"] if p.mass_kg > hi else []
+        what += [w for w in [gyration_problem(p.mass_kg, p.izz_kgm2, whole_body=False)] if w]
+        if what:
+            out.append(f"part {p.name!r}: {'; '.join(what)}: mass_kg typed in grams?")
+    whole = body_problems(res.mass_kg, res.izz_com_kgm2)
+    if whole:
+        out.append(f"the composite: {'; '.join(whole)}: implausible for an air-table body; "
+                   "check the parts' units (mass_kg in kg, izz_kgm2 in kg m^2, position_m in m)")
+    return out
 
 
 def _num(tab: dict, key: str, where: str, default: float | None = None, positive: bool = False,

@@ -12,6 +12,9 @@ Uncertainty (GUM, JCGM 100:2008), all in kg:
   u_B = a / sqrt(3). Optional display resolution d: u_res = d / (2 sqrt(3)).
 - Combined: u_c = sqrt(u_A^2 + u_B^2 + u_res^2); expanded U = k u_c (k = 2, ~95 %).
 
+A mean reading within the accuracy of zero (an empty pan) is refused; a mass outside what an
+air-table body weighs is flagged in ``warnings`` (the rules of :mod:`common.plausible`).
+
 Assumptions: the readings are independent and of the same unchanged load; the
 accuracy bound is the manufacturer's for the range used, not a calibration
 certificate's (which would give a normal uncertainty instead).
@@ -28,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import DeviceError, UserError
+from common.plausible import balance_mass_warnings, check_balance_reading
 
 UNIT_TO_KG = {"g": 1e-3, "kg": 1.0, "mg": 1e-6, "lb": 0.45359237, "oz": 0.028349523125}
 
@@ -56,6 +60,8 @@ class MassResult:
     skipped: int = 0
     assumptions: str = ("readings independent, same load; accuracy bound +-a as a rectangular "
                         "distribution (a/sqrt(3)); repeatability s/sqrt(N)")
+    warnings: list[str] = field(default_factory=list)
+    """A mass implausible for an air-table body (:func:`common.plausible.balance_mass_warnings`)."""
 
     @property
     def expanded_kg(self) -> float:
@@ -65,19 +71,23 @@ class MassResult:
         d = {k: getattr(self, k) for k in (
             "mass_kg", "std_kg", "u_typeA_kg", "u_typeB_kg", "u_resolution_kg", "u_combined_kg",
             "n_readings", "coverage_k", "readings_kg", "skipped", "assumptions")}
+        if self.warnings:
+            d["warnings"] = list(self.warnings)
         d["expanded_kg"] = self.expanded_kg
         d["mass_sigma_kg"] = self.u_combined_kg
         return d
 
 
 def mass_from_readings(readings_kg: Sequence[float], accuracy_kg: float, resolution_kg: float = 0.0,
-                       coverage_k: float = 2.0, skipped: int = 0) -> MassResult:
+                       coverage_k: float = 2.0, skipped: int = 0, unit: str | None = None
+                       ) -> MassResult:
     """Mean, sample std and combined standard uncertainty of N readings (kg).
 
     Args:
         readings_kg: (N,) stable readings, kg, N >= 2.
         accuracy_kg: half-width a of the balance's stated accuracy (+-a), kg, >= 0.
         resolution_kg: display resolution d, kg (0: already inside the accuracy).
+        unit: the unit the readings were given in, named by a mass warning.
     """
     x = np.asarray(readings_kg, dtype=float)
     if x.ndim != 1 or x.size < 2:
@@ -88,12 +98,14 @@ def mass_from_readings(readings_kg: Sequence[float], accuracy_kg: float, resolut
         raise UserError("readings must be positive (is the pan loaded and the balance zeroed?)")
     if accuracy_kg < 0 or resolution_kg < 0 or not math.isfinite(accuracy_kg + resolution_kg):
         raise UserError("accuracy and resolution must be non-negative")
+    check_balance_reading(float(x.mean()), accuracy_kg)  # an empty pan
     s = float(x.std(ddof=1))
     u_a = s / math.sqrt(x.size)
     u_b = accuracy_kg / math.sqrt(3.0)
     u_r = resolution_kg / (2.0 * math.sqrt(3.0))
     return MassResult(float(x.mean()), s, u_a, u_b, u_r, math.sqrt(u_a**2 + u_b**2 + u_r**2),
-                      int(x.size), coverage_k, [float(v) for v in x], skipped)
+                      int(x.size), coverage_k, [float(v) for v in x], skipped,
+                      warnings=balance_mass_warnings(float(x.mean()), unit))
 
 
 _LINE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]*)\s*(\?)?\s*$")

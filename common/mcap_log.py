@@ -276,6 +276,21 @@ def has_summary(path: str | Path) -> bool:
         return False
 
 
+def end_status(path: str | Path) -> str | None:
+    """The ``status`` of a file's ``tpods.end`` metadata (``complete``, ``incomplete``, ...);
+    None when the file was cut (no summary: killed mid-run) or ends without one."""
+    if not has_summary(path):
+        return None
+    try:
+        with open(path, "rb") as f:
+            for rec in make_reader(f).iter_metadata():
+                if rec.name == "tpods.end":
+                    return str(rec.metadata.get("status", ""))
+    except (McapError, struct.error, OSError, ValueError, StopIteration):
+        return None
+    return None
+
+
 def iter_messages(path: str | Path, *, validate_crcs: bool = True,
                   status: McapRead | None = None) -> Iterator[McapMessage]:
     """Every message of an MCAP file, in log-time order when the file has its summary, in

@@ -225,6 +225,24 @@ def check_file(path: str | Path | None, *, force: bool, option: str = "--out") -
     return p
 
 
+def check_plain_folder(path: str | Path | None, option: str) -> Path | None:
+    """Check that ``path`` (an option naming a folder that receives files beside others',
+    such as ``--plot-dir``; None: not given) is a folder or can become one: not a file,
+    not under a file, in a writable place. Before any work; returns the path."""
+    if path is None:
+        return None
+    p = _base(path, option)
+    if p.exists() and not p.is_dir():
+        raise UserError(f"{option} {p} is a file, not a folder; choose another {option}")
+    if p.is_dir():
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise UserError(f"{option} {p}: cannot write in it (permission denied); "
+                            f"choose another {option}")
+    else:
+        _check_parent(p, option)
+    return p
+
+
 def _make_parent(path: Path, option: str) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from common.errors import UserError
+from common.plausible import check_duty_rows, check_pose_rows
 from common.runwriter import CsvLog, command_columns, write_json_atomic
 from common.structure import Structure
 from common.thrust_table import load_thrust_table
@@ -258,14 +259,12 @@ def read_run(path: str | Path, structure: Structure | str | Path | None = None) 
     if cmd_file.exists() or thrust_t is None:
         cv, clines = read_table_lines(cmd_file, cmd_cols)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
-        bad = (duty < 0) | (duty > 100)
-        if bad.any():
-            row = int(np.argwhere(bad)[0][0])
-            raise UserError(f"{cmd_file}: line {clines[row]}: duty outside 0..100 %")
+        check_duty_rows(duty, clines, cmd_file)
     else:
         cmd_t = thrust_t
     pv, plines = read_table_lines(path / "poses.csv", POSE_COLUMNS)
     pose_t, pose = pv[:, 0], pv[:, 1:]
+    check_pose_rows(pose, plines, path / "poses.csv")
     span_t = thrust_t if thrust_t is not None else cmd_t
     span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"
     outside = (pose_t < span_t[0]) | (pose_t > span_t[-1])

@@ -51,6 +51,7 @@ import tomli_w
 
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
+from common.plausible import check_module_spacing
 from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 
@@ -214,6 +215,8 @@ class Structure:
             if m.name in seen:
                 raise UserError(f"{self.source}: module name {m.name!r} appears twice")
             seen.add(m.name)
+        check_module_spacing([m.name for m in self.modules], [m.position_m for m in self.modules],
+                             self.source, 2 * self.arm_m)
 
     # ---------------------------------------------------------------- build
     @classmethod

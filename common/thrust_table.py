@@ -29,6 +29,7 @@ import tomli_w
 
 from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and callers use it here)
 from common.errors import UserError
+from common.plausible import check_duty_range
 from common.thrust_uncertainty import ThrustCalibration, ThrustUncertainty, coefficient_covariance
 
 _UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
@@ -92,6 +93,7 @@ class ThrustTable:
         if self.unit not in _UNIT_TO_N:
             raise UserError(f"thrust table unit must be 'gf' or 'N', not {self.unit!r}")
         lo, hi = self.duty_range
+        check_duty_range(lo, hi, "thrust table duty_range", f"write duty_range = [{hi:g}, {lo:g}]")
         if not (0.0 <= lo < hi <= 100.0):
             raise UserError(f"thrust table duty_range must satisfy 0 <= low < high <= 100, got {self.duty_range}")
         if not self.coefficients:
@@ -102,6 +104,17 @@ class ThrustTable:
             if len(c) < 1 or not np.all(np.isfinite(c)):
                 raise UserError(f"thrust table [nozzles.{k}] coefficients must be finite numbers")
             coefficient_covariance(self.extra, k, len(c))  # a malformed covariance is refused
+        self._check_counts_exist()
+
+    def _check_counts_exist(self) -> None:
+        """An [uncertainty.nozzles.k] for a nozzle count the table has no row for would be
+        ignored (and its sigma with it): refused, naming the entry."""
+        per = self.uncertainty.nozzle_scale_rel if self.uncertainty is not None else {}
+        for k in sorted(set(per) - set(self.coefficients)):
+            have = ", ".join(str(c) for c in sorted(self.coefficients))
+            raise UserError(f"[uncertainty.nozzles.{k}]: the table has no [nozzles.{k}] row (its "
+                            f"rows: {have} open nozzle(s)); the entry would be ignored and its "
+                            "uncertainty with it: fix the nozzle count or remove the entry")
 
     # ------------------------------------------------------------------ I/O
     @classmethod

@@ -282,9 +282,10 @@ class TruthStream:
 
 def make_scenario(cfg: McConfig):
     """Common time grid (N,), command times (Nc,) and thrusts (Nc, 4) N of the Monte Carlo."""
+    table = load_thrust_table(None)
     cmd_t, duty = make_input(cfg.input, cfg.duration_s, cfg.cmd_rate_hz, cfg.amplitude_pct,
-                             cfg.omega_rad_s)
-    thrust = load_thrust_table(None).thrust_n(duty)
+                             cfg.omega_rad_s, valid_pct=table.duty_range)
+    thrust = table.thrust_n(duty)
     t = pose_times(cmd_t[0], cmd_t[-1], cfg.pose_rate_hz)
     return t, cmd_t, thrust
 

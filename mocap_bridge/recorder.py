@@ -27,6 +27,7 @@ with a log and no recorder is :func:`common.mcap_log.subscribe`).
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from pathlib import Path
@@ -34,6 +35,7 @@ from typing import Any
 
 from common.errors import UserError
 from common.mcap_log import McapLog
+from common.plausible import check_finite_time
 from common.runfolder import POSE_COLUMNS
 from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.wire import decode_pose, sanitize_chunk
@@ -80,6 +82,7 @@ class Recorder:
 
     def __init__(self, out: str | Path, key: str = "", t0: float | None = None,
                  flush: bool = True, mcap: McapLog | None = None) -> None:
+        check_finite_time(t0, "t0 (--t0)")
         self.out = Path(out)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
@@ -147,7 +150,9 @@ class Recorder:
                 if bf.uses_t_src is None:
                     bf.uses_t_src = d["t_src"] is not None
                 t = d["t_src"] if bf.uses_t_src and d["t_src"] is not None else d["t"] - self.t0
-                if bf.last_t is not None and t <= bf.last_t:
+                if not math.isfinite(t):  # never a t = nan row
+                    self.counters["malformed"] += 1
+                elif bf.last_t is not None and t <= bf.last_t:
                     self.counters["not_increasing"] += 1
                 else:
                     bf.poses.write(t, d["x"], d["y"], d["yaw"])

@@ -307,6 +307,34 @@ def _copy_recording(src: Path, dest: Path, kind: str) -> str | None:
     return None
 
 
+def check_whole(src: Path, kind: str) -> None:
+    """Refuse a recording that did not end cleanly: its golden would be of a mid-run state
+    (an MCAP file cut by a kill or closed with a status other than complete or success;
+    a run folder whose run.json says it is partial)."""
+    from common.mcap_log import end_status
+    from common.runfolder import WHOLE_STATUSES, partial_status
+
+    why = "; record it again, or replay what it holds with tpods replay"
+    if kind == "mcap":
+        status = end_status(src)
+        if status is None:
+            raise UserError(f"{src}: the recording is cut (no summary and footer: the recorder "
+                            f"was killed or the file truncated); a fixture needs a whole "
+                            f"recording{why}")
+        if status not in WHOLE_STATUSES:
+            raise UserError(f"{src}: the recording ended with status {status!r}, not complete; "
+                            f"a fixture needs a whole recording{why}")
+    elif src.is_dir() and (src / "run.json").is_file():
+        try:
+            meta = json.loads((src / "run.json").read_text(encoding="utf-8-sig"))
+        except (OSError, ValueError) as exc:
+            raise UserError(f"{src / 'run.json'}: not valid JSON ({exc})") from None
+        status = partial_status(meta)
+        if status is not None:
+            raise UserError(f"{src} is a partial run ({src / 'run.json'} says status "
+                            f"{status!r}); a fixture needs a whole recording")
+
+
 def add_fixture(recording: str | Path, name: str, *, root: str | Path = FIXTURES_ROOT,
                 force: bool = False) -> tuple[Path, str, list[str]]:
     """Copy a recording into ``root/name``, write its README.md, fixture.json and goldens.
@@ -314,6 +342,7 @@ def add_fixture(recording: str | Path, name: str, *, root: str | Path = FIXTURES
     Returns ``(folder, kind, golden lines)``. UserError (one line) on what it cannot do."""
     src = Path(recording)
     kind = detect_kind(src)
+    check_whole(src, kind)
     if not name or "/" in name or name.startswith("."):
         raise UserError(f"fixture name {name!r}: use a plain folder name")
     root = Path(root)

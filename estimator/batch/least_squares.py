@@ -40,6 +40,13 @@ import numpy as np
 
 from common.argtypes import parse_time_window
 from common.errors import UserError
+from common.plausible import (  # noqa: F401  (re-exported: the body rules' old home)
+    BODY_GYRATION_RANGE_M,
+    BODY_MASS_RANGE_KG,
+    DENSEST_KG_M3,
+    body_problems,
+    smallest_gyration_m,
+)
 from estimator.batch.crlb import (
     DEFAULT_MAX_STEP_S,
     PARAM_SCALE,
@@ -229,18 +236,8 @@ def residual_warnings(rms: np.ndarray, sigma_pos_m: float, sigma_yaw_rad: float)
     return out
 
 
-# plausible for a body on an air table: its mass, and its radius of gyration sqrt(Izz/m);
-# no body is more compact than a sphere of the densest metal it could be made of (lead)
-BODY_MASS_RANGE_KG = (0.05, 200.0)
-BODY_GYRATION_RANGE_M = (0.01, 2.0)
-DENSEST_KG_M3 = 11340.0
-
-
-def smallest_gyration_m(mass_kg: float) -> float:
-    """Radius of gyration about a vertical axis of a lead sphere of ``mass_kg``: no body
-    of that mass has a smaller one."""
-    r = (3.0 * mass_kg / (4.0 * math.pi * DENSEST_KG_M3)) ** (1.0 / 3.0)
-    return math.sqrt(0.4) * r
+# plausible for a body on an air table: its mass, and its radius of gyration sqrt(Izz/m)
+# (the rules are common.plausible's, shared with every command; re-exported here)
 
 
 def body_warnings(mass_kg: float, izz_kgm2: float, thrust_source: str = "the thrust table",
@@ -249,24 +246,7 @@ def body_warnings(mass_kg: float, izz_kgm2: float, thrust_source: str = "the thr
     gives a radius of gyration outside :data:`BODY_GYRATION_RANGE_M`, naming the thrust
     table's unit (``unit``, of ``thrust_source``) as the likely cause: thrusts scale the
     mass and Izz estimates one for one, and gf read as N is a factor 102."""
-    lo, hi = BODY_MASS_RANGE_KG
-    glo, ghi = BODY_GYRATION_RANGE_M
-    what = []
-    m, izz = float(mass_kg), float(izz_kgm2)
-    if not (math.isfinite(m) and lo <= m <= hi):
-        what.append(f"mass {m:.3g} kg is outside {lo:g}-{hi:g} kg")
-    if math.isfinite(m) and m > 0 and math.isfinite(izz) and izz > 0:
-        k = math.sqrt(izz / m)
-        k_min = smallest_gyration_m(m)
-        if not glo <= k <= ghi:
-            what.append(f"Izz {izz:.3g} kg m^2 for {m:.3g} kg is a radius of gyration of {k:.3g} m, "
-                        f"outside {glo * 100:g} cm-{ghi:g} m")
-        elif k < k_min:
-            what.append(f"Izz {izz:.3g} kg m^2 for {m:.3g} kg is a radius of gyration of "
-                        f"{k * 100:.3g} cm, less than any body of {m:.3g} kg can have "
-                        f"({k_min * 100:.3g} cm, a lead sphere)")
-    elif not (math.isfinite(izz) and izz > 0):
-        what.append(f"Izz {izz:.3g} kg m^2 is not positive")
+    what = body_problems(mass_kg, izz_kgm2)
     if not what:
         return []
     said = f" ({thrust_source} says unit = \"{unit}\")" if unit else f" ({thrust_source})"

@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.plausible import factor_warnings
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustCalibration, ThrustUncertainty, thrust_sensitivity
 from estimator.batch.consider import output_sensitivity, segment_jacobian
@@ -712,6 +713,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         if s > 0.1:
             result.warnings.append(f"{n} is poorly determined (sigma {s:.2g}): the run hardly "
                                    "excites it")
+    result.warnings += factor_warnings(names, result.values)  # 315 %: the wrong body?
     return result
 
 

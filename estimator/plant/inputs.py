@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import UserError
-from common.runfolder import COMMAND_COLUMNS, read_table
+from common.plausible import check_duty_rows
+from common.runfolder import COMMAND_COLUMNS, read_table_lines
 from common.runwriter import command_columns
 
 INPUT_NAMES = ("phase-sine", "translate-rotate")
@@ -64,10 +65,15 @@ def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct
     return _close(t, duty, duration_s)
 
 
-def from_commands_csv(path: str | Path, n_channels: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def from_commands_csv(path: str | Path, n_channels: int = 4,
+                      valid_pct: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read a commands.csv (run-folder format) as an input sequence: (N,) s and (N,
-    n_channels) percent (``t,d1..d{n_channels}``: a structure's 4N channels)."""
-    v = read_table(Path(path), COMMAND_COLUMNS if n_channels == 4 else command_columns(n_channels))
+    n_channels) percent (``t,d1..d{n_channels}``: a structure's 4N channels). A duty
+    outside 0..100 % (or an open one outside ``valid_pct``, a thrust table's valid range)
+    is refused naming the file line."""
+    v, lines = read_table_lines(Path(path), COMMAND_COLUMNS if n_channels == 4
+                                else command_columns(n_channels))
+    check_duty_rows(v[:, 1:], lines, path, valid_pct)
     return v[:, 0], v[:, 1:]
 
 
@@ -77,7 +83,8 @@ END_TOLERANCE_S = 1e-3  # a file that ends this close to the asked duration is l
 
 def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
                amplitude_pct: float = 20.0, omega_rad_s: float = 1.0,
-               n_channels: int = 4) -> tuple[np.ndarray, np.ndarray]:
+               n_channels: int = 4, valid_pct: tuple[float, float] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Build an input by name (``phase-sine``, ``translate-rotate``) or from a commands.csv path.
 
     ``n_channels`` > 4 (a structure's 4N valves): the phase-sine's phase shifts continue
@@ -87,7 +94,8 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
     A file input is cut to ``duration_s`` (rows after it dropped, a closing row added);
     ``duration_s=None`` takes the whole file (and :data:`DEFAULT_DURATION_S` for a
     generated input). A file that ends before ``duration_s`` is a UserError naming both
-    lengths (the run would silently be shorter than asked).
+    lengths (the run would silently be shorter than asked); ``valid_pct``: a thrust
+    table's valid duty range the file's open duties must lie in (refused by line).
     """
     if duration_s is None and spec in INPUT_NAMES:
         duration_s = DEFAULT_DURATION_S
@@ -104,7 +112,7 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
         p = p / "commands.csv"
     if not p.exists():
         raise UserError(f"unknown input {spec!r}: choose {', '.join(INPUT_NAMES)} or a commands.csv path")
-    t, d = from_commands_csv(p, n_channels)
+    t, d = from_commands_csv(p, n_channels, valid_pct)
     if duration_s is None:
         return t, d
     if t[-1] < duration_s - END_TOLERANCE_S:

@@ -213,12 +213,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
     from bench.plots import plot_fit_orders, plot_time_series
     from bench.session import read_session
+    from common.outputs import check_plain_folder
     from common.thrust_table import ThrustTable
 
     # the --out rule: FILE.toml is the table; a folder receives thrust_table.toml and the plots
     out_file = result_output(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
                              "thrust_table.toml", force=args.force, command="tpods bench fit")
     not_an_input(out_file, args.run_dir)
+    check_plain_folder(args.plot_dir, "--plot-dir")
     out = out_file.main
     raw, steps = read_session(args.run_dir)
     steps_csv = Path(args.run_dir) / "steps.csv"

@@ -139,7 +139,9 @@ def cmd_mass(args: argparse.Namespace) -> int:
     else:
         readings, skipped = [to_kg(v, args.unit) for v in args.values], 0
     res = mass_from_readings(readings, args.accuracy_g * 1e-3, args.resolution_g * 1e-3,
-                             skipped=skipped)
+                             skipped=skipped, unit=None if args.scale else args.unit)
+    for w in res.warnings:
+        print(f"tpods: warning: {w}", file=sys.stderr)
     if args.json:
         _print_json(res.to_dict())
         return 0
@@ -304,12 +306,14 @@ def _register_combine(cal) -> None:
 
 
 def cmd_combine(args: argparse.Namespace) -> int:
-    from calibration.composite import combine, load_parts
+    from calibration.composite import combine, load_parts, plausibility_warnings
 
     parts, about = load_parts(args.parts)
     if args.about is not None:
         about = tuple(args.about)
     res = combine(parts, about)
+    for w in plausibility_warnings(parts, res):
+        print(f"tpods: warning: {w}", file=sys.stderr)
     rows = _compare_rows(res, args.compare) if args.compare else None
     if args.json:
         _print_json({**res.to_dict(), **({"comparison": rows} if rows is not None else {})})
@@ -399,6 +403,7 @@ def _register_thrust(cal) -> None:
 
 def cmd_thrust(args: argparse.Namespace) -> int:
     from common.outputs import not_an_input
+    from common.plausible import body_problems
     from common.runfolder import read_run
     from common.thrust_table import ThrustTable
     from estimator.batch.thrust_calibration import calibrate_run
@@ -409,6 +414,9 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     not_an_input(out, args.run_dir, None if builtin else args.thrust_table)
     table = ThrustTable.default() if builtin else ThrustTable.load(args.thrust_table)
     run = read_run(args.run_dir)
+    for p in body_problems(args.mass, args.izz):  # before the fit, which may then fail
+        print(f"tpods: warning: the known body (--mass, --izz): {p}: implausible for an "
+              "air-table body (kg and kg m^2?)", file=sys.stderr)
     if args.window:
         run = run.window(*args.window)
     res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,

@@ -243,7 +243,24 @@ def register(sub, est, rep) -> None:
     r.set_defaults(func=cmd_report_sweep)
 
 
+def check_montecarlo_size(args: argparse.Namespace) -> None:
+    """Refuse a Monte Carlo that will not fit in memory (the check ``sim`` and ``estimate
+    crlb`` make), naming the options; from the options, before any allocation."""
+    from tpods.cli import sizes
+
+    n_poses = sizes.samples(args.duration, args.pose_rate)
+    n_cmds = sizes.samples(args.duration, args.cmd_rate)
+    n_bytes = sizes.montecarlo_bytes(n_poses, n_cmds, args.runs, args.structure is not None)
+    sizes.refuse_if_too_big(
+        f"--duration {sizes.number(args.duration)} s at --pose-rate {sizes.number(args.pose_rate)} "
+        f"Hz and --cmd-rate {sizes.number(args.cmd_rate)} Hz is "
+        f"{sizes.samples_text(args.duration, args.pose_rate)} poses and "
+        f"{sizes.samples_text(args.duration, args.cmd_rate)} command rows per run",
+        n_bytes, "lower --duration, --pose-rate or --cmd-rate")
+
+
 def cmd_montecarlo(args: argparse.Namespace) -> int:
+    check_montecarlo_size(args)
     if args.structure is not None:
         return _montecarlo_structure(args)
     for opt in ("noise_pos", "noise_yaw_deg"):

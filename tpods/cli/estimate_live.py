@@ -159,6 +159,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         for sig, h in old.items():
             signal.signal(sig, h)
         summary = est.summary()
+        if summary.get("mass_kg") is None:  # received nothing: no success (run.json says
+            status = "failed"               # failed; the command exits 2, below)
         if log is not None:
             log.close(status)
         if rec is not None:
@@ -166,6 +168,8 @@ def cmd_live(args: argparse.Namespace) -> int:
             (Path(args.out) / "estimate.json").write_text(
                 json.dumps(summary, indent=2, default=str) + "\n")
     c = summary["counters"]
+    if summary.get("mass_kg") is None:  # received nothing (or no commands): say so, exit 2
+        raise UserError(nothing_received(c, k, args.body))
     span = est.hist_t[-1] - est.hist_t[0] if est.hist_t else 0.0
     if args.method == "ls-ekf" and est.hist_t and "ls" not in summary and "ls_error" not in summary \
             and span < args.ls_window:
@@ -184,9 +188,6 @@ def cmd_live(args: argparse.Namespace) -> int:
         print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
-        return 0
-    if summary.get("mass_kg") is None:
-        print(f"live: no estimate ({c['poses_rx']} poses and {c['cmds_rx']} commands received)")
         return 0
     print(f"live {status} ({summary['phase']}, {summary['n_updates']} updates)")
     print(f"  mass = {summary['mass_kg']:.6g} kg      +/- {summary['mass_sigma_kg']:.3g} (1 sigma)")
@@ -219,3 +220,17 @@ def cmd_live(args: argparse.Namespace) -> int:
     if not math.isfinite(summary["mass_kg"]):
         raise UserError("the filter diverged (non-finite estimate)")
     return 0
+
+
+def nothing_received(c: dict, k: dict, body: str) -> str:
+    """The refusal of a live run that gave no estimate: what was missing and where to look."""
+    from estimator.live.zenoh_run import command_keys
+
+    cmds = " + ".join(command_keys(k))
+    if c["poses_rx"] == 0:
+        return (f"no estimate: received no poses on {k['pose']} ({c['cmds_rx']} commands on "
+                f"{cmds}): is `tpods mocap bridge` running on the same Zenoh network "
+                f"(--connect/--listen), for body {body!r} (--body, --mocap-prefix)?")
+    return (f"no estimate: received {c['poses_rx']} poses and {c['cmds_rx']} commands on {cmds}, "
+            "none the filter could pair (it needs the commands in time with the poses): is "
+            f"`tpods run play` publishing for body {body!r} (--prefix), on the same clock?")

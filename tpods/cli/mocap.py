@@ -177,15 +177,34 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     print(f"bridge: published {tot['published']} poses of {len(bridge.stats.bodies)} bodies "
           f"({tot['occluded']} occluded, {tot['duplicates']} duplicates dropped, "
           f"{tot['gaps']} missing frames{extra})")
+    if tot["published"] == 0:  # a lab user expects a bridge that bridged nothing to fail
+        raise UserError(nothing_published(kind, arg, source.name, src))
     return 0
+
+
+def nothing_published(kind: str, arg: str, name: str, counters: dict) -> str:
+    """The refusal of a bridge run that published no pose: what arrived, where to look."""
+    from mocap_bridge.sources.vicon_udp import DEFAULT_PORT
+
+    if kind == "vicon-udp":
+        got = counters.get("datagrams", 0)
+        why = (f"{got} datagrams arrived but none held a pose (not Vicon Tracker's UDP object "
+               "stream?)" if got else f"no datagram arrived on UDP port {arg or DEFAULT_PORT}: is Vicon "
+               "Tracker streaming to this host and port (Tracker's UDP object stream settings, "
+               "--bind, the firewall)?")
+    else:
+        why = f"the source {name} gave none (an empty recording, or the wrong body/--source?)"
+    return f"the bridge published no poses: {why}"
 
 
 def cmd_record(args: argparse.Namespace) -> int:
     from common.mcap_log import McapLog
     from common.outputs import is_mcap, stream_file
+    from common.plausible import check_finite_time
     from common.zenoh_net import open_session
     from mocap_bridge.recorder import Recorder, subscribe
 
+    check_finite_time(args.t0, "--t0")  # before the folder is made
     if is_mcap(args.out):
         return _record_mcap_only(args, stream_file(args.out, force=args.force))
     console = Console(args.quiet)
@@ -215,8 +234,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     except BaseException:
         rec.close("incomplete")  # recording.json says so; what was written stays
         raise
-    finally:
-        counters = rec.close()
+    finally:  # nothing received is no success: recording.json says failed, exit 2 below
+        counters = rec.close(None if rec.counters["received"] else "failed")
         console.end()
     print(f"record: {counters['recorded']} poses of {len(rec.bodies)} bodies written to {rec.out} "
           f"({counters['occluded']} occluded, {counters['malformed']} malformed, "
@@ -227,7 +246,15 @@ def cmd_record(args: argparse.Namespace) -> int:
     if counters.get("write_errors"):
         raise UserError(f"{counters['write_errors']} samples could not be written to {rec.out} "
                         f"({rec.last_error})")
+    if not counters["received"]:
+        raise UserError(nothing_received(args.key))
     return 0
+
+
+def nothing_received(key: str) -> str:
+    """The refusal of a recording that received no message on ``key``."""
+    return (f"received nothing on {key}: is `tpods mocap bridge` running on the same Zenoh "
+            "network (--connect/--listen), and does --key match its --prefix?")
 
 
 def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
@@ -255,11 +282,14 @@ def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
             sub.undeclare()
         finally:
             session.close()
-        status = "incomplete" if log.counters.get("write_errors") else "complete"
+        status = "incomplete" if log.counters.get("write_errors") else \
+            "complete" if log.counters["messages"] else "failed"
     finally:
         log.close(status)
         console.end()
     print(f"record: {log.counters['messages']} messages on {len(log.topics)} keys written to {path}")
     if log.counters.get("write_errors"):
         raise UserError(f"{log.counters['write_errors']} messages could not be written to {path}")
+    if not log.counters["messages"]:
+        raise UserError(nothing_received(args.key))
     return 0

@@ -142,11 +142,15 @@ def _check_play_duties(args: argparse.Namespace, duty, lo: float, hi: float) -> 
 def cmd_play(args: argparse.Namespace) -> int:
     from bench.session import Terminated, parse_duty_steps, sigterm_raises
     from bench.valves import ValveController
+    from common.plausible import check_duty_range
     from common.zenoh_net import open_session
     from estimator.plant.inputs import make_input
     from tpods.player import cmd_key, play
 
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
+    if len(lim) == 2:
+        check_duty_range(lim[0], lim[1], f"--duty-limits {args.duty_limits}",
+                         f"give --duty-limits {lim[1]:g},{lim[0]:g}")
     if len(lim) != 2 or not 0 < lim[0] <= lim[1] <= 100:
         raise UserError(f"--duty-limits must be LOW,HIGH within 0-100, got {args.duty_limits!r}")
     if args.watchdog_ms < 50:

@@ -1,4 +1,5 @@
-"""Memory and time of the long commands (``sim``, ``design``, ``estimate crlb``), estimated
+"""Memory and time of the long commands (``sim``, ``design``, ``estimate crlb``; the memory
+of ``estimate montecarlo``), estimated
 from their options before anything is allocated.
 
 A command refuses work whose arrays would take more than half the memory this machine
@@ -32,6 +33,12 @@ CRLB_S_PER_SEGMENT_N2 = 2e-7
 CRLB_MAX_STEP_S = 0.01  # estimator.batch.crlb.DEFAULT_MAX_STEP_S (not imported: heavy)
 # tpods design keeps every scored candidate's trajectory and sensitivities
 DESIGN_KEPT_BYTES_PER_POSE = 450.0
+# tpods estimate montecarlo: the per-time statistics and example traces of the module's
+# vectorised filter (~1.1-3.2 kB per pose measured, 2-200 runs) plus a per-run state; a
+# structure's Monte Carlo simulates and fits one run at a time (~7 kB per pose)
+MC_BYTES_PER_POSE = 3500.0
+MC_BYTES_PER_RUN = 2e4
+MC_STRUCTURE_BYTES_PER_POSE = 10000.0
 
 
 def available_memory() -> float | None:
@@ -134,3 +141,9 @@ def crlb_cost(segments: float, n_params: int) -> tuple[float, float]:
     """(bytes, seconds) of one CRLB over ``segments`` grid segments."""
     n2 = float(6 + n_params) ** 2
     return CRLB_BYTES_PER_SEGMENT_N2 * n2 * segments, CRLB_S_PER_SEGMENT_N2 * n2 * segments
+
+
+def montecarlo_bytes(n_poses: float, n_cmds: float, runs: int, structure: bool) -> float:
+    """Peak bytes of a Monte Carlo over ``n_poses`` poses and ``n_cmds`` command rows."""
+    per_pose = MC_STRUCTURE_BYTES_PER_POSE if structure else MC_BYTES_PER_POSE
+    return per_pose * n_poses + SIM_BYTES_PER_CMD * n_cmds + MC_BYTES_PER_RUN * runs

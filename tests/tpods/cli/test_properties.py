@@ -14,6 +14,9 @@ command in-process through ``tpods.cli.main`` and asserts, for every example:
 
 Bounded by default (``make test``: about 20-40 s here). ``TPODS_HYPOTHESIS_PROFILE=long``
 runs many more examples, not derandomised (``make robustness``, which ``make bench`` runs).
+The plausibility kinds of issue 26 (absurd sizes, poses, duty ranges, weighed masses, table
+entries, overlapping modules, cut recordings, non-finite times) are properties too, with this
+harness and profile: tests/tpods/cli/test_properties_plausible.py.
 
 Examples that reproduce known findings in code this suite does not own are kept out of the
 strategies below, each with a ``# FINDING n`` comment; /tmp/robustness_findings.md and the
