@@ -18,6 +18,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
+from benchmarks.host import Window
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import thrust_sensitivity
@@ -97,11 +98,13 @@ def run() -> list[dict]:
     start = {"mass": truth.mass_kg * 1.01, "izz": truth.izz_kgm2 * 0.99}
 
     times = []
+    w_far = Window()
     for _ in range(2):
         t0 = time.perf_counter()
         ours_far = batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n)
         times.append(time.perf_counter() - t0)
     t_far = min(times)
+    w_far.stop()
     t0 = time.perf_counter()
     ours = batch_ls(sim.pose_t, sim.pose, sim.cmd_t, sim.thrust_n, initial=start)
     t_ours = time.perf_counter() - t0
@@ -118,11 +121,13 @@ def run() -> list[dict]:
     table = _uncertain_table()
     sens = thrust_sensitivity(table, duty)
     t_cons = []
+    w_cons = Window()
     for _ in range(3):
         t0 = time.perf_counter()
         cons = batch_consider(ours_far, cmd_t, sens, sigma_pos_m=sp, sigma_yaw_rad=sy)
         t_cons.append(time.perf_counter() - t0)
     tc = min(t_cons)
+    w_cons.stop()
     ratio_c = (t_far + tc) / t_far
     thrust_rel = math.sqrt(cons.cov_thrust[6, 6]) / ours_far.mass_kg
     return [
@@ -131,13 +136,16 @@ def run() -> list[dict]:
          "ok": bool(ratio_c <= 1.5 and np.all(np.isfinite(cons.cov_thrust))),
          "target": f"<= 1.5x (consider {tc:.3f} s over {len(sens.names)} table parameters: "
                    f"scale_rel 1 % + a bench fit's coefficient covariance; mass thrust sigma "
-                   f"{thrust_rel:.2%})"},
+                   f"{thrust_rel:.2%})",
+         **Window.spanning(w_far, w_cons).timed(
+             ok_untimed=bool(np.all(np.isfinite(cons.cov_thrust))))},
         {"case": "batch LS 120 s @120 Hz", "metric": "solve time from paper guess, s",
          "value": t_far, "reference": t_ref, "ratio": t_ref / t_far,
          "ok": bool(t_far < 2.0 and ours_far.converged and same),
          "target": f"< 2 s (ours {t_far:.2f} s, {ours_far.iterations} it, converged "
                    f"{ours_far.converged}); scipy least_squares+solve_ivp {t_ref:.1f} s "
-                   f"({ref.nfev} fev); estimates agree to {rel_far:.1e} rel"},
+                   f"({ref.nfev} fev); estimates agree to {rel_far:.1e} rel",
+         **w_far.timed(ok_untimed=bool(ours_far.converged and same))},
         {"case": "batch LS 120 s @120 Hz", "metric": "solve time from +/-1 % start, s",
          "value": t_ours, "reference": t_ref, "ratio": t_ref / t_ours,
          "ok": bool(same and ours.converged),

@@ -9,6 +9,7 @@ import time
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from benchmarks.host import Window
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from estimator.filters.ekf import PAPER, make_schedule, run_ekf
 from estimator.montecarlo import McConfig, run_montecarlo
@@ -79,29 +80,35 @@ def _load() -> str:
 def run() -> list[dict]:
     rows = []
     res = simulate_paper(120.0, 0)
+    w = Window()
     ours, ours_cpu = _single(res)
+    w.stop()
     ref = _plain_filterpy(res, 600)
     rows.append({"case": "ekf single 120 Hz", "metric": "pose updates per s (predict+update)",
                  "value": ours, "reference": ref, "ratio": ours / ref, "ok": ours >= 20000,
                  "target": f">= 20000 /s; {ours_cpu:.3g} per CPU s, {_load()}; reference: "
                            "filterpy EKF, numerical Jacobian (600 poses); 50 Hz commands split "
-                           "1/3 of the intervals"})
+                           "1/3 of the intervals", **w.timed()})
     from estimator.plant.inputs import phase_sine
 
     cmd_t, duty = phase_sine(20.0, 50.0)
     fast = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2), config=SimConfig(pose_rate_hz=2000))
+    w = Window()
     ours2, ours2_cpu = _single(fast)
+    w.stop()
     rows.append({"case": "ekf single 2 kHz", "metric": "pose updates per s (predict+update)",
                  "value": ours2, "reference": ref, "ratio": ours2 / ref, "ok": ours2 >= 20000,
                  "target": f">= 20000 /s (2 kHz stream, 20 s); {ours2_cpu:.3g} per CPU s, "
-                           f"{_load()}"})
+                           f"{_load()}", **w.timed()})
 
     # Monte Carlo: 500 runs x 120 s x 120 Hz, against simulate + single filter per run
     cfg = McConfig(runs=500, duration_s=120.0)
+    w = Window()
     t0, c0 = time.perf_counter(), time.process_time()
     mc = run_montecarlo(cfg)
     t_mc = time.perf_counter() - t0
     c_mc = time.process_time() - c0
+    w.stop()
     n_sub = 3
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
@@ -117,7 +124,7 @@ def run() -> list[dict]:
                  "value": t_mc, "reference": t_loop, "ratio": t_loop / t_mc, "ok": t_mc < 60.0,
                  "target": f"< 60 s incl. simulation ({c_mc:.0f} CPU s, {_load()}); reference: "
                            f"simulate + single filter per run, {n_sub} runs scaled to 500; "
-                           f"{len(mc.t) * cfg.runs / t_mc:.3g} run-poses/s"})
+                           f"{len(mc.t) * cfg.runs / t_mc:.3g} run-poses/s", **w.timed()})
     return rows
 
 

@@ -211,12 +211,19 @@ class Window:
 
     ``ok_untimed``: the part of the row's ``ok`` that does not depend on timing (an
     estimate's accuracy, zero loss...); a row that fails it is NO on any host.
-    ``Window(since=w0)``: a window that starts where ``w0`` started (a row measured over
-    several sections)."""
+    ``Window.spanning(w1, w2)``: from the start of ``w1`` to the end of ``w2`` (a row
+    measured over several sections)."""
 
-    def __init__(self, since: Window | None = None) -> None:
-        self.before = since.before if since is not None else snapshot(probe=True)
+    def __init__(self) -> None:
+        self.before = snapshot(probe=True)
         self.after: Snapshot | None = None
+
+    @classmethod
+    def spanning(cls, first: Window, last: Window) -> Window:
+        last.stop()
+        w = cls.__new__(cls)
+        w.before, w.after = first.before, last.after
+        return w
 
     def stop(self) -> dict:
         if self.after is None:
