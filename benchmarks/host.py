@@ -11,7 +11,8 @@ the *probe*, just outside the window. :func:`host_conditions` turns two such
 - ``iowait_pct``: idle time with disk I/O outstanding, share of all CPUs' time
 - ``others_cpu_pct``: user+system time of every process that is not the bench (all busy
   ticks minus the bench's own CPU time), share of all CPUs' time
-- ``own_cpu_pct``, ``idle_pct``, ``load1_start``/``load1_end`` (1-min load average,
+- ``own_cpu_s`` (the bench's CPU seconds; about its wall time on a quiet host when it
+  runs one thread), ``own_cpu_pct``, ``idle_pct``, ``load1_start``/``load1_end`` (1-min load average,
   which counts the bench's own processes too), ``probe_before_ms``/``probe_after_ms`` and
   ``probe_change_pct`` (how much the probe moved across the row).
 
@@ -171,6 +172,7 @@ def host_conditions(before: Snapshot, after: Snapshot, hz: float = 100.0) -> dic
     ``hz``: ticks per second of ``/proc/stat`` (``SC_CLK_TCK``), to put the bench's own CPU
     seconds into ticks. Figures that cannot be measured are None."""
     out: dict = {"seconds": round(after.time_s - before.time_s, 3),
+                 "own_cpu_s": round(after.own_cpu_s - before.own_cpu_s, 3),
                  "steal_pct": None, "iowait_pct": None, "others_cpu_pct": None,
                  "own_cpu_pct": None, "idle_pct": None}
     a, b = before.ticks, after.ticks

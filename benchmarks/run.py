@@ -137,8 +137,8 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
             failed.append(name)
         host = {**window.stop(), **sampler.stop()}
-        cases[name] = {"wall_s": host["seconds"], "host": host}
-        print(f"  {name}: {host['seconds']:.0f} s", flush=True)
+        cases[name] = {"wall_s": host["seconds"], "cpu_s": host["own_cpu_s"], "host": host}
+        print(f"  {name}: {host['seconds']:.0f} s wall, {host['own_cpu_s']:.0f} CPU s", flush=True)
     rows = judge(rows, {n: c["host"] for n, c in cases.items()})
     out = Path(args.out or ("runs/bench-long.json" if args.long else "runs/bench.json"))
     return _report(rows, failed, cases, time.monotonic() - t_start, out)

@@ -57,6 +57,7 @@ def test_window_figures_are_shares_of_all_cpus_time():
     b = _snap(110.0, 56.0, (1800, 0, 600, 6040, 140, 0, 0, 30), load1=2.5, probe=13.0)
     h = host_conditions(a, b, hz=100.0)
     assert h["seconds"] == 10.0
+    assert h["own_cpu_s"] == 6.0
     assert h["steal_pct"] == 1.0
     assert h["iowait_pct"] == 2.0
     assert h["others_cpu_pct"] == 15.0
