@@ -1,8 +1,10 @@
-"""Thrust bench: session overhead, fit accuracy against Table 2, valve-closing latencies.
+"""Thrust bench: serial capture cost, valve-closing latencies.
 
 Emulators run in this process on ptys (realistic balance: 0.3 s lag, 0.2 g noise,
 10 Hz printing, drift, unstable and garbage lines); the session runs as the
-installed ``tpods bench characterize`` in a subprocess, as a user runs it.
+installed ``tpods bench characterize`` in a subprocess, as a user runs it. A full
+characterisation (session overhead, fit accuracy against Table 2) takes minutes:
+``benchmarks/bench_session.py`` (``make bench-long``).
 """
 
 from __future__ import annotations
@@ -19,10 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-from bench.fit import fit_steps, max_error_pct_full_scale
-from bench.session import read_session
 from benchmarks.host import Window
-from common.thrust_table import ThrustTable
 
 EXE = str(Path(sys.executable).with_name("tpods"))
 
@@ -37,42 +36,6 @@ def _session(out: Path, vs, ss, *args: str) -> subprocess.Popen:
     return subprocess.Popen([EXE, "bench", "characterize", "--valves", vs.path, "--scale", ss.path,
                              "--out", str(out), "--no-progress", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _full_session(tmp: Path) -> list[dict]:
-    ev, es, vs, ss = _bench(seed=4)
-    w = Window()
-    try:
-        # settle = 5 lag time constants (0.3 s): shorter settles bias the means low
-        p = _session(tmp / "full", vs, ss, "--dwell", "2", "--settle", "1.5", "--zero-settle", "1.5",
-                     "--zero-dwell", "0.5", "--zero-every", "9")
-        _, err = p.communicate(timeout=600)
-        if p.returncode != 0:
-            raise RuntimeError(err)
-    finally:
-        ss.stop()
-        vs.stop()
-    w.stop()
-    meta = json.loads((tmp / "full" / "run.json").read_text())
-    t = meta["timing"]
-    _, steps = read_session(tmp / "full")
-    table = fit_steps(steps).table()
-    errs = max_error_pct_full_scale(table, ThrustTable.default(), np.arange(10.0, 90.01, 0.5))
-    rows = [
-        {"case": "bench session 4x9 steps", "metric": "overhead beyond dwell+settle (%)",
-         "value": t["overhead_pct"], "reference": 5.0, "ratio": 5.0 / max(t["overhead_pct"], 1e-3),
-         "ok": t["overhead_pct"] < 5.0, "target": f"< 5 % of {t['planned_s']:.0f} s planned",
-         **w.timed()},
-        {"case": "bench session 4x9 steps", "metric": "loop overhead, setup excluded (%)",
-         "value": t["loop_overhead_pct"], "reference": 5.0,
-         "ratio": 5.0 / max(t["loop_overhead_pct"], 1e-3), "ok": t["loop_overhead_pct"] < 5.0,
-         "target": "< 5 %", **w.timed()},
-    ]
-    for k, e in errs.items():
-        rows.append({"case": f"bench fit {k} nozzle(s)", "metric": "max |fit - Table 2| (% FS)",
-                     "value": e, "reference": 1.0, "ratio": 1.0 / max(e, 1e-6), "ok": e < 1.0,
-                     "target": "< 1 % of full scale, duty 10-90 %"})
-    return rows
 
 
 def _kill(tmp: Path, sig: int, name: str) -> float:
@@ -149,8 +112,7 @@ def _capture_rows(tmp: Path) -> list[dict]:
 def run() -> list[dict]:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        rows = _full_session(tmp)
-        rows += _capture_rows(tmp)
+        rows = _capture_rows(tmp)
         w = Window()
         lat = [_kill(tmp, signal.SIGINT, f"int{i}") for i in range(3)]
         rows.append({"case": "bench Ctrl-C", "metric": "signal to valves closed, worst of 3 (ms)",

@@ -33,7 +33,10 @@ from benchmarks.host import LoadSampler, Window
 from benchmarks.verdict import RULE, exit_status, explain, judge, summary
 
 LONG_CASES = {
+    "bench_batch_scipy": "scipy least_squares + solve_ivp on the batch fit's problem",
     "bench_coverage": "1,200 simulated runs with drawn thrust tables",
+    "bench_realism_mc": "a 200-run Monte Carlo of the friction+tilt model",
+    "bench_session": "a full 4 x 9-step thrust characterisation (136 s planned)",
     "bench_sweep": "every estimator on 300 simulated runs",
 }
 """Cases of ``make bench-long`` (``--long``), each minutes long; ``make bench`` leaves them out."""
@@ -66,10 +69,11 @@ def _run_isolated(name: str) -> list[dict]:
 
 
 def select_cases(names: list[str], k: str = "", long: bool = False) -> list[str]:
-    """The cases to run: with ``k``, every case whose name contains it (long or not);
-    otherwise the long cases with ``long``, the others without."""
+    """The cases to run: with ``k``, the case named ``k`` if there is one, else every case
+    whose name contains it (long or not); otherwise the long cases with ``long``, the others
+    without."""
     if k:
-        return sorted(n for n in names if k in n)
+        return [k] if k in names else sorted(n for n in names if k in n)
     return sorted(n for n in names if (n in LONG_CASES) == long)
 
 
@@ -114,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="JSON report (default runs/bench.json, "
                                                 "with --long runs/bench-long.json)")
-    ap.add_argument("-k", default="", help="run only cases whose module name contains this "
-                                           "(long cases included)")
+    ap.add_argument("-k", default="", help="run only the case of this module name, or those "
+                                           "whose name contains it (long cases included)")
     ap.add_argument("--long", action="store_true", help="run the long cases (make bench-long)")
     ap.add_argument("--one", help=argparse.SUPPRESS)   # internal: run one case in this process
     ap.add_argument("--rows", help=argparse.SUPPRESS)  # internal: where --one writes its rows

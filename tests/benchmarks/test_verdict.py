@@ -96,3 +96,13 @@ def test_long_cases_are_left_to_bench_long():
     assert select_cases(names, long=True) == ["bench_coverage", "bench_sweep"]
     assert select_cases(names, k="cov") == ["bench_coverage"]   # -k reaches every case
     assert select_cases(names, k="bench_") == sorted(names)
+    assert select_cases(names + ["bench_a_long"], k="bench_a") == ["bench_a"]  # exact name
+
+
+def test_every_long_case_exists():
+    from pathlib import Path
+
+    import benchmarks
+
+    here = Path(benchmarks.__file__).parent
+    assert all((here / f"{name}.py").exists() for name in LONG_CASES)
