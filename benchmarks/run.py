@@ -82,14 +82,16 @@ def _fmt(x: float | None, spec: str = ".1f") -> str:
 
 
 def print_table(rows: list[dict]) -> None:
-    hdr = (f"{'case':<28} {'metric':<34} {'value':>10} {'reference':>10} {'ratio':>7}  "
+    wc = max([28, *(len(r["case"]) for r in rows)])
+    wm = max([34, *(len(r["metric"]) for r in rows)])
+    hdr = (f"{'case':<{wc}} {'metric':<{wm}} {'value':>10} {'reference':>10} {'ratio':>7}  "
            f"{'verdict':<10} {'steal%':>6} {'other%':>6} {'iow%':>5} {'load1':>5} {'probe%':>6}  target")
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
         h = r.get("host") or {}
         load = h.get("load1_max", h.get("load1_end"))
-        print(f"{r['case']:<28} {r['metric']:<34} {r['value']:>10.4g} {r['reference']:>10.4g} "
+        print(f"{r['case']:<{wc}} {r['metric']:<{wm}} {r['value']:>10.4g} {r['reference']:>10.4g} "
               f"{r['ratio']:>7.3g}  {r['verdict']:<10} {_fmt(h.get('steal_pct')):>6} "
               f"{_fmt(h.get('others_cpu_pct'), '.0f'):>6} {_fmt(h.get('iowait_pct')):>5} "
               f"{_fmt(load):>5} {_fmt(h.get('probe_change_pct'), '.0f'):>6}  {r.get('target', '')}")

@@ -106,3 +106,20 @@ def test_every_long_case_exists():
 
     here = Path(benchmarks.__file__).parent
     assert all((here / f"{name}.py").exists() for name in LONG_CASES)
+
+
+def test_table_shows_the_verdict_and_unmeasured_host_figures(capsys):
+    from benchmarks.run import print_table
+
+    rows = judge([_row(False, host={**QUIET, "others_cpu_pct": 55.0}),
+                  _row(True, host={"steal_pct": None, "others_cpu_pct": None}),
+                  {"case": "a very long case name that is wider than the column", "metric": "m",
+                   "value": 1.0, "reference": 1.0, "ratio": 1.0, "ok": None}])
+    for r in rows[:2]:
+        r.update(value=2.0, reference=1.0, ratio=0.5)
+    print_table(rows)
+    out = capsys.readouterr().out.splitlines()
+    assert "verdict" in out[0] and "other%" in out[0]
+    assert "noisy host" in out[2] and " 55 " in out[2]
+    assert "yes" in out[3] and "n/a" in out[3]
+    assert out[4].startswith("a very long case name that is wider than the column m")
