@@ -34,7 +34,10 @@ from benchmarks.verdict import RULE, exit_status, explain, judge, summary
 
 LONG_CASES = {
     "bench_batch_scipy": "scipy least_squares + solve_ivp on the batch fit's problem",
+    "bench_calibration": "40 bifilar trace fits (accuracy, not timing)",
     "bench_coverage": "1,200 simulated runs with drawn thrust tables",
+    "bench_ekf_mc": "the EKF Monte Carlo, 500 runs x 120 s",
+    "bench_mocap_capture": "8 bridge runs with --capture on and off",
     "bench_realism_mc": "a 200-run Monte Carlo of the friction+tilt model",
     "bench_session": "a full 4 x 9-step thrust characterisation (136 s planned)",
     "bench_sweep": "every estimator on 300 simulated runs",
