@@ -212,7 +212,7 @@ class Window:
         row = {"case": ..., "ok": ..., **w.timed(ok_untimed=converged)}
 
     ``ok_untimed``: the part of the row's ``ok`` that does not depend on timing (an
-    estimate's accuracy, zero loss...); a row that fails it is NO on any host.
+    estimate's accuracy, a complete file...); a row that fails it is NO on any host.
     ``Window.spanning(w1, w2)``: from the start of ``w1`` to the end of ``w2`` (a row
     measured over several sections)."""
 
