@@ -13,7 +13,7 @@ command in-process through ``tpods.cli.main`` and asserts, for every example:
 - with an existing non-empty ``--out`` and no ``--force``: status 2 and nothing in it changed.
 
 Bounded by default (``make test``: about 20-40 s here). ``TPODS_HYPOTHESIS_PROFILE=long``
-runs many more examples, not derandomised (``make robustness``, which ``make bench`` runs).
+runs many more examples, not derandomised (``make robustness``, which ``make bench-long`` runs).
 
 Examples that reproduce known findings in code this suite does not own are kept out of the
 strategies below, each with a ``# FINDING n`` comment; /tmp/robustness_findings.md and the
