@@ -30,7 +30,17 @@ import traceback
 from pathlib import Path
 
 from benchmarks.host import LoadSampler, Window
-from benchmarks.verdict import RULE, exit_status, explain, judge, summary
+from benchmarks.verdict import (
+    NO,
+    NOISY,
+    NOT_JUDGED,
+    RULE,
+    YES,
+    exit_status,
+    explain,
+    judge,
+    summary,
+)
 
 LONG_CASES = {
     "bench_batch_scipy": "scipy least_squares + solve_ivp on the batch fit's problem",
@@ -105,11 +115,11 @@ def _report(rows: list[dict], failed: list[str], cases: dict, wall_s: float, out
     print(f"\nmachine: {m['platform']}, {m['cpus']} cpus, python {m['python']}")
     print_table(rows)
     counts = summary(rows)
-    print(f"\n{counts['yes']} yes, {counts['NO']} NO, {counts['noisy host']} noisy host, "
-          f"{counts['-']} not judged; {len(failed)} case(s) crashed; {wall_s:.0f} s in all")
+    print(f"\n{counts[YES]} yes, {counts[NO]} NO, {counts[NOISY]} noisy host, "
+          f"{counts[NOT_JUDGED]} not judged; {len(failed)} case(s) crashed; {wall_s:.0f} s in all")
     print(f"rule: {RULE.describe()} (host columns: the row's window, or its case's)")
     for r in rows:
-        if r["verdict"] in ("NO", "noisy host"):
+        if r["verdict"] in (NO, NOISY):
             print(f"  {r['verdict']}: {r['case']} / {r['metric']} ({explain(r)})")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": m, "rule": RULE.to_dict(), "wall_s": round(wall_s, 1),
