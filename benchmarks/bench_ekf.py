@@ -1,5 +1,5 @@
-"""EKF speed: the single filter against a plain filterpy loop, the Monte Carlo against
-looping the single filter."""
+"""EKF speed: the single filter against a plain filterpy loop (the Monte Carlo against
+looping the single filter takes minutes: ``benchmarks/bench_ekf_mc.py``, ``make bench-long``)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import time
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from benchmarks.host import Window
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from estimator.filters.ekf import PAPER, make_schedule, run_ekf
-from estimator.montecarlo import McConfig, run_montecarlo
 from estimator.plant.model import PlantParams, integrate_zoh, wrap_angle
 from estimator.plant.sim import SimConfig, simulate
 from estimator.reports.ekf import first_pose_start, simulate_paper
@@ -79,45 +79,27 @@ def _load() -> str:
 def run() -> list[dict]:
     rows = []
     res = simulate_paper(120.0, 0)
+    w = Window()
     ours, ours_cpu = _single(res)
+    w.stop()
     ref = _plain_filterpy(res, 600)
     rows.append({"case": "ekf single 120 Hz", "metric": "pose updates per s (predict+update)",
                  "value": ours, "reference": ref, "ratio": ours / ref, "ok": ours >= 20000,
                  "target": f">= 20000 /s; {ours_cpu:.3g} per CPU s, {_load()}; reference: "
                            "filterpy EKF, numerical Jacobian (600 poses); 50 Hz commands split "
-                           "1/3 of the intervals"})
+                           "1/3 of the intervals", **w.timed()})
     from estimator.plant.inputs import phase_sine
 
     cmd_t, duty = phase_sine(20.0, 50.0)
     fast = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2), config=SimConfig(pose_rate_hz=2000))
+    w = Window()
     ours2, ours2_cpu = _single(fast)
+    w.stop()
     rows.append({"case": "ekf single 2 kHz", "metric": "pose updates per s (predict+update)",
                  "value": ours2, "reference": ref, "ratio": ours2 / ref, "ok": ours2 >= 20000,
                  "target": f">= 20000 /s (2 kHz stream, 20 s); {ours2_cpu:.3g} per CPU s, "
-                           f"{_load()}"})
+                           f"{_load()}", **w.timed()})
 
-    # Monte Carlo: 500 runs x 120 s x 120 Hz, against simulate + single filter per run
-    cfg = McConfig(runs=500, duration_s=120.0)
-    t0, c0 = time.perf_counter(), time.process_time()
-    mc = run_montecarlo(cfg)
-    t_mc = time.perf_counter() - t0
-    c_mc = time.process_time() - c0
-    n_sub = 3
-    t0 = time.perf_counter()
-    rng = np.random.default_rng(0)
-    for i in range(n_sub):
-        m = PAPER_MASS_KG * (1 + rng.uniform(-0.5, 0.5))
-        izz = PAPER_IZZ_KGM2 * (1 + rng.uniform(-0.5, 0.5))
-        r = simulate_paper(120.0, i, m, izz)
-        x0 = first_pose_start(PAPER, r.pose)
-        x0[6:8] = (PAPER_MASS_KG, PAPER_IZZ_KGM2)
-        run_ekf(r.pose_t, r.pose, r.cmd_t, r.thrust_n, PAPER, x0)
-    t_loop = (time.perf_counter() - t0) / n_sub * cfg.runs
-    rows.append({"case": "ekf montecarlo 500x120s", "metric": "wall time, s",
-                 "value": t_mc, "reference": t_loop, "ratio": t_loop / t_mc, "ok": t_mc < 60.0,
-                 "target": f"< 60 s incl. simulation ({c_mc:.0f} CPU s, {_load()}); reference: "
-                           f"simulate + single filter per run, {n_sub} runs scaled to 500; "
-                           f"{len(mc.t) * cfg.runs / t_mc:.3g} run-poses/s"})
     return rows
 
 

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.host import Window
+
 TARGET_P99_MS = 5.0
 BACKLOG_MS = 0.5
 """Largest rise of the median latency from the first to the last tenth of the run."""
@@ -207,7 +209,7 @@ def run() -> list[dict]:
 
         # ---- the live estimator (the real command)
         capture_dir = tempfile.TemporaryDirectory()
-        p99_by = {}
+        p99_by, w_by = {}, {}
         for method, capture in (("ekf", False), ("ls-ekf", False), ("ls-ekf", True)):
             state: dict = {}
 
@@ -235,8 +237,10 @@ def run() -> list[dict]:
                     return state
                 return {"finish": finish}
 
+            w = w_by[capture] = Window()
             pub_t, items, st = _stream(ctx, session, ep, seconds, rate_hz,
                                        f"tpods/{BODY}/estimate", estimator)
+            w.stop()
             frames, lat_ms = _latencies(pub_t, items)
             summ = st.get("summary", {})
             c = summ.get("counters", {})
@@ -268,7 +272,8 @@ def run() -> list[dict]:
                     "reference": p99_by[False], "ratio": float(p99) / p99_by[False],
                     "ok": bool(p99 < TARGET_P99_MS and float(p99) <= 1.5 * p99_by[False] + 0.5),
                     "target": "recording (run folder + MCAP) has no measurable effect: p99 within "
-                              "1.5x + 0.5 ms of the same run without it (the machine is noisy)"})
+                              "1.5x + 0.5 ms of the same run without it (the machine is noisy)",
+                    **Window.spanning(w_by[False], w).timed()})
             rows.append({
                 "case": case, "metric": "pose publish -> estimate p99, ms", "value": float(p99),
                 "reference": ref_p99, "ratio": ref_p99 / float(p99), "ok": bool(p99 < TARGET_P99_MS),
@@ -276,7 +281,7 @@ def run() -> list[dict]:
                           f"whole run p99 {p99_all:.2f} ms, max {lat_ms.max():.1f} ms; the 2 ms "
                           f"alignment wait is included); reference = python echo hop p99 "
                           f"(p50 {np.percentile(ref_ms, 50):.2f} ms); load avg {load:.2f} on "
-                          f"{os.cpu_count()} cpus"})
+                          f"{os.cpu_count()} cpus", **w.timed()})
             rows.append({
                 "case": case, "metric": "poses filtered / received",
                 "value": c.get("updates", 0) / max(rx, 1), "reference": 1.0,
@@ -286,7 +291,8 @@ def run() -> list[dict]:
                           f"p99 {first:.2f} -> {last:.2f} ms); estimator queue max {c.get('max_queue')}, aligner "
                           f"pending max {c.get('max_backlog')}; {rx} of {n} published poses "
                           f"received, {c.get('updates')} filtered, estimates for {estimated} delivered; final m "
-                          f"{summ.get('mass_kg', float('nan')):.4f} kg (phase {summ.get('phase')})"})
+                          f"{summ.get('mass_kg', float('nan')):.4f} kg (phase {summ.get('phase')})",
+                **w.timed(ok_untimed=bool(rx and c.get("updates") == rx))})
     finally:
         session.close()
         if "capture_dir" in locals():

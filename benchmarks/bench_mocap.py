@@ -21,14 +21,16 @@ steal of every run, keeps running (up to ``TPODS_BENCH_MOCAP_MAX_RUNS``, default
 times the repeats) until ``TPODS_BENCH_MOCAP_REPEATS`` (default 5) quiet runs are in,
 and judges the latency on the pooled poses of the quiet runs. Noisy runs are listed,
 not hidden; with fewer than ``MIN_QUIET`` quiet runs the latency row is not judged
-(``ok`` None, the reason in the row). Zero loss is required in every run, noisy or not.
+(``ok`` None, the reason in the row). Zero loss is required in every run, noisy or not
+(though when other processes load the host, the runner calls a loss "noisy host": the
+bridge then gets too little CPU to drain its socket; docs/bench.md).
 
 Environment: ``TPODS_BENCH_MOCAP_S`` (seconds of load per run, default 5),
 ``TPODS_BENCH_MOCAP_BODIES`` (default 10), ``TPODS_BENCH_MOCAP_HZ`` (default 2000),
 ``TPODS_BENCH_MOCAP_BATCH_MS`` (Zenoh batching limit of both publishers; zenoh's own
 default is 1), ``TPODS_BENCH_MOCAP_REPEATS``, ``TPODS_BENCH_MOCAP_MAX_RUNS``,
-``TPODS_BENCH_MOCAP_CAPTURE`` (0: skip the capture on/off rows),
-``TPODS_BENCH_MOCAP_CAPTURE_RUNS`` (pairs of capture off/on runs, default 4).
+``TPODS_BENCH_MOCAP_CAPTURE_RUNS`` (pairs of capture off/on runs, default 4, of
+:func:`capture_rows`: the case ``benchmarks/bench_mocap_capture.py``, ``make bench-long``).
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ import threading
 import time
 
 import numpy as np
+
+from benchmarks.host import Window
 
 TARGET_POSES_S = 20_000
 TARGET_P99_MS = 2.0
@@ -358,6 +362,7 @@ def capture_rows(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) ->
     import tempfile
 
     pairs = int(os.environ.get("TPODS_BENCH_MOCAP_CAPTURE_RUNS", "4"))
+    w = Window()
     res: dict[bool, list[dict]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(pairs):
@@ -374,6 +379,7 @@ def capture_rows(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) ->
                 print(f"  capture {'on ' if on else 'off'} run {k + 1}: {r['cpu_us']:.1f} us/pose, "
                       f"p99 {_p(r['lat_ms'], 99):.2f} ms, steal {r['steal_pct']:.2f} %, lost {r['lost']}",
                       flush=True)
+    w.stop()
     cpu = {on: float(np.median([r["cpu_us"] for r in rs])) for on, rs in res.items()}
     p99 = {on: _p(np.concatenate([r["lat_ms"] for r in rs]), 99) for on, rs in res.items()}
     lost = sum(r["lost"] for rs in res.values() for r in rs)
@@ -388,12 +394,13 @@ def capture_rows(ctx, ep: str, n_bodies: int, rate_hz: float, seconds: float) ->
          "ok": bool(cpu[True] <= CAPTURE_MAX_SLOWDOWN * cpu[False] and lost == 0 and file_ok),
          "target": f"<= {CAPTURE_MAX_SLOWDOWN:.2f} x capture off (median of {pairs} interleaved "
                    f"runs each; off: {each[False]}, on: {each[True]}); zero loss (lost {lost}); "
-                   f"every datagram in the file ({'yes' if file_ok else 'NO'}, {mb_s:.2f} MB/s)"},
+                   f"every datagram in the file ({'yes' if file_ok else 'NO'}, {mb_s:.2f} MB/s)",
+         **w.timed(ok_untimed=file_ok)},
         {"case": case, "metric": "latency p99 ms, capture on",
          "value": p99[True], "reference": p99[False],
          "ratio": p99[False] / p99[True] if p99[True] > 0 else 0.0, "ok": None,
          "target": "shown, not judged: p99 of runs this short moves with the host (see the "
-                   "bridge rows); pooled over the same interleaved runs"},
+                   "bridge rows); pooled over the same interleaved runs", **w.timed()},
     ]
 
 
@@ -406,6 +413,7 @@ def run() -> list[dict]:
     offered = n_bodies * rate_hz
     ctx = mp.get_context("spawn")
     ep = f"tcp/127.0.0.1:{_free_port()}"  # the subscriber process listens, publishers connect
+    w = Window()
     raw_max = _raw(ctx, ep, int(min(offered * 3, 60000)), 0.0)
     raw_paced = _raw(ctx, ep, int(offered * min(seconds, 3.0)), offered)
     runs: list[dict] = []
@@ -414,6 +422,7 @@ def run() -> list[dict]:
         runs.append(r)
         print(f"  bridge run {len(runs)}: p99 {_p(r['lat_ms'], 99):.2f} ms, host steal "
               f"{r['steal_pct']:.2f} %, lost {r['lost']}", flush=True)
+    w.stop()
 
     quiet = [r for r in runs if r["steal_pct"] < QUIET_STEAL_PCT]
     judged = quiet if len(quiet) >= MIN_QUIET else runs
@@ -447,7 +456,7 @@ def run() -> list[dict]:
                    f"slowest shown): offered {sent_rate:.0f}/s, lost {lost} of {n_sent}, malformed "
                    f"{malformed}; reference = raw zenoh put max {raw_max['rate']:.0f}/s "
                    f"({raw_max['received']}/{raw_max['sent']}); bridge CPU {cpu_us:.1f} us/pose "
-                   f"on {os.cpu_count()} cpus"},
+                   f"on {os.cpu_count()} cpus", **w.timed()},
         {"case": f"mocap bridge {n_bodies}x{rate_hz:g} Hz", "metric": "added latency p99, ms",
          "value": p99, "reference": raw_p99, "ratio": raw_p99 / p99 if p99 > 0 else 0.0,
          "ok": ok_lat,
@@ -455,10 +464,13 @@ def run() -> list[dict]:
                    f"{p50:.2f} ms, UDP->bridge p99 {udp99:.2f} ms); p99 of each run: {each} ms "
                    f"(* = host steal >= {QUIET_STEAL_PCT} %; steal %: {steals}); reference = raw "
                    f"zenoh put p99 paced at {offered:.0f}/s ({raw_paced['received']}/"
-                   f"{raw_paced['sent']})"},
+                   f"{raw_paced['sent']})", **w.timed()},
     ]
-    if os.environ.get("TPODS_BENCH_MOCAP_CAPTURE", "1") != "0":
-        rows += capture_rows(ctx, ep, n_bodies, rate_hz, seconds)
+    return plain(rows)
+
+
+def plain(rows: list[dict]) -> list[dict]:
+    """Rows with plain Python types for the JSON report."""
     for row in rows:  # plain Python types for the JSON report
         for key in ("value", "reference", "ratio"):
             row[key] = float(row[key])

@@ -5,7 +5,7 @@ uncertainty (``thrust_sensitivity``: a draw ``dc ~ N(0, P_c)`` moves every comma
 thrusts by ``J dc``), estimates each with batch least squares on the NOMINAL table, adds the
 consider covariance and counts how often the final error lies within ``k`` total sigma and
 within ``k`` noise sigma. For a Gaussian error the expected fraction within 2 sigma is 0.954.
-Used by the tests (200 runs) and ``make bench`` (more).
+Used by the tests (200 runs) and ``make bench-long`` (more).
 """
 
 from __future__ import annotations

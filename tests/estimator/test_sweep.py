@@ -1,6 +1,6 @@
 """A small version of the issue-17 sweep (estimator.reports.sweep): every method's final
 error within 4 sigma or flagged, and no unflagged run beyond 6 sigma. The full 300-run
-sweep is ``tpods report sweep --runs 300`` / ``make bench`` (benchmarks/bench_sweep.py)."""
+sweep is ``tpods report sweep --runs 300`` / ``make bench-long`` (benchmarks/bench_sweep.py)."""
 
 from __future__ import annotations
 

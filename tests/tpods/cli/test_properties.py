@@ -13,7 +13,7 @@ command in-process through ``tpods.cli.main`` and asserts, for every example:
 - with an existing non-empty ``--out`` and no ``--force``: status 2 and nothing in it changed.
 
 Bounded by default (``make test``: about 20-40 s here). ``TPODS_HYPOTHESIS_PROFILE=long``
-runs many more examples, not derandomised (``make robustness``, which ``make bench`` runs).
+runs many more examples, not derandomised (``make robustness``, which ``make bench-long`` runs).
 The plausibility kinds of issue 26 (absurd sizes, poses, duty ranges, weighed masses, table
 entries, overlapping modules, cut recordings, non-finite times) are properties too, with this
 harness and profile: tests/tpods/cli/test_properties_plausible.py.

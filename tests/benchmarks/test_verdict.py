@@ -1,0 +1,125 @@
+"""The noisy-host rule (benchmarks/verdict.py) and which cases make bench runs
+(benchmarks/run.py), on given rows."""
+
+import pytest
+
+from benchmarks.run import LONG_CASES, select_cases
+from benchmarks.verdict import (
+    NO,
+    NOISY,
+    NOT_JUDGED,
+    RULE,
+    YES,
+    Rule,
+    exit_status,
+    explain,
+    judge,
+    noisy_reasons,
+    verdict,
+)
+
+QUIET = {"steal_pct": 0.1, "others_cpu_pct": 3.0, "iowait_pct": 0.2, "probe_change_pct": 5.0}
+
+
+def _row(ok, timed=True, host=QUIET, **kw):
+    return {"case": "c", "metric": "m", "ok": ok, "timed": timed, "host": dict(host), **kw}
+
+
+def test_quiet_host_has_no_reasons():
+    assert noisy_reasons(QUIET) == []
+    assert noisy_reasons(None) == []
+    assert noisy_reasons({}) == []
+
+
+@pytest.mark.parametrize("key, value", [("steal_pct", 0.5), ("others_cpu_pct", 10.0),
+                                        ("iowait_pct", 5.0), ("probe_change_pct", 20.0)])
+def test_each_threshold_alone_makes_the_host_noisy(key, value):
+    assert noisy_reasons({**QUIET, key: value * 0.99}) == []
+    (reason,) = noisy_reasons({**QUIET, key: value})
+    assert f">= {value:g} %" in reason
+
+
+def test_unmeasured_figures_count_as_quiet():
+    assert noisy_reasons({k: None for k in QUIET}) == []
+
+
+def test_thresholds_of_the_rule():
+    assert (RULE.steal_pct, RULE.others_cpu_pct, RULE.iowait_pct, RULE.probe_change_pct) == \
+        (0.5, 10.0, 5.0, 20.0)
+    assert "steal >= 0.5 %" in RULE.describe()
+    assert RULE.to_dict()["others_cpu_pct"] == 10.0
+
+
+def test_verdicts():
+    noisy = {**QUIET, "others_cpu_pct": 60.0}
+    assert verdict(_row(True, host=noisy)) == YES          # a pass on a noisy host is a pass
+    assert verdict(_row(None, host=noisy)) == NOT_JUDGED
+    assert verdict(_row(False)) == NO                      # missed on a quiet host
+    assert verdict(_row(False, host=noisy)) == NOISY
+    assert verdict(_row(False, timed=False, host=noisy)) == NO   # accuracy rows are never excused
+    assert verdict(_row(False, host=noisy, ok_untimed=False)) == NO
+    assert verdict(_row(False, host=noisy, ok_untimed=True)) == NOISY
+    assert verdict({"ok": False}) == NO
+
+
+def test_a_stricter_rule():
+    strict = Rule(others_cpu_pct=80.0)
+    assert verdict(_row(False, host={**QUIET, "others_cpu_pct": 60.0}), strict) == NO
+
+
+def test_judge_gives_rows_their_case_window_and_a_verdict():
+    rows = [{"case": "a", "metric": "m", "ok": False, "timed": True, "module": "bench_x"},
+            _row(False, module="bench_x"),
+            {"case": "b", "metric": "m", "ok": False, "module": "bench_y"}]
+    case_hosts = {"bench_x": {**QUIET, "steal_pct": 3.0}, "bench_y": QUIET}
+    out = judge(rows, case_hosts)
+    assert out[0]["host"]["window"] == "case" and out[0]["verdict"] == NOISY
+    assert out[0]["noisy"] == ["steal 3 % >= 0.5 %"]
+    assert out[1]["host"] == QUIET and out[1]["verdict"] == NO  # its own window wins
+    assert out[2]["verdict"] == NO and "noisy" not in out[2]
+    assert "verdict" not in rows[0]                            # inputs untouched
+    assert explain(out[0]) == "steal 3 % >= 0.5 %"
+    assert explain(out[1]) == "host quiet"
+    assert explain(out[2]) == "not a timing row"
+
+
+def test_exit_status_fails_on_no_and_crashes_only():
+    assert exit_status([{"verdict": YES}, {"verdict": NOISY}, {"verdict": NOT_JUDGED}], []) == 0
+    assert exit_status([{"verdict": YES}, {"verdict": NO}], []) == 1
+    assert exit_status([{"verdict": YES}], ["bench_x"]) == 1
+
+
+def test_long_cases_are_left_to_bench_long():
+    names = ["bench_a", "bench_coverage", "bench_sweep", "bench_z"]
+    assert set(LONG_CASES) >= {"bench_coverage", "bench_sweep"}
+    assert select_cases(names) == ["bench_a", "bench_z"]
+    assert select_cases(names, long=True) == ["bench_coverage", "bench_sweep"]
+    assert select_cases(names, k="cov") == ["bench_coverage"]   # -k reaches every case
+    assert select_cases(names, k="bench_") == sorted(names)
+    assert select_cases(names + ["bench_a_long"], k="bench_a") == ["bench_a"]  # exact name
+
+
+def test_every_long_case_exists():
+    from pathlib import Path
+
+    import benchmarks
+
+    here = Path(benchmarks.__file__).parent
+    assert all((here / f"{name}.py").exists() for name in LONG_CASES)
+
+
+def test_table_shows_the_verdict_and_unmeasured_host_figures(capsys):
+    from benchmarks.run import print_table
+
+    rows = judge([_row(False, host={**QUIET, "others_cpu_pct": 55.0}),
+                  _row(True, host={"steal_pct": None, "others_cpu_pct": None}),
+                  {"case": "a very long case name that is wider than the column", "metric": "m",
+                   "value": 1.0, "reference": 1.0, "ratio": 1.0, "ok": None}])
+    for r in rows[:2]:
+        r.update(value=2.0, reference=1.0, ratio=0.5)
+    print_table(rows)
+    out = capsys.readouterr().out.splitlines()
+    assert "verdict" in out[0] and "other%" in out[0]
+    assert "noisy host" in out[2] and " 55 " in out[2]
+    assert "yes" in out[3] and "n/a" in out[3]
+    assert out[4].startswith("a very long case name that is wider than the column m")
