@@ -1,9 +1,11 @@
-"""``tpods demo --quick``: the whole lab day end to end (about 65 s)."""
+"""``tpods demo --quick``: the whole lab day end to end (about 45 s on an idle 2-core machine)."""
 
 from __future__ import annotations
 
 import json
 import subprocess
+
+import pytest
 
 
 def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
@@ -22,6 +24,17 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     chk = rows["batch LS, true table (check)"]
     assert abs(chk["mass_error_pct"]) < 1 and abs(chk["izz_error_pct"]) < 1
     assert s["live"]["play"]["valves_closed_confirmed"] is True
+    # the demo measures how late its emulated valves switched (both runs at time scale 2)
+    lags = {"calibration": s["calibration"]["switch_lag_ms"], "run": s["live"]["switch_lag_ms"]}
+    assert all(lag["n"] > 0 for lag in lags.values()), lags
+    timings = s["timings_s"]
+    assert set(timings) >= {"characterisation + fit", "calibration run + fit", "module run (live)",
+                            "batch", "total"}
+    assert json.loads((out / "run.json").read_text())["timings_s"]["total"] > 0
+    worst = max(lag["mean"] for lag in lags.values())
+    if worst > 5.0:  # as test_demo_structure.py: the physics no longer match the commands
+        pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
+                    f"switched {worst:.1f} lab ms after the player's stamps on average")
     # issue 17: the calibration finds the weak thruster, and after it the batch estimate's
     # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
     factors = {f["name"]: f for f in s["calibration"]["factors"]}
