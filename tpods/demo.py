@@ -146,7 +146,7 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
     )
     from tpods.demo_timing import StageTimes, print_summary
 
-    times = StageTimes()
+    times = StageTimes(meta)
     print(f"TPODS lab day on emulated devices -> {out}")
 
     with times.stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)",
@@ -181,7 +181,7 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
         truth = (args.mass, args.izz)
         figs = bench["figures"] + bif["figures"] + plot_run(out, live, truth) + batch["figures"]
         rows = summary_rows(truth, mass, bif, live, batch)
-    meta["timings_s"] = timings = times.timings()
+    meta["timings_s"] = timings = times.timings()  # the total with the figures
     report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, times, cal)
     write_summary(out, args, rows, bench, live, batch, timings, cal)
     print_summary("summary (truth: the simulated module; sigma = total: noise + thrust table; "

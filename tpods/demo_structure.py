@@ -367,7 +367,7 @@ def run_structure_demo(args: argparse.Namespace, out: Path, meta: dict | None = 
     )
     from tpods.demo_timing import StageTimes, print_summary
 
-    times = StageTimes()
+    times = StageTimes(meta)
     print(f"TPODS lab day, a structure: two modules on a truss, on emulated devices -> {out}")
 
     with times.stage("1/3 the structure and its parts: balance, bifilar, tape; tpods calibrate "

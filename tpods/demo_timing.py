@@ -16,12 +16,15 @@ from pathlib import Path
 class StageTimes:
     """The stages of one demo in order: ``with times.stage(title, key): ...`` prints the
     banner and, at the end, the stage's wall time; :meth:`paced` notes the part of a stage
-    that is waiting by design."""
+    that is waiting by design; ``meta`` (run.json's) gets ``timings_s`` after each stage."""
 
-    def __init__(self) -> None:
+    def __init__(self, meta: dict | None = None) -> None:
         self.t0 = time.monotonic()
         self.wall_s: dict[str, float] = {}
         self.paced_s: dict[str, float] = {}
+        self.meta = meta
+        """run.json's metadata (:func:`common.runwriter.run_status`): its ``timings_s``
+        follows every stage's end, so a partial lab day says how far it got and when."""
 
     @contextlib.contextmanager
     def stage(self, title: str | None, key: str) -> Iterator[None]:
@@ -33,6 +36,8 @@ class StageTimes:
             yield
         finally:
             self.wall_s[key] = time.monotonic() - t
+            if self.meta is not None:
+                self.meta["timings_s"] = self.timings()
         if title is not None:
             print(f"   ({key}: {self.wall_s[key]:.1f} s)", flush=True)
 
