@@ -127,15 +127,22 @@ def switch_lag_ms(switches, play_dir: Path) -> dict[str, float | int]:
     meta = json.loads((play_dir / "run.json").read_text())
     cmd = np.loadtxt(play_dir / "commands.csv", delimiter=",", skiprows=1, ndmin=2)
     t_cmd, duties = cmd[:, 0] + float(meta["t0_lab"]), cmd[:, 1:]
-    lags = []
-    for t_s, d in switches:
-        # the commands within 1 s first: a match there is the nearest of all
-        lo, hi = np.searchsorted(t_cmd, [t_s - 1.0, t_s + 1.0])
-        for sl in (slice(lo, hi), slice(None)):
-            same = np.all(np.isclose(duties[sl], np.asarray(d, float)), axis=1)
+    sw_t = np.array([float(t) for t, _ in switches])
+    sw_d = np.array([np.asarray(d, float) for _, d in switches]).reshape(len(sw_t), -1)
+    lags = np.full(len(sw_t), np.nan)
+    if len(sw_t) and len(t_cmd):
+        # the two commands around a change are the nearest of all: where one of them has
+        # its duties, that is the gap (nearly every change); the rest are searched in full
+        i = np.clip(np.searchsorted(t_cmd, sw_t), 1, len(t_cmd) - 1) if len(t_cmd) > 1 \
+            else np.zeros(len(sw_t), int)
+        for j in (i - 1, i):
+            hit = np.all(np.isclose(duties[j], sw_d), axis=1)
+            lags = np.where(hit, np.fmin(lags, np.abs(t_cmd[j] - sw_t)), lags)
+        for k in np.nonzero(np.isnan(lags))[0]:
+            same = np.all(np.isclose(duties, sw_d[k]), axis=1)
             if same.any():
-                lags.append(float(np.min(np.abs(t_cmd[sl][same] - t_s))))
-                break
+                lags[k] = np.min(np.abs(t_cmd[same] - sw_t[k]))
+    lags = lags[~np.isnan(lags)].tolist()
     if not lags:
         return {"mean": 0.0, "p99": 0.0, "max": 0.0, "n": 0}
     ms = 1e3 * np.asarray(lags)
