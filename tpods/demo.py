@@ -10,15 +10,19 @@ module's thruster 3 gives 4 % less thrust than the bench's nozzle (:func:`tpods.
 3. **bifilar**: an emulated bifilar swing of the module and its Izz from the trace
    (:func:`calibration.bifilar.swing_and_estimate`).
 4. **calibration**: the module as the known body (the balance's mass, the bifilar Izz): a
-   translate-rotate run over Zenoh and ``calibrate thrust`` (per-thruster efficiencies) ->
-   ``calibration/thrust_table.toml``.
+   translate-rotate run over Zenoh at the run's time scale and ``calibrate thrust``
+   (per-thruster efficiencies) -> ``calibration/thrust_table.toml``.
 5. **run**: the simulated module (:class:`tpods.plant_loop.SimulatedModule`: emulated
    valves on a pty, exact plant, 1 cm / 1 deg mocap noise, poses through the bridge over
    Zenoh); ``tpods estimate live`` (with the calibrated table) and ``tpods run play
    --input phase-sine`` as subprocesses, faster than real time on a shared lab clock
    (``--time-scale``).
 6. **batch**: batch least squares on the run the live estimator recorded, with the bench
-   table (before calibration), the calibrated table (after) and the true table (check).
+   table (before calibration, in a process of its own: :mod:`tpods.demo_fit`), the
+   calibrated table (after) and the true table (check).
+
+Both flights measure how late the emulated valves switched (:func:`tpods.demo_procs.switch_lag_ms`)
+and warn when the machine cannot keep up with the time scale.
 
 It ends with a summary table (truth, balance/bifilar, live EKF, batch LS before and after
 calibration; noise, thrust and total sigma, the error in total sigmas) and ``report.md`` with the figures of every stage. The folder's ``run.json`` says
@@ -37,9 +41,11 @@ with the figure of the structure and the centres of mass with their 95 % ellipse
 (:func:`estimator.reports.plots_structure.plot_structure`). ``--no-live`` leaves the live
 estimator out. ``--quick``: 40 s of lab time.
 
-This module is the command (``register``, :func:`cmd_demo`: the stages in order, their
-timings, the summary printed); the stages are in :mod:`tpods.demo_stages`, the figures,
-summary table and report in :mod:`tpods.demo_report`.
+This module is the command (``register``, :func:`cmd_demo`: the stages in order, the
+summary printed); the stages are in :mod:`tpods.demo_stages` (their processes in
+:mod:`tpods.demo_procs`), the figures, summary table and report in :mod:`tpods.demo_report`,
+each stage's wall time (printed, in report.md, summary.json and run.json) in
+:mod:`tpods.demo_timing`.
 """
 
 from __future__ import annotations

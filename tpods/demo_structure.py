@@ -20,7 +20,8 @@ demo's report folder:
    estimator recorded (m, Izz about the centre of mass, cx, cy and their covariance), and
    ``tpods calibrate combine --compare`` of the live and batch estimates with the parts.
 
-The report (:mod:`tpods.demo_structure_report`) holds the summary table and the figure of
+The structure itself (modules, truss parts, tape) is in :mod:`tpods.demo_structure_layout`;
+the report (:mod:`tpods.demo_structure_report`) holds the summary table and the figure of
 the structure with the true, parts, live and batch centres of mass and their 95 % ellipses.
 """
 
