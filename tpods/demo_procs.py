@@ -28,6 +28,11 @@ SWITCH_LAG_WARN_MS = 1.0
 """Mean valve-switch lag (lab ms) above which a run's physics no longer match its recorded
 commands well enough to judge the estimators (tests/support/lab.switch_lag_ms, docs/live.md)."""
 
+STRUCTURE_LAG_WARN_MS = 5.0
+"""The same for a structure: the player writes the modules' controllers one after the other,
+so module 2's valves switch a median 1.2 lab ms after module 1's by design (docs/live.md);
+tests/tpods/test_demo_structure.py judges no estimator above 5 ms."""
+
 
 def demo_session(args: argparse.Namespace):
     """The demo's Zenoh session and the endpoint its children connect to: a private
@@ -118,12 +123,14 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 1
             proc.wait(5)
 
 
-def switch_lag_ms(switches, play_dir: Path) -> dict[str, float | int]:
+def switch_lag_ms(switches, play_dir: Path, warn_ms: float = SWITCH_LAG_WARN_MS
+                  ) -> dict[str, float | int]:
     """How late the emulated valves applied the player's commands: for every valve change
     ``(t_lab, duties)`` in ``switches``, the gap to the player's stamp of the nearest command
     with the same duties (``play_dir``'s commands.csv and run.json), lab ms:
-    ``{"mean", "p99", "max", "n"}`` (a mean above :data:`SWITCH_LAG_WARN_MS` misplaces
-    enough impulse to bias the estimates)."""
+    ``{"mean", "p99", "max", "n", "warn_ms"}`` (a mean above ``warn_ms`` misplaces enough
+    impulse to bias the estimates: :data:`SWITCH_LAG_WARN_MS` for one module,
+    :data:`STRUCTURE_LAG_WARN_MS` for a structure)."""
     meta = json.loads((play_dir / "run.json").read_text())
     cmd = np.loadtxt(play_dir / "commands.csv", delimiter=",", skiprows=1, ndmin=2)
     t_cmd, duties = cmd[:, 0] + float(meta["t0_lab"]), cmd[:, 1:]
@@ -144,10 +151,21 @@ def switch_lag_ms(switches, play_dir: Path) -> dict[str, float | int]:
                 lags[k] = np.min(np.abs(t_cmd[same] - sw_t[k]))
     lags = lags[~np.isnan(lags)].tolist()
     if not lags:
-        return {"mean": 0.0, "p99": 0.0, "max": 0.0, "n": 0}
+        return {"mean": 0.0, "p99": 0.0, "max": 0.0, "n": 0, "warn_ms": warn_ms}
     ms = 1e3 * np.asarray(lags)
     return {"mean": float(ms.mean()), "p99": float(np.percentile(ms, 99)), "max": float(ms.max()),
-            "n": int(ms.size)}
+            "n": int(ms.size), "warn_ms": warn_ms}
+
+
+def lag_text(lag: dict[str, Any] | None) -> str:
+    """What the run's valve-switch lag says (the emulation's timing on this machine)."""
+    if not lag:
+        return ""
+    verdict = ("the physics matched the recorded commands" if lag["mean"] <= lag["warn_ms"]
+               else "MORE than the machine can take at this time scale: the physics do not match "
+                    "the recorded commands and the estimates carry that bias")
+    return (f"The emulated valves switched {lag['mean']:.2f} lab ms after the player's stamps on "
+            f"average (p99 {lag['p99']:.1f} ms, {lag['n']} valve changes): {verdict}.")
 
 
 def lab_time_text(duration_s: float, time_scale: float) -> str:
@@ -163,8 +181,8 @@ def print_run_timing(name: str, lag: dict[str, float | int], phases: dict[str, f
     print(f"   emulated valves switched {lag['mean']:.2f} lab ms after the player's stamps on "
           f"average (p99 {lag['p99']:.1f} ms, {lag['n']} changes); wall time: "
           + ", ".join(f"{k} {v:.1f} s" for k, v in phases.items()))
-    if lag["mean"] > SWITCH_LAG_WARN_MS:
+    if lag["mean"] > lag["warn_ms"]:
         print(f"tpods: warning: the machine is too loaded for time scale {time_scale:g}: the "
               f"emulated valves switched {lag['mean']:.1f} lab ms late on average (more than "
-              f"{SWITCH_LAG_WARN_MS:g} ms): the {name}'s physics do not match its recorded "
+              f"{lag['warn_ms']:g} ms): the {name}'s physics do not match its recorded "
               "commands and its estimates carry that bias", file=sys.stderr)

@@ -17,7 +17,7 @@ import pandas as pd
 
 from common.runfolder import read_run
 from estimator.reports.plots_ekf import plot_error_bounds
-from tpods.demo_procs import SWITCH_LAG_WARN_MS
+from tpods.demo_procs import lag_text
 from tpods.demo_timing import StageTimes, table_text, write_report_md
 
 
@@ -174,7 +174,7 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         f"messages ({c.get('align_cmds_late')} late), largest backlog {c.get('max_queue')} messages."
         + (f" LS start on the first window: m = {live['ls']['mass_kg']:.5f} kg, Izz = "
            f"{live['ls']['izz_kgm2']:.6g} kg m^2 (fit took {live['ls']['elapsed_s']:.2f} s in the "
-           "background)." if live.get("ls") else "") + " " + _lag_text(live.get("switch_lag_ms")),
+           "background)." if live.get("ls") else "") + " " + lag_text(live.get("switch_lag_ms")),
         "",
         *[f"![{p.stem}]({p.as_posix()})" for p in rel if p.parts[0] == "run"],
         "",
@@ -222,18 +222,7 @@ def _calibration_section(cal: dict[str, Any]) -> list[str]:
             "bifilar swing, both with their uncertainties) and `tpods calibrate thrust --per "
             f"thruster` on it: {cal['table_path'].relative_to(cal['table_path'].parents[1])} "
             "keeps the bench coefficients and adds each thruster's efficiency with their "
-            f"covariance. {_lag_text(cal['live'].get('switch_lag_ms'))}", "", *rows, ""]
-
-
-def _lag_text(lag: dict[str, Any] | None) -> str:
-    """What the run's valve-switch lag says (the emulation's timing on this machine)."""
-    if not lag:
-        return ""
-    verdict = ("the physics matched the recorded commands" if lag["mean"] <= SWITCH_LAG_WARN_MS
-               else "MORE than the machine can take at this time scale: the physics do not match "
-                    "the recorded commands and the estimates carry that bias")
-    return (f"The emulated valves switched {lag['mean']:.2f} lab ms after the player's stamps on "
-            f"average (p99 {lag['p99']:.1f} ms, {lag['n']} valve changes): {verdict}.")
+            f"covariance. {lag_text(cal['live'].get('switch_lag_ms'))}", "", *rows, ""]
 
 
 def write_summary(out: Path, args, rows, bench, live, batch, timings,

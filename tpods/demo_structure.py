@@ -268,7 +268,8 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
                                                          "counts", "timing")}
         summary["plant_log"] = (d / "plant.log").read_text().strip().splitlines()[-1:]
         sw = np.loadtxt(d / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
-        summary["switch_lag_ms"] = lag = dp.switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play")
+        summary["switch_lag_ms"] = lag = dp.switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play",
+                                                        dp.STRUCTURE_LAG_WARN_MS)
         summary["timing_s"] = phases
         dp.print_run_timing("structure run", lag, phases, args.time_scale)
         return summary

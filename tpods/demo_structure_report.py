@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from estimator.reports.plots_structure import ComPoint, plot_structure, plot_structure_errors
+from tpods.demo_procs import lag_text
 from tpods.demo_structure_layout import MODULES, POSITION_SIGMA_M, TRUSS_PARTS, outlines
 from tpods.demo_timing import StageTimes, table_text, write_report_md
 
@@ -211,7 +212,8 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, times: St
         f"bridge; `tpods run play --structure` played the phase-shifted sine on all "
         f"{4 * len(MODULES)} channels for {args.duration:g} s of lab time at time scale "
         f"{args.time_scale:g} (every module's valves closed at the end: "
-        f"{(run.get('play') or {}).get('valves_closed_confirmed')}).",
+        f"{(run.get('play') or {}).get('valves_closed_confirmed')}). "
+        + lag_text(run.get("switch_lag_ms")),
         "",
         *live_lines,
         *_fig_lines(out, figs, "run"),
@@ -254,6 +256,7 @@ def write_summary(out: Path, args, rows, parts, run, live, batch, timings) -> Pa
         {"variant": "structure", "rows": rows, "truth": parts["truth"],
          "ground_truth": parts["ground_truth"], "live": clean(live), "batch": clean(batch),
          "play": run.get("play"), "plant": run.get("plant_log"),
+         "switch_lag_ms": run.get("switch_lag_ms"), "run_timing_s": run.get("timing_s"),
          "time_scale": args.time_scale, "duration_lab_s": args.duration, "timings_s": timings},
         indent=2, default=str) + "\n")
     return path
