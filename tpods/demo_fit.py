@@ -51,7 +51,9 @@ def _child(conn, run_dir: Path, table: ThrustTable) -> None:
 class BackgroundFit:
     """:func:`batch_row_json` of ``run_dir`` with ``table`` in a process of its own (spawned:
     the parent may hold threads), started at once; :meth:`result` waits for it and raises
-    what the fit raised; :meth:`stop` ends it early (on every exit path of the caller)."""
+    what the fit raised; :meth:`stop` ends it early (on every exit path of the caller). A
+    script that uses it needs the ``if __name__ == "__main__":`` guard spawning asks for
+    (``tpods`` and ``python -m tpods.cli`` have it)."""
 
     def __init__(self, run_dir: Path, table: ThrustTable) -> None:
         ctx = multiprocessing.get_context("spawn")
