@@ -10,15 +10,19 @@ module's thruster 3 gives 4 % less thrust than the bench's nozzle (:func:`tpods.
 3. **bifilar**: an emulated bifilar swing of the module and its Izz from the trace
    (:func:`calibration.bifilar.swing_and_estimate`).
 4. **calibration**: the module as the known body (the balance's mass, the bifilar Izz): a
-   translate-rotate run over Zenoh and ``calibrate thrust`` (per-thruster efficiencies) ->
-   ``calibration/thrust_table.toml``.
+   translate-rotate run over Zenoh at the run's time scale and ``calibrate thrust``
+   (per-thruster efficiencies) -> ``calibration/thrust_table.toml``.
 5. **run**: the simulated module (:class:`tpods.plant_loop.SimulatedModule`: emulated
    valves on a pty, exact plant, 1 cm / 1 deg mocap noise, poses through the bridge over
    Zenoh); ``tpods estimate live`` (with the calibrated table) and ``tpods run play
    --input phase-sine`` as subprocesses, faster than real time on a shared lab clock
    (``--time-scale``).
 6. **batch**: batch least squares on the run the live estimator recorded, with the bench
-   table (before calibration), the calibrated table (after) and the true table (check).
+   table (before calibration, in a process of its own: :mod:`tpods.demo_fit`), the
+   calibrated table (after) and the true table (check).
+
+Both flights measure how late the emulated valves switched (:func:`tpods.demo_procs.switch_lag_ms`)
+and warn when the machine cannot keep up with the time scale.
 
 It ends with a summary table (truth, balance/bifilar, live EKF, batch LS before and after
 calibration; noise, thrust and total sigma, the error in total sigmas) and ``report.md`` with the figures of every stage. The folder's ``run.json`` says
@@ -37,9 +41,11 @@ with the figure of the structure and the centres of mass with their 95 % ellipse
 (:func:`estimator.reports.plots_structure.plot_structure`). ``--no-live`` leaves the live
 estimator out. ``--quick``: 40 s of lab time.
 
-This module is the command (``register``, :func:`cmd_demo`: the stages in order, their
-timings, the summary printed); the stages are in :mod:`tpods.demo_stages`, the figures,
-summary table and report in :mod:`tpods.demo_report`.
+This module is the command (``register``, :func:`cmd_demo`: the stages in order, the
+summary printed); the stages are in :mod:`tpods.demo_stages` (their processes in
+:mod:`tpods.demo_procs`), the figures, summary table and report in :mod:`tpods.demo_report`,
+each stage's wall time (printed, in report.md, summary.json and run.json) in
+:mod:`tpods.demo_timing`.
 """
 
 from __future__ import annotations
@@ -48,7 +54,6 @@ import argparse
 import datetime as _dt
 import os
 import sys
-import time
 from pathlib import Path
 
 from common.argtypes import positive_float, random_seed
@@ -89,19 +94,8 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_demo)
 
 
-def _stage(name: str) -> float:
-    print(f"\n== {name}", flush=True)
-    return time.monotonic()
-
-
-def _done(t0: float, what: str) -> float:
-    dt = time.monotonic() - t0
-    print(f"   ({what}: {dt:.1f} s)", flush=True)
-    return dt
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
-    """``tpods demo``: the five stages in order, the summary table, report.md, summary.json."""
+    """``tpods demo``: the stages in order, the summary table, report.md, summary.json."""
     if args.no_live and not args.structure:
         raise UserError("--no-live goes with --structure (the plain demo's run is the live run)")
     if args.structure and not args.no_live and args.method != "ls-ekf":
@@ -119,7 +113,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from common.runwriter import run_status  # lazy: numpy; keeps tpods --help fast
 
     # run.json: "running" until the end, then "complete" (or "aborted"/"failed": the
-    # folder holds a partial lab day; a kill leaves "running")
+    # folder holds a partial lab day; a kill leaves "running"), with each stage's wall time
     if args.structure:
         # its plant, estimator and player are processes of their own: SIGTERM (and SIGINT,
         # also when started in the background) unwinds, so the player closes every valve and
@@ -130,21 +124,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
         try:
             with sigterm_raises(), run_status(out / "run.json", "lab-day-demo-structure",
                                               seed=args.seed, quick=args.quick,
-                                              duration_s=args.duration, time_scale=args.time_scale):
-                return run_structure_demo(args, out)
+                                              duration_s=args.duration,
+                                              time_scale=args.time_scale) as meta:
+                return run_structure_demo(args, out, meta)
         except Terminated:
             print("tpods: terminated; every module's valves closed, the demo's processes stopped",
                   file=sys.stderr)
             return 143
     with run_status(out / "run.json", "lab-day-demo", seed=args.seed, quick=args.quick,
-                    duration_s=args.duration, time_scale=args.time_scale):
-        return _stages(args, out)
+                    duration_s=args.duration, time_scale=args.time_scale) as meta:
+        return _stages(args, out, meta)
 
 
-def _stages(args: argparse.Namespace, out: Path) -> int:
-    """The stages of :func:`cmd_demo` into ``out``, the summary table and the report."""
+def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
+    """The stages of :func:`cmd_demo` into ``out``, the summary table and the report; each
+    stage's wall time into ``meta`` (run.json's ``timings_s``)."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    t_all = time.monotonic()
     # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)
     from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
     from tpods.demo_stages import (
@@ -155,50 +150,48 @@ def _stages(args: argparse.Namespace, out: Path) -> int:
         stage_mass,
         stage_run,
     )
+    from tpods.demo_timing import StageTimes, print_summary
 
-    timings: dict[str, float] = {}
+    times = StageTimes(meta)
     print(f"TPODS lab day on emulated devices -> {out}")
 
-    t = _stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)")
-    bench = stage_bench(out, args.seed, args.quick)
-    timings["characterisation + fit"] = _done(t, "bench")
+    with times.stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)",
+                     "characterisation + fit"):
+        bench = stage_bench(out, args.seed, args.quick)
+    times.paced("characterisation + fit", bench["planned_s"])
 
-    t = _stage("2/6 mass on the balance")
-    mass = stage_mass(args.mass, args.seed)
-    timings["mass"] = _done(t, "mass")
+    with times.stage("2/6 mass on the balance", "mass"):
+        mass = stage_mass(args.mass, args.seed)
 
-    t = _stage("3/6 bifilar pendulum")
-    bif = stage_bifilar(out, mass, args.izz, args.seed)
-    timings["bifilar"] = _done(t, "bifilar")
+    with times.stage("3/6 bifilar pendulum", "bifilar"):
+        bif = stage_bifilar(out, mass, args.izz, args.seed)
 
-    t = _stage("4/6 in-situ thrust calibration: the module as the known body")
-    cal = stage_calibrate(out, args, bench, mass, bif)
-    timings["calibration run + fit"] = _done(t, "calibration")
+    with times.stage("4/6 in-situ thrust calibration: the module as the known body",
+                     "calibration run + fit"):
+        cal = stage_calibrate(out, args, bench, mass, bif)
+    times.paced("calibration run + fit", cal["live"]["duration_lab_s"] / args.time_scale)
 
-    t = _stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)")
-    live = stage_run(out, args, cal["table_path"])
-    print(f"   live {live.get('method')} ({live.get('phase')}): m = {live['mass_kg']:.5f} +- "
-          f"{live['mass_sigma_kg']:.2g} kg, Izz = {live['izz_kgm2']:.6g} +- "
-          f"{live['izz_sigma_kgm2']:.2g} kg m^2 (total sigma)")
-    timings["module run (live)"] = _done(t, "run")
+    with times.stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)",
+                     "module run (live)"):
+        live = stage_run(out, args, cal["table_path"])
+        print(f"   live {live.get('method')} ({live.get('phase')}): m = {live['mass_kg']:.5f} +- "
+              f"{live['mass_sigma_kg']:.2g} kg, Izz = {live['izz_kgm2']:.6g} +- "
+              f"{live['izz_sigma_kgm2']:.2g} kg m^2 (total sigma)")
+    times.paced("module run (live)", args.duration / args.time_scale)
 
-    t = _stage("6/6 batch least squares on the recorded run, before and after calibration")
-    batch = stage_batch(out, bench["table"], cal["table"])
-    timings["batch"] = _done(t, "batch")
+    with times.stage("6/6 batch least squares on the recorded run, before and after calibration",
+                     "batch"):
+        batch = stage_batch(out, bench["table"], cal["table"])
 
-    t = time.monotonic()
-    truth = (args.mass, args.izz)
-    figs = bench["figures"] + bif["figures"] + plot_run(out, live, truth) + batch["figures"]
-    rows = summary_rows(truth, mass, bif, live, batch)
-    timings["figures"] = time.monotonic() - t
-    timings["total"] = time.monotonic() - t_all
-    report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, timings, cal)
+    with times.stage(None, "figures"):
+        truth = (args.mass, args.izz)
+        figs = bench["figures"] + bif["figures"] + plot_run(out, live, truth) + batch["figures"]
+        rows = summary_rows(truth, mass, bif, live, batch)
+    meta["timings_s"] = timings = times.timings()  # the total with the figures
+    report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, times, cal)
     write_summary(out, args, rows, bench, live, batch, timings, cal)
-    print("\n== summary (truth: the simulated module; sigma = total: noise + thrust table; "
-          "error in total sigmas)\n")
-    for line in table_lines(rows):
-        print("  " + line)
-    print(f"\nsimulated run: {args.duration:g} s of lab time at time scale {args.time_scale:g}; "
-          f"whole demo {timings['total']:.0f} s")
-    print(f"report: {report} ({len(figs)} figures)")
+    print_summary("summary (truth: the simulated module; sigma = total: noise + thrust table; "
+                  "error in total sigmas)", table_lines(rows), times,
+                  f"simulated run: {args.duration:g} s of lab time at time scale "
+                  f"{args.time_scale:g}", report, len(figs))
     return 0

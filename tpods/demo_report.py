@@ -17,6 +17,8 @@ import pandas as pd
 
 from common.runfolder import read_run
 from estimator.reports.plots_ekf import plot_error_bounds
+from tpods.demo_procs import lag_text
+from tpods.demo_timing import StageTimes, table_text, write_report_md
 
 
 def plot_run(out: Path, live: dict[str, Any], truth: tuple[float, float]) -> list[Path]:
@@ -112,16 +114,12 @@ def table_lines(rows: list[dict[str, Any]], markdown: bool = False) -> list[str]
            "Izz [kg m^2]", "noise", "thrust", "total", "error", "(sigmas)"]
     body = [_cells(r) if r.get("converged", True) else
             [r["source"], "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-", "-"] for r in rows]
-    if markdown:
-        return (["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
-                + ["| " + " | ".join(b) + " |" for b in body])
-    w = [max(len(x[i]) for x in [hdr, *body]) for i in range(len(hdr))]
-    return ["  ".join(x[i].rjust(w[i]) if i else x[i].ljust(w[i]) for i in range(len(hdr)))
-            for x in [hdr, *body]]
+    return table_text(hdr, body, markdown)
 
 
-def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, timings,
+def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, times: StageTimes,
                  cal: dict[str, Any] | None = None) -> Path:
+    """``report.md``: the summary, a section per stage with its figures, the stages' times."""
     rel = [Path(f).relative_to(out) for f in figs]
     c = live.get("counters", {})
     lines = [
@@ -176,7 +174,7 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         f"messages ({c.get('align_cmds_late')} late), largest backlog {c.get('max_queue')} messages."
         + (f" LS start on the first window: m = {live['ls']['mass_kg']:.5f} kg, Izz = "
            f"{live['ls']['izz_kgm2']:.6g} kg m^2 (fit took {live['ls']['elapsed_s']:.2f} s in the "
-           "background)." if live.get("ls") else ""),
+           "background)." if live.get("ls") else "") + " " + lag_text(live.get("switch_lag_ms")),
         "",
         *[f"![{p.stem}]({p.as_posix()})" for p in rel if p.parts[0] == "run"],
         "",
@@ -186,14 +184,8 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         "",
         *[f"![{p.stem}]({p.as_posix()})" for p in rel if p.parts[0] == "batch"],
         "",
-        "## Timing",
-        "",
-        *[f"- {k}: {v:.1f} s" for k, v in timings.items()],
-        "",
     ]
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return write_report_md(out, lines, times)
 
 
 def _batch_lines(out: Path, bench: dict[str, Any], batch: dict[str, Any],
@@ -230,7 +222,7 @@ def _calibration_section(cal: dict[str, Any]) -> list[str]:
             "bifilar swing, both with their uncertainties) and `tpods calibrate thrust --per "
             f"thruster` on it: {cal['table_path'].relative_to(cal['table_path'].parents[1])} "
             "keeps the bench coefficients and adds each thruster's efficiency with their "
-            "covariance.", "", *rows, ""]
+            f"covariance. {lag_text(cal['live'].get('switch_lag_ms'))}", "", *rows, ""]
 
 
 def write_summary(out: Path, args, rows, bench, live, batch, timings,
@@ -242,8 +234,10 @@ def write_summary(out: Path, args, rows, bench, live, batch, timings,
     path.write_text(json.dumps(
         {"rows": rows, "live": live_clean, "batch": {k: v for k, v in batch.items() if k != "figures"},
          "bench": {"errors_pct_fs": bench["errors_pct_fs"], "orders": bench["orders"]},
-         "calibration": None if cal is None else {"factors": cal["factors"],
-                                                  "table": str(cal["table_path"])},
+         "calibration": None if cal is None else {
+             "factors": cal["factors"], "table": str(cal["table_path"]),
+             "switch_lag_ms": cal["live"].get("switch_lag_ms"),
+             "run_timing_s": cal["live"].get("timing_s")},
          "time_scale": args.time_scale, "duration_lab_s": args.duration, "timings_s": timings},
         indent=2, default=str) + "\n")
     return path

@@ -17,15 +17,12 @@ import dataclasses
 import json
 import math
 import signal
-import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
@@ -40,12 +37,25 @@ from common.errors import UserError
 from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
-from common.zenoh_net import open_session
-from estimator.estimate import estimate_run
 from estimator.plant.model import PlantParams
 from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
+from tpods.demo_fit import BackgroundFit, batch_row
+from tpods.demo_procs import (
+    child_zenoh_args,
+    demo_session,
+    follow_player,
+    lab_time_text,
+    live_summary,
+    print_run_timing,
+    switch_lag_ms,
+    tpods_exe,
+    wait_subscribed,
+)
 from tpods.plant_loop import MocapNoise, SimulatedModule
+
+# re-exported under their old names (tests/support, older callers)
+_child_zenoh_args, _tpods_exe = child_zenoh_args, tpods_exe
 
 BODY = "tpods1"
 
@@ -68,14 +78,16 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
     """Characterisation session on emulated devices and the cubic fits."""
     truth = ThrustTable.default()
     duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
-    cfg = SessionConfig(nozzles=(1, 2, 3, 4), duties_pct=duties, dwell_s=0.3, settle_s=0.3,
-                        zero_settle_s=0.3, zero_dwell_s=0.1, zero_every=3, watchdog_ms=300)
+    # a fast emulated balance (25 ms lag, 100 Hz printing): settle 6 lags, 15 readings a
+    # step, as a real Scout with --settle 1.5 --dwell 5 but in a sixth of a second
+    cfg = SessionConfig(nozzles=(1, 2, 3, 4), duties_pct=duties, dwell_s=0.15, settle_s=0.15,
+                        zero_settle_s=0.15, zero_dwell_s=0.05, zero_every=3, watchdog_ms=300)
     valves = EmulatedValveController(4)
-    scout = EmulatedScout(valves, truth, 1, lag_s=0.05, print_rate_hz=50, seed=seed)
+    scout = EmulatedScout(valves, truth, 1, lag_s=0.025, print_rate_hz=100, seed=seed)
     sv, ss = serve_pty(valves), serve_pty(scout)
     d = out / "bench"
     print(f"   emulated valve controller on {sv.path}, emulated OHAUS Scout on {ss.path} "
-          f"(truth: Table 2; balance lag 50 ms, 50 Hz printing: a real Scout wants "
+          f"(truth: Table 2; balance lag 25 ms, 100 Hz printing: a real Scout wants "
           f"--settle 1.5 --dwell 5)")
     try:
         with ValveController(sv.path, duty_limits=cfg.duty_limits_pct) as vc, \
@@ -104,7 +116,7 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
     print(f"   table uncertainty: each fit's coefficient covariance, scale_rel "
           f"{unc.scale_rel:.2%} ({unc.sources['scale_rel'].split(';')[0]})")
     return {"table_path": table_path, "table": table, "errors_pct_fs": errs, "figures": figs,
-            "steps": len(res.steps), "readings": res.n_readings, "status": res.status,
+            "planned_s": cfg.planned_s, "steps": len(res.steps), "readings": res.n_readings, "status": res.status,
             "orders": {int(k): int(v) for k, v in fit.selected.items()}}
 
 
@@ -141,48 +153,19 @@ def stage_bifilar(out: Path, mass: dict[str, Any], izz_kgm2: float, seed: int) -
             "small_angle_kgm2": fit.details["izz_small_angle_kgm2"]}
 
 
-def demo_session(args: argparse.Namespace):
-    """The demo's Zenoh session and the endpoint its children connect to: a private
-    loopback network (two demos on one machine do not mix) unless the Zenoh options say
-    otherwise (then ``ep`` is None)."""
-    if args.connect or args.listen or args.zenoh_config:
-        return open_session(args), None
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-    return open_session(listen=[ep], no_multicast=True), ep
-
-
-def _child_zenoh_args(args: argparse.Namespace, ep: str | None) -> list[str]:
-    if ep is not None:
-        return ["--connect", ep, "--no-multicast"]
-    out: list[str] = []
-    for e in args.connect or []:
-        out += ["--connect", e]
-    if args.no_multicast:
-        out.append("--no-multicast")
-    if args.zenoh_config:
-        out += ["--zenoh-config", args.zenoh_config]
-    if args.zenoh_mode:
-        out += ["--zenoh-mode", args.zenoh_mode]
-    return out
-
-
-def _tpods_exe() -> list[str]:
-    exe = Path(sys.executable).with_name("tpods")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "tpods.cli"]
-
-
 def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
               input_name: str = "phase-sine", duration: float | None = None) -> dict[str, Any]:
     """Simulated module (one weak thruster: :func:`plant_table`) + live estimator + player
-    over Zenoh, into ``out/name``; returns the live summary."""
+    over Zenoh, into ``out/name``; returns the live summary, with the run's valve-switch lag
+    (``switch_lag_ms``) and the wall time of its phases (``timing_s``)."""
     duration = args.duration if duration is None else duration
+    t_stage = time.monotonic()
+    phases: dict[str, float] = {}
     d = out / name
     d.mkdir(parents=True, exist_ok=True)
     session, ep = demo_session(args)
-    zargs = _child_zenoh_args(args, ep)
-    exe = _tpods_exe()
+    zargs = child_zenoh_args(args, ep)
+    exe = tpods_exe()
     clock = LabClock(args.time_scale, time.time())
     params = PlantParams(args.mass, args.izz)
     procs: dict[str, subprocess.Popen] = {}
@@ -198,20 +181,14 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
                        "--max-wait-ms", "10",
                        "--json", "--quiet", *zargs],
                 stdout=subprocess.PIPE, stderr=logs["live"], text=True)
-            probe = session.declare_publisher(cmd_key(BODY))
-            t_wait = time.monotonic()
-            while not getattr(probe.matching_status, "matching", False):
-                if procs["live"].poll() is not None or time.monotonic() - t_wait > 60:
-                    raise UserError(f"the live estimator did not start (see {d / 'live.log'})")
-                time.sleep(0.05)
-            probe.undeclare()
+            wait_subscribed(session, cmd_key(BODY), procs["live"], "the live estimator",
+                            d / "live.log")
             time.sleep(0.3)
             print(f"   module: emulated valves on {module.valves_path}, truth m = {args.mass:g} kg, "
                   f"Izz = {args.izz:g} kg m^2, thrust truth Table 2 with thruster {WEAK_THRUSTER} "
                   f"at {WEAK_EFFICIENCY:.0%}, poses 120 Hz (1 cm, 1 deg)")
             print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
-                  f"running; {duration:g} s of lab time at time scale {args.time_scale:g} "
-                  f"({duration / args.time_scale:.0f} s real)")
+                  f"running; {lab_time_text(duration, args.time_scale)}")
             logs["play"] = (d / "play.log").open("w")
             procs["play"] = subprocess.Popen(
                 exe + ["run", "play", "--valves", module.valves_path, "--input", input_name,
@@ -219,26 +196,15 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
                        "--time-scale", f"{args.time_scale:g}", "--clock-origin", repr(clock.origin),
                        "--no-progress", *zargs],
                 stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
-            bar = tqdm(total=round(duration), desc=f"{name} (lab time)", file=sys.stderr,
-                       mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
-                                                   "[{elapsed}<{remaining}]")
-            t_real0 = time.monotonic()
-            while procs["play"].poll() is None:
-                time.sleep(0.25)
-                el = (time.monotonic() - t_real0) * args.time_scale
-                bar.update(max(0, min(duration, el) - bar.n))
-            bar.close()
+            phases["start-up"] = time.monotonic() - t_stage
+            phases["played"] = follow_player(procs["play"], duration, args.time_scale,
+                                             f"{name} (lab time)")
             if procs["play"].returncode != 0:
                 raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
                                 f"{d / 'play.log'})")
-            try:
-                stdout, _ = procs["live"].communicate(timeout=60)
-            except subprocess.TimeoutExpired:
-                procs["live"].send_signal(signal.SIGTERM)
-                stdout, _ = procs["live"].communicate(timeout=30)
-            if procs["live"].returncode != 0 or not stdout.strip():
-                raise UserError(f"the live estimator failed (see {d / 'live.log'})")
-            summary = json.loads(stdout.strip().splitlines()[-1])
+            t_end = time.monotonic()
+            summary = live_summary(procs["live"], d / "live.log")
+            phases["estimator's end"] = time.monotonic() - t_end
         t_truth, s_truth = module.plant.truth_arrays()
         t0_lab = json.loads((d / "live" / "run.json").read_text()).get("t0_lab") or t_truth[0]
         np.savetxt(d / "truth.csv", np.column_stack([t_truth - t0_lab, s_truth]), delimiter=",",
@@ -248,7 +214,12 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
                                                          "counts", "timing")}
         summary["plant"] = {"poses": module.plant.frames, "max_behind_lab_s":
                             module.plant.max_behind_s, "valve_changes": len(module.plant.switches)}
+        np.savetxt(d / "switches.csv", [[t, *du] for t, du in module.plant.switches],
+                   delimiter=",", header="t_lab,d1,d2,d3,d4", comments="", fmt="%.9g")
+        summary["switch_lag_ms"] = lag = switch_lag_ms(module.plant.switches, d / "play")
         summary["truth_t"], summary["truth_s"], summary["t0_lab"] = t_truth - t0_lab, s_truth, t0_lab
+        summary["timing_s"], summary["duration_lab_s"] = phases, duration
+        print_run_timing(name, lag, phases, args.time_scale)
         return summary
     finally:
         for p in procs.values():
@@ -271,10 +242,10 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
     from estimator.batch.thrust_calibration import calibrate_run
 
     duration = 28.0 if args.quick else 42.0  # two or three 14 s cycles
-    # at most real time: the valves switch every 0.5 s here, and a late switch on a busy
-    # machine is an impulse error the efficiencies would absorb (docs/live.md)
-    slow = argparse.Namespace(**{**vars(args), "time_scale": min(args.time_scale, 1.0)})
-    live = stage_run(out, slow, bench["table_path"], name="calibration",
+    # at the run's time scale: a late valve switch on a busy machine is an impulse error the
+    # efficiencies would absorb, so stage_run measures the switches' lag and warns when the
+    # machine cannot keep up (docs/live.md)
+    live = stage_run(out, args, bench["table_path"], name="calibration",
                      input_name="translate-rotate", duration=duration)
     d = out / "calibration"
     run = read_run(d / "live")
@@ -301,43 +272,47 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
             "converged": res.converged}
 
 
-def _batch_row(run, table) -> dict[str, Any]:
-    res = estimate_run(run, table, clamp=True).batch  # the use case of `tpods estimate batch`
-    b = res.budget()
-    return {"res": res, "mass_kg": res.mass_kg, "izz_kgm2": res.izz_kgm2,
-            "mass_sigma_kg": res.mass_sigma_kg, "izz_sigma_kgm2": res.izz_sigma_kgm2,
-            "mass_sigma_noise_kg": b["mass"][0], "mass_sigma_thrust_kg": b["mass"][1],
-            "izz_sigma_noise_kgm2": b["izz"][0], "izz_sigma_thrust_kgm2": b["izz"][1],
-            "converged": res.converged, "thrust_note": res.thrust_note}
+def _json(d: dict[str, Any]) -> str:
+    return json.dumps(d, indent=2, default=str) + "\n"
 
 
 def stage_batch(out: Path, bench_table, calibrated_table=None) -> dict[str, Any]:
     """Batch least squares on the run the live estimator recorded: with the bench table
-    (before calibration), the calibrated table (after) and the plant's true table (check)."""
+    (before calibration), the calibrated table (after) and the plant's true table (check).
+
+    With a calibrated table, the fit with the bench table (it does not converge: it runs
+    out of iterations or steps, the longest of the three) runs in a process of its own
+    while this one fits the other two and draws the residuals: the same fits, in parallel."""
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
-    before = _batch_row(run, bench_table)
-    after = _batch_row(run, calibrated_table) if calibrated_table is not None else None
-    res = (after or before)["res"]
-    (d / "estimate.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
-    if after is not None:
-        (d / "estimate_before_calibration.json").write_text(
-            json.dumps(before["res"].to_dict(), indent=2, default=str) + "\n")
-    fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
-                         title="Batch LS on the recorded run: residuals")
+    bg = BackgroundFit(out / "run" / "live", bench_table) if calibrated_table is not None else None
+    try:
+        after = batch_row(run, calibrated_table) if calibrated_table is not None else None
+        # the same fit with the plant's true thrust table: what is left is not calibration
+        chk = batch_row(run, plant_table())
+        before = batch_row(run, bench_table) if bg is None else None
+        res = (after or before)["res"]
+        fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
+                             title="Batch LS on the recorded run: residuals")
+        if bg is not None:
+            before = bg.result()
+            (d / "estimate_before_calibration.json").write_text(_json(before.pop("res_dict")))
+    finally:
+        if bg is not None:
+            bg.stop()
+    (d / "estimate.json").write_text(_json(res.to_dict()))
     for label, r in (("bench table (before calibration)", before), ("calibrated table", after)):
         if r is None:
             continue
         print(f"   batch LS, {label}: m = {r['mass_kg']:.5f} +- {r['mass_sigma_kg']:.2g} kg "
               f"(noise {r['mass_sigma_noise_kg']:.2g}, thrust {r['mass_sigma_thrust_kg']:.2g}), "
               f"Izz = {r['izz_kgm2']:.6g} +- {r['izz_sigma_kgm2']:.2g} kg m^2 "
-              f"({'converged' if r['converged'] else 'NOT converged'})")
-    # the same fit with the plant's true thrust table: what is left is not calibration
-    chk = _batch_row(run, plant_table())
+              f"({'converged' if r['converged'] else 'NOT converged'}; fit {r['fit_s']:.1f} s)")
     print(f"   check with the TRUE thrust table: m = {chk['mass_kg']:.5f} +- "
           f"{chk['mass_sigma_kg']:.2g} kg, Izz = {chk['izz_kgm2']:.6g} +- "
-          f"{chk['izz_sigma_kgm2']:.2g} kg m^2 (noise only: the true table states no uncertainty)")
+          f"{chk['izz_sigma_kgm2']:.2g} kg m^2 (noise only: the true table states no uncertainty; "
+          f"fit {chk['fit_s']:.1f} s)")
     strip = lambda r: None if r is None else {k: v for k, v in r.items() if k != "res"}  # noqa: E731
     return {**strip(after or before), "before": strip(before), "after": strip(after),
             "figures": [fig], "true_table": strip(chk)}

@@ -20,7 +20,8 @@ demo's report folder:
    estimator recorded (m, Izz about the centre of mass, cx, cy and their covariance), and
    ``tpods calibrate combine --compare`` of the live and batch estimates with the parts.
 
-The report (:mod:`tpods.demo_structure_report`) holds the summary table and the figure of
+The structure itself (modules, truss parts, tape) is in :mod:`tpods.demo_structure_layout`;
+the report (:mod:`tpods.demo_structure_report`) holds the summary table and the figure of
 the structure with the true, parts, live and batch centres of mass and their 95 % ellipses.
 """
 
@@ -33,7 +34,6 @@ import queue
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -41,7 +41,6 @@ from typing import Any
 
 import numpy as np
 import tomli_w
-from tqdm import tqdm
 
 from calibration.bifilar import swing_and_estimate
 from calibration.composite import Part, combine, part_izz
@@ -50,48 +49,17 @@ from common.errors import UserError
 from common.wire import cmd_key, decode_pose, pose_key
 from estimator.estimate import estimate_run
 from estimator.reports.plots_batch import plot_residuals
-from tpods.demo_stages import _child_zenoh_args, _tpods_exe, demo_session, stage_mass
-
-BODY = "truss"
-"""The tracked body's name (its mocap key ``tpods/mocap/truss/pose``) = the structure's name."""
-
-MODULES = (("tpods1", (-0.2, 0.0), 0.0), ("tpods2", (0.2, 0.05), 90.0))
-"""(name, centre in the tracked frame [m], yaw [deg]) of the two modules."""
-
-TRUSS_PARTS = (
-    {"name": "truss bar", "mass_kg": 0.30, "shape": "rod", "length_m": 0.50,
-     "position_m": (0.05, 0.0), "outline_m": (0.50, 0.02)},
-    {"name": "payload", "mass_kg": 0.50, "shape": "box", "size_m": (0.08, 0.08),
-     "position_m": (0.12, -0.06), "outline_m": (0.08, 0.08)},
+from tpods import demo_procs as dp
+from tpods.demo_stages import stage_mass
+from tpods.demo_structure_layout import (
+    BODY,
+    MODULES,
+    POSITION_SIGMA_M,
+    TRUSS_PARTS,
+    module_toml,
+    outlines,
+    shape_keys,
 )
-"""The structure's other parts, TRUE values: the estimators' geometric start (two paper
-modules, no truss) is 0.8 kg light and its centre of mass is 1-2 cm off."""
-
-POSITION_SIGMA_M = 0.002
-"""A part's position taped on the truss, 1 sigma per axis, m."""
-
-
-def _module_toml(with_body: dict[str, Any] | None = None) -> dict[str, Any]:
-    d: dict[str, Any] = {"name": BODY, "modules": [
-        {"name": n, "position_m": list(p), "yaw_deg": y} for n, p, y in MODULES]}
-    if with_body is not None:
-        d["body"] = with_body
-    return d
-
-
-def outlines() -> list[np.ndarray]:
-    """(4, 2) rectangles of the truss parts in the tracked frame, m (for the figure)."""
-    out = []
-    for p in TRUSS_PARTS:
-        (w, h), (x, y) = p["outline_m"], p["position_m"]
-        out.append(np.array([[x - w / 2, y - h / 2], [x + w / 2, y - h / 2],
-                             [x + w / 2, y + h / 2], [x - w / 2, y + h / 2]]))
-    return out
-
-
-def _shape_keys(p: dict[str, Any]) -> dict[str, Any]:
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in p.items()
-            if k in ("shape", "length_m", "size_m")}
 
 
 def stage_parts(out: Path, args: argparse.Namespace) -> dict[str, Any]:
@@ -102,14 +70,14 @@ def stage_parts(out: Path, args: argparse.Namespace) -> dict[str, Any]:
     rng = np.random.default_rng(args.seed + 100)
     # the simulation's truth: every part's true mass, Izz and position
     true_parts = [Part(f"module {n}", args.mass, args.izz, *p) for n, p, _ in MODULES]
-    true_parts += [Part(p["name"], p["mass_kg"], part_izz(dict(_shape_keys(p)), p["mass_kg"], p["name"]),
+    true_parts += [Part(p["name"], p["mass_kg"], part_izz(dict(shape_keys(p)), p["mass_kg"], p["name"]),
                         *p["position_m"]) for p in TRUSS_PARTS]
     truth = combine(true_parts, "com")
     structure_path = d / "structure.toml"
-    structure_path.write_text(tomli_w.dumps(_module_toml()))
+    structure_path.write_text(tomli_w.dumps(module_toml()))
     truth_path = d / "truth.toml"
     truth_path.write_text("# the SIMULATION's truth (read by tpods run plant only; the estimators "
-                          "never see it)\n" + tomli_w.dumps(_module_toml(
+                          "never see it)\n" + tomli_w.dumps(module_toml(
                               {"mass_kg": truth.mass_kg, "izz_kgm2": truth.izz_com_kgm2,
                                "com_m": list(truth.com_m)})))
     print(f"   {structure_path}: modules {', '.join(f'{n} at ({p[0]:g}, {p[1]:g}) m yaw {y:g} deg' for n, p, y in MODULES)}; "
@@ -134,7 +102,7 @@ def stage_parts(out: Path, args: argparse.Namespace) -> dict[str, Any]:
             print(f"     bifilar swing: Izz = {swing.fit.izz_kgm2:.6g} +- "
                   f"{swing.fit.izz_sigma_kgm2:.2g} kg m^2 (truth {tp.izz_kgm2:.6g})")
         else:
-            row.update(_shape_keys(TRUSS_PARTS[k - len(MODULES)]))
+            row.update(shape_keys(TRUSS_PARTS[k - len(MODULES)]))
         row.update(position_m=pos, position_sigma_m=POSITION_SIGMA_M)
         parts_toml.append(row)
     parts_path = d / "parts.toml"
@@ -143,7 +111,7 @@ def stage_parts(out: Path, args: argparse.Namespace) -> dict[str, Any]:
         "balance,\n# module Izz from emulated bifilar swings, truss parts' Izz from their shapes, "
         f"positions taped ({1e3 * POSITION_SIGMA_M:g} mm)\n"
         + tomli_w.dumps({"about": "com", "part": parts_toml}))
-    r = subprocess.run(_tpods_exe() + ["calibrate", "combine", str(parts_path), "--json"],
+    r = subprocess.run(dp.tpods_exe() + ["calibrate", "combine", str(parts_path), "--json"],
                        capture_output=True, text=True, timeout=60)
     if r.returncode != 0:
         raise UserError(f"tpods calibrate combine {parts_path} failed: "
@@ -187,30 +155,6 @@ def _read_valves(proc: subprocess.Popen, n: int, timeout_s: float, log: Path) ->
     return paths
 
 
-def _stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> None:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-
-
-def _wait_subscribed(session, key: str, proc: subprocess.Popen | None, what: str, log: Path,
-                     timeout_s: float = 60.0) -> None:
-    """Until a subscriber matches ``key`` (the live estimator listens)."""
-    probe = session.declare_publisher(key)
-    try:
-        t0 = time.monotonic()
-        while not getattr(probe.matching_status, "matching", False):
-            if (proc is not None and proc.poll() is not None) or time.monotonic() - t0 > timeout_s:
-                raise UserError(f"{what} did not start (see {log})")
-            time.sleep(0.05)
-    finally:
-        probe.undeclare()
-
-
 class _PoseTap:
     """The demo's own recording of the structure's poses (``--no-live``: batch only)."""
 
@@ -248,11 +192,13 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
     """``tpods run plant --structure``, ``tpods estimate live --structure`` and ``tpods run
     play --structure`` as subprocesses over a private Zenoh network on one lab clock, into
     ``out/run``; returns the live summary (or, with ``--no-live``, what the demo recorded)."""
+    t_stage = time.monotonic()
+    phases: dict[str, float] = {}
     d = out / "run"
     d.mkdir(parents=True, exist_ok=True)
-    session, ep = demo_session(args)
-    zargs = _child_zenoh_args(args, ep)
-    exe = _tpods_exe()
+    session, ep = dp.demo_session(args)
+    zargs = dp.child_zenoh_args(args, ep)
+    exe = dp.tpods_exe()
     spath, tpath = parts["structure_path"], parts["truth_path"]
     origin = time.time()
     clock = ["--time-scale", f"{args.time_scale:g}", "--clock-origin", repr(origin)]
@@ -277,14 +223,14 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
                        "--max-wait-ms", "10", "--json", "--quiet", *zargs],
                 stdout=subprocess.PIPE, stderr=logs["live"], text=True)
             for n in names:  # it listens to every module's commands
-                _wait_subscribed(session, cmd_key(n), procs["live"], "the live estimator",
+                dp.wait_subscribed(session, cmd_key(n), procs["live"], "the live estimator",
                                  d / "live.log")
             time.sleep(0.3)
         print(f"   plant: {', '.join(f'{n} valves on {valves[n]}' for n in names)}; truth from "
               f"{tpath.name}, poses of {BODY} at 120 Hz (1 cm, 1 deg)")
         print(f"   {'live estimator (' + args.method + ') and ' if not args.no_live else ''}player "
-              f"(phase-sine on {4 * len(names)} channels) running; {args.duration:g} s of lab time "
-              f"at time scale {args.time_scale:g} ({args.duration / args.time_scale:.0f} s real)")
+              f"(phase-sine on {4 * len(names)} channels) running; "
+              f"{dp.lab_time_text(args.duration, args.time_scale)}")
         logs["play"] = (d / "play.log").open("w")
         procs["play"] = subprocess.Popen(
             exe + ["run", "play", "--structure", str(spath), "--valves",
@@ -292,18 +238,13 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
                    "--duration", f"{args.duration:g}", "--out", str(d / "play"), "--no-progress",
                    *clock, *zargs],
             stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
-        with tqdm(total=round(args.duration), desc="structure run (lab time)", file=sys.stderr,
-                  mininterval=1.0, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
-                                              "[{elapsed}<{remaining}]") as bar:
-            t_real0 = time.monotonic()
-            while procs["play"].poll() is None:
-                time.sleep(0.25)
-                el = (time.monotonic() - t_real0) * args.time_scale
-                bar.update(max(0, min(args.duration, el) - bar.n))
-                if procs["plant"].poll() is not None:
-                    break
+        t_played = time.monotonic()
+        phases["start-up"] = t_played - t_stage
+        phases["played"] = dp.follow_player(procs["play"], args.duration, args.time_scale,
+                                         "structure run (lab time)",
+                                         stop_if=lambda: procs["plant"].poll() is not None)
         if procs["play"].poll() is None:  # the plant died under the player
-            _stop(procs["play"], signal.SIGINT)
+            dp.stop(procs["play"], signal.SIGINT)
             raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
                             "the player closed every module's valves")
         if procs["play"].returncode != 0:
@@ -311,33 +252,33 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
                             f"{d / 'play.log'})")
         summary: dict[str, Any] = {}
         if not args.no_live:
-            try:
-                stdout, _ = procs["live"].communicate(timeout=60)
-            except subprocess.TimeoutExpired:
-                procs["live"].send_signal(signal.SIGTERM)
-                stdout, _ = procs["live"].communicate(timeout=30)
-            if procs["live"].returncode != 0 or not stdout.strip():
-                raise UserError(f"the live estimator failed (see {d / 'live.log'})")
-            summary = json.loads(stdout.strip().splitlines()[-1])
+            t_end = time.monotonic()
+            summary = dp.live_summary(procs["live"], d / "live.log")
+            phases["estimator's end"] = time.monotonic() - t_end
             summary.setdefault("method", args.method)
             (d / "live_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
             summary["run_dir"] = d / "live"
         else:
             summary["run_dir"] = tap.write_run(d / "play", d / "recorded", spath)
-        _stop(procs["plant"], signal.SIGTERM)  # it writes its truth on the way out
+        dp.stop(procs["plant"], signal.SIGTERM)  # it writes its truth on the way out
         if procs["plant"].returncode != 0:
             raise UserError(f"the simulated plant failed (see {d / 'plant.log'})")
         play_meta = json.loads((d / "play" / "run.json").read_text())
         summary["play"] = {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed",
                                                          "counts", "timing")}
         summary["plant_log"] = (d / "plant.log").read_text().strip().splitlines()[-1:]
+        sw = np.loadtxt(d / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
+        summary["switch_lag_ms"] = lag = dp.switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play",
+                                                        dp.STRUCTURE_LAG_WARN_MS)
+        summary["timing_s"] = phases
+        dp.print_run_timing("structure run", lag, phases, args.time_scale)
         return summary
     finally:
         # the player first (SIGINT: it closes every module's valves and confirms OFF), then
         # the estimator, the plant (its ptys) last
         for name in ("play", "live", "plant"):
             if name in procs:
-                _stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
+                dp.stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
         for fh in logs.values():
             fh.close()
         session.close()
@@ -348,14 +289,24 @@ def _cov2(names: tuple[str, ...], cov: np.ndarray, a: str = "cx", b: str = "cy")
     return [[float(cov[i, i]), float(cov[i, j])], [float(cov[j, i]), float(cov[j, j])]]
 
 
-def _compare(parts_path: Path, est_path: Path) -> list[dict[str, Any]]:
-    r = subprocess.run(_tpods_exe() + ["calibrate", "combine", str(parts_path), "--compare",
-                                       str(est_path), "--json"],
-                       capture_output=True, text=True, timeout=60)
-    if r.returncode != 0:
+def _compare(parts_path: Path, est_path: Path) -> subprocess.Popen:
+    """``tpods calibrate combine PARTS --compare EST --json``, started (see :func:`_compared`)."""
+    return subprocess.Popen(dp.tpods_exe() + ["calibrate", "combine", str(parts_path), "--compare",
+                                              str(est_path), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _compared(proc: subprocess.Popen, est_path: Path) -> list[dict[str, Any]]:
+    """The comparison rows of a :func:`_compare` process."""
+    try:
+        stdout, stderr = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        stdout, stderr = proc.communicate()
+    if proc.returncode != 0:
         raise UserError(f"tpods calibrate combine --compare {est_path} failed: "
-                        f"{(r.stderr.strip().splitlines() or ['no message'])[-1]}")
-    return json.loads(r.stdout)["comparison"]
+                        f"{(stderr.strip().splitlines() or ['no message'])[-1]}")
+    return json.loads(stdout)["comparison"]
 
 
 def stage_structure_batch(out: Path, run_dir: Path, parts: dict[str, Any],
@@ -364,6 +315,21 @@ def stage_structure_batch(out: Path, run_dir: Path, parts: dict[str, Any],
     the structure's geometric start; the parts' comparison with the live and batch results."""
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
+    live_path = out / "run" / "live_summary.json"
+    # the live estimate's comparison runs while the batch fit does
+    live_cmp = _compare(parts["parts_path"], live_path) if live is not None and live_path.is_file() \
+        else None
+    try:
+        return _batch_and_compare(out, d, run_dir, parts, live, live_cmp, live_path)
+    finally:
+        if live_cmp is not None and live_cmp.poll() is None:
+            live_cmp.kill()
+            live_cmp.wait()
+
+
+def _batch_and_compare(out: Path, d: Path, run_dir: Path, parts: dict[str, Any],
+                       live: dict[str, Any] | None, live_cmp: subprocess.Popen | None,
+                       live_path: Path) -> dict[str, Any]:
     est = estimate_run(run_dir, method="ls", estimate=None, clamp=True)  # `tpods estimate batch`
     res = est.batch
     data = est.to_dict()
@@ -382,14 +348,16 @@ def stage_structure_batch(out: Path, run_dir: Path, parts: dict[str, Any],
           f"{out_d['izz_kgm2']:.5g} +- {out_d['izz_sigma_kgm2']:.2g} kg m^2, centre of mass "
           f"({1e3 * out_d['com_x_m']:.2f} +- {1e3 * out_d['com_x_sigma_m']:.2f}, "
           f"{1e3 * out_d['com_y_m']:.2f} +- {1e3 * out_d['com_y_sigma_m']:.2f}) mm")
-    out_d["compare"] = _compare(parts["parts_path"], d / "estimate.json")
-    if live is not None and (out / "run" / "live_summary.json").is_file():
-        live["compare"] = _compare(parts["parts_path"], out / "run" / "live_summary.json")
+    out_d["compare"] = _compared(_compare(parts["parts_path"], d / "estimate.json"),
+                                 d / "estimate.json")
+    if live_cmp is not None:
+        live["compare"] = _compared(live_cmp, live_path)
     return {**out_d, "figures": [fig]}
 
 
-def run_structure_demo(args: argparse.Namespace, out: Path) -> int:
-    """The stages of ``tpods demo --structure`` into ``out``, the summary and the report."""
+def run_structure_demo(args: argparse.Namespace, out: Path, meta: dict | None = None) -> int:
+    """The stages of ``tpods demo --structure`` into ``out``, the summary and the report;
+    each stage's wall time into ``meta`` (run.json's ``timings_s``) when given."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     from tpods.demo_structure_report import (
         plot_live_errors,
@@ -399,57 +367,46 @@ def run_structure_demo(args: argparse.Namespace, out: Path) -> int:
         write_report,
         write_summary,
     )
+    from tpods.demo_timing import StageTimes, print_summary
 
-    t_all = time.monotonic()
-    timings: dict[str, float] = {}
+    times = StageTimes(meta)
     print(f"TPODS lab day, a structure: two modules on a truss, on emulated devices -> {out}")
 
-    t = _banner("1/3 the structure and its parts: balance, bifilar, tape; tpods calibrate combine")
-    parts = stage_parts(out, args)
-    timings["parts + calibrate combine"] = _took(t, "parts")
+    with times.stage("1/3 the structure and its parts: balance, bifilar, tape; tpods calibrate "
+                     "combine", "parts + calibrate combine"):
+        parts = stage_parts(out, args)
 
-    t = _banner("2/3 the structure run over Zenoh: run plant --structure, "
-                + ("" if args.no_live else "estimate live --structure, ") + "run play --structure")
-    run = stage_structure_run(out, args, parts)
-    live = None if args.no_live else run
-    if live is not None:
-        print(f"   live {live.get('method', args.method)} ({live.get('phase')}): m = "
-              f"{live['mass_kg']:.4f} +- {live['mass_sigma_kg']:.2g} kg, Izz = "
-              f"{live['izz_kgm2']:.5g} +- {live['izz_sigma_kgm2']:.2g} kg m^2, centre of mass "
-              f"({1e3 * live['com_x_m']:.2f} +- {1e3 * live['com_x_sigma_m']:.2f}, "
-              f"{1e3 * live['com_y_m']:.2f} +- {1e3 * live['com_y_sigma_m']:.2f}) mm")
-    timings["structure run"] = _took(t, "run")
+    with times.stage("2/3 the structure run over Zenoh: run plant --structure, "
+                     + ("" if args.no_live else "estimate live --structure, ")
+                     + "run play --structure", "structure run"):
+        run = stage_structure_run(out, args, parts)
+        live = None if args.no_live else run
+        if live is not None:
+            print(f"   live {live.get('method', args.method)} ({live.get('phase')}): m = "
+                  f"{live['mass_kg']:.4f} +- {live['mass_sigma_kg']:.2g} kg, Izz = "
+                  f"{live['izz_kgm2']:.5g} +- {live['izz_sigma_kgm2']:.2g} kg m^2, centre of mass "
+                  f"({1e3 * live['com_x_m']:.2f} +- {1e3 * live['com_x_sigma_m']:.2f}, "
+                  f"{1e3 * live['com_y_m']:.2f} +- {1e3 * live['com_y_sigma_m']:.2f}) mm")
+    times.paced("structure run", args.duration / args.time_scale)
 
-    t = _banner("3/3 batch least squares on the recorded run; the parts compared")
-    batch = stage_structure_batch(out, Path(run["run_dir"]), parts, live)
-    timings["batch + compare"] = _took(t, "batch")
+    with times.stage("3/3 batch least squares on the recorded run; the parts compared",
+                     "batch + compare"):
+        batch = stage_structure_batch(out, Path(run["run_dir"]), parts, live)
 
-    t = time.monotonic()
-    rows = summary_rows(parts, live, batch)
-    figs = (parts["figures"] + [plot_structure_figure(out, parts, live, batch)]
-            + (plot_live_errors(out, parts, live) if live is not None else []) + batch["figures"])
-    timings["figures"] = time.monotonic() - t
-    timings["total"] = time.monotonic() - t_all
-    report = write_report(out, args, rows, parts, run, live, batch, figs, timings)
+    with times.stage(None, "figures"):
+        rows = summary_rows(parts, live, batch)
+        figs = (parts["figures"] + [plot_structure_figure(out, parts, live, batch)]
+                + (plot_live_errors(out, parts, live) if live is not None else [])
+                + batch["figures"])
+    timings = times.timings()
+    if meta is not None:
+        meta["timings_s"] = timings
+    report = write_report(out, args, rows, parts, run, live, batch, figs, times)
     write_summary(out, args, rows, parts, run, live, batch, timings)
-    print("\n== summary (truth: the simulated structure; sigma 1 sigma; error in sigmas)\n")
-    for line in table_lines(rows):
-        print("  " + line)
-    print(f"\nstructure run: {args.duration:g} s of lab time at time scale {args.time_scale:g}; "
-          f"whole demo {timings['total']:.0f} s")
-    print(f"report: {report} ({len(figs)} figures)")
+    print_summary("summary (truth: the simulated structure; sigma 1 sigma; error in sigmas)",
+                  table_lines(rows), times, f"structure run: {args.duration:g} s of lab time at "
+                  f"time scale {args.time_scale:g}", report, len(figs))
     return 0
-
-
-def _banner(name: str) -> float:
-    print(f"\n== {name}", flush=True)
-    return time.monotonic()
-
-
-def _took(t0: float, what: str) -> float:
-    dt = time.monotonic() - t0
-    print(f"   ({what}: {dt:.1f} s)", flush=True)
-    return dt
 
 
 __all__ = ["BODY", "MODULES", "TRUSS_PARTS", "outlines", "run_structure_demo", "stage_parts",

@@ -12,7 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from estimator.reports.plots_structure import ComPoint, plot_structure, plot_structure_errors
-from tpods.demo_structure import MODULES, POSITION_SIGMA_M, TRUSS_PARTS, outlines
+from tpods.demo_procs import lag_text
+from tpods.demo_structure_layout import MODULES, POSITION_SIGMA_M, TRUSS_PARTS, outlines
+from tpods.demo_timing import StageTimes, table_text, write_report_md
 
 QUANTITIES = (("mass", "mass_kg", "mass_sigma_kg", "kg", 1.0, "{:.4f}"),
               ("izz", "izz_kgm2", "izz_sigma_kgm2", "kg m^2", 1.0, "{:.5g}"),
@@ -73,12 +75,7 @@ def table_lines(rows: list[dict[str, Any]], markdown: bool = False) -> list[str]
             cells += [fmt.format(r[v] * f), "0" if r[s] == 0 else f"{r[s] * f:.2g}",
                       "-" if z is None else f"{z:+.1f}"]
         body.append(cells)
-    if markdown:
-        return (["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
-                + ["| " + " | ".join(b) + " |" for b in body])
-    w = [max(len(x[i]) for x in [hdr, *body]) for i in range(len(hdr))]
-    return ["  ".join(x[i].rjust(w[i]) if i else x[i].ljust(w[i]) for i in range(len(hdr)))
-            for x in [hdr, *body]]
+    return table_text(hdr, body, markdown)
 
 
 def _diag(sx: float, sy: float) -> list[list[float]]:
@@ -146,7 +143,7 @@ def _compare_lines(label: str, rows: list[dict[str, Any]] | None) -> list[str]:
     return out + [""]
 
 
-def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) -> Path:
+def write_report(out: Path, args, rows, parts, run, live, batch, figs, times: StageTimes) -> Path:
     """``report.md`` of the structure variant (``live`` None: run with ``--no-live``)."""
     gt = parts["ground_truth"]
     t = parts["truth"]
@@ -215,7 +212,8 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) 
         f"bridge; `tpods run play --structure` played the phase-shifted sine on all "
         f"{4 * len(MODULES)} channels for {args.duration:g} s of lab time at time scale "
         f"{args.time_scale:g} (every module's valves closed at the end: "
-        f"{(run.get('play') or {}).get('valves_closed_confirmed')}).",
+        f"{(run.get('play') or {}).get('valves_closed_confirmed')}). "
+        + lag_text(run.get("switch_lag_ms")),
         "",
         *live_lines,
         *_fig_lines(out, figs, "run"),
@@ -243,14 +241,8 @@ def write_report(out: Path, args, rows, parts, run, live, batch, figs, timings) 
         "",
         *_fig_lines(out, figs, "batch"),
         "",
-        "## Timing",
-        "",
-        *[f"- {k}: {v:.1f} s" for k, v in timings.items()],
-        "",
     ]
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return write_report_md(out, lines, times)
 
 
 def write_summary(out: Path, args, rows, parts, run, live, batch, timings) -> Path:
@@ -264,6 +256,7 @@ def write_summary(out: Path, args, rows, parts, run, live, batch, timings) -> Pa
         {"variant": "structure", "rows": rows, "truth": parts["truth"],
          "ground_truth": parts["ground_truth"], "live": clean(live), "batch": clean(batch),
          "play": run.get("play"), "plant": run.get("plant_log"),
+         "switch_lag_ms": run.get("switch_lag_ms"), "run_timing_s": run.get("timing_s"),
          "time_scale": args.time_scale, "duration_lab_s": args.duration, "timings_s": timings},
         indent=2, default=str) + "\n")
     return path

@@ -83,19 +83,10 @@ def _switch_lag_ms(run_dir) -> float:
     """Mean gap, lab ms, between a valve row the simulated plant applied (run/plant/
     switches.csv) and the player's stamp of the same duties (run/play/commands.csv): 1-2 ms
     here (module 2's controller is written after module 1's)."""
-    import pandas as pd
+    from tpods.demo_procs import switch_lag_ms
 
-    meta = json.loads((run_dir / "play" / "run.json").read_text())
-    cmd = pd.read_csv(run_dir / "play" / "commands.csv")
-    t_cmd = cmd["t"].to_numpy() + meta["t0_lab"]
-    duties = cmd.drop(columns="t").to_numpy()
-    sw = pd.read_csv(run_dir / "plant" / "switches.csv").to_numpy()
-    lags = []
-    for row in sw:
-        same = np.all(np.isclose(duties, row[1:]), axis=1)
-        if same.any():
-            lags.append(float(np.min(np.abs(t_cmd[same] - row[0]))))
-    return 1e3 * float(np.mean(lags)) if lags else 0.0
+    sw = np.loadtxt(run_dir / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
+    return switch_lag_ms([(row[0], row[1:]) for row in sw], run_dir / "play")["mean"]
 
 
 def _within(row: dict, truth: dict, n_sigma: float) -> None:

@@ -1,0 +1,80 @@
+"""One batch least-squares fit of the demo's recorded run with a thrust table (the use case
+of ``tpods estimate batch``): the estimate with its total sigma and the sigma's noise and
+thrust-table parts. A light module of its own so the batch stage of ``tpods demo``
+(:func:`tpods.demo_stages.stage_batch`) can run one fit in another process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from pathlib import Path
+from typing import Any
+
+from common.errors import UserError
+from common.runfolder import Run, read_run
+from common.thrust_table import ThrustTable
+from estimator.estimate import estimate_run
+
+
+def batch_row(run: Run, table: ThrustTable) -> dict[str, Any]:
+    """Batch LS of ``run`` with ``table`` (what ``tpods estimate batch --clamp`` runs): the
+    result (``res``), m and Izz with their total sigma and its noise and thrust parts, and
+    the fit's wall time (``fit_s``)."""
+    t0 = time.monotonic()
+    res = estimate_run(run, table, clamp=True).batch  # the use case of `tpods estimate batch`
+    b = res.budget()
+    return {"res": res, "mass_kg": res.mass_kg, "izz_kgm2": res.izz_kgm2,
+            "mass_sigma_kg": res.mass_sigma_kg, "izz_sigma_kgm2": res.izz_sigma_kgm2,
+            "mass_sigma_noise_kg": b["mass"][0], "mass_sigma_thrust_kg": b["mass"][1],
+            "izz_sigma_noise_kgm2": b["izz"][0], "izz_sigma_thrust_kgm2": b["izz"][1],
+            "converged": res.converged, "thrust_note": res.thrust_note,
+            "fit_s": time.monotonic() - t0}
+
+
+def batch_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
+    """:func:`batch_row` of a run folder, for another process: the row with the result's
+    JSON (``res_dict``) instead of the result."""
+    row = batch_row(read_run(run_dir), table)
+    return {**{k: v for k, v in row.items() if k != "res"}, "res_dict": row["res"].to_dict()}
+
+
+def _child(conn, run_dir: Path, table: ThrustTable) -> None:
+    try:
+        conn.send(("ok", batch_row_json(run_dir, table)))
+    except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        conn.send(("error", exc))
+    finally:
+        conn.close()
+
+
+class BackgroundFit:
+    """:func:`batch_row_json` of ``run_dir`` with ``table`` in a process of its own (spawned:
+    the parent may hold threads), started at once; :meth:`result` waits for it and raises
+    what the fit raised; :meth:`stop` ends it early (on every exit path of the caller). A
+    script that uses it needs the ``if __name__ == "__main__":`` guard spawning asks for
+    (``tpods`` and ``python -m tpods.cli`` have it)."""
+
+    def __init__(self, run_dir: Path, table: ThrustTable) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._recv, send = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_child, args=(send, Path(run_dir), table), daemon=True,
+                                 name="tpods-demo-batch-fit")
+        self._proc.start()
+        send.close()
+
+    def result(self) -> dict[str, Any]:
+        try:
+            kind, value = self._recv.recv()
+        except EOFError:
+            raise UserError("the batch fit's process ended without a result") from None
+        self._proc.join()
+        if kind == "error":
+            raise value
+        return value
+
+    def stop(self) -> None:
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(5)
+        self._recv.close()
