@@ -14,7 +14,7 @@ from common.outputs import ResultFolder, add_force, not_an_input, result_output,
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     g = group(sub, "bench", "thrust characterisation bench: valve controller + OHAUS balance")
 

@@ -17,7 +17,7 @@ from common.outputs import add_force, result_output
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     cal = group(sub, "calibrate", "ground-truth mass (balance) and Izz (bifilar pendulum, parts); in-situ thrust "
                  "calibration from a known body")

@@ -14,7 +14,6 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -31,6 +30,15 @@ from common.argtypes import (
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, not_an_input, result_output
+from tpods.cli import estimate_ekf as cli_ekf
+from tpods.cli import estimate_realism as cli_realism
+from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_budget: re-exported
+    budget_lines,
+    centre_of_mass_lines,
+    filter_budget,
+    structure_body_lines,
+)
+from tpods.cli.estimate_output import print_json as _print_json
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -72,9 +80,6 @@ def name_list(text: str) -> tuple[str, ...]:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    from tpods.cli import estimate_ekf as cli_ekf
-    from tpods.cli import estimate_realism as cli_realism
-
     p = est.add_parser(
         "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
         description="Estimate the initial state, mass and Izz of a run folder. --method ls is the "
@@ -213,16 +218,8 @@ def _common_model_options(p) -> None:
                    help="yaw noise sigma, deg (default 1)")
 
 
-def _print_json(obj: dict[str, Any]) -> None:
-    from common.runwriter import json_default as _json_default
-
-    sys.stdout.write(json.dumps(obj, default=_json_default) + "\n")
-
-
 def cmd_batch(args: argparse.Namespace) -> int:
     from estimator.estimate import estimate_run
-    from tpods.cli import estimate_ekf as cli_ekf
-    from tpods.cli import estimate_realism as cli_realism
 
     args.out_folder = result_output(args.out, "estimate.json", force=args.force,
                                     command="tpods estimate batch")
@@ -281,13 +278,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         if n not in ("mass", "izz"):
             i = 6 + res.names.index(n)
             print(f"  {n:<5} = {res.z0[i]:.6g} +/- {res.sigma[i]:.3g}")
-    if "com_x_m" in out:
-        print(f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
-              f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
-              f"structure {out['structure']!r}; Izz above is about it")
-        print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
-              f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
-    for line in structure_body_lines(out):
+    for line in centre_of_mass_lines(out) + structure_body_lines(out):
         print(line)
     rms = res.rms_residuals()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
@@ -302,47 +293,6 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  wrote {args.out_folder.main}"
               + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
     return 0
-
-
-def structure_body_lines(out: dict[str, Any]) -> list[str]:
-    """The text lines on a structure's [body] values used as known (fixed) or as priors
-    (the JSON's ``known_from_structure``, ``prior_from_structure``)."""
-    lines = []
-    if out.get("known_from_structure"):
-        lines.append("  known from structure.toml [body] (fixed, not estimated): " + ", ".join(
-            f"{n} {v:.6g}" for n, v in out["known_from_structure"].items())
-            + "; --estimate NAME,... estimates one")
-    if out.get("prior_from_structure"):
-        lines.append("  prior from structure.toml [body] (in the estimate): " + ", ".join(
-            f"{n} {p['mean']:.6g} +/- {p['sigma']:.3g}"
-            for n, p in out["prior_from_structure"].items()))
-    return lines
-
-
-_UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s", "kb": "N m s/m",
-          "ax": "m/s^2", "ay": "m/s^2"}
-
-
-def budget_lines(budget: dict[str, tuple[float, float, float]]) -> list[str]:
-    """The uncertainty budget as a small table (1 sigma: noise, thrust table, total); no
-    lines when the thrust part is zero everywhere (the total is the noise part)."""
-    if not any(t for _, t, _ in budget.values()):
-        return []
-    lines = [f"  {'uncertainty (1 sigma)':<22} {'noise':>10} {'thrust':>10} {'total':>10}"]
-    for name, (n, t, tot) in budget.items():
-        lab = f"{'Izz' if name == 'izz' else name} ({_UNITS.get(name, '')})"
-        lines.append(f"    {lab:<20} {n:10.3g} {t:10.3g} {tot:10.3g}")
-    return lines
-
-
-def filter_budget(out: dict[str, Any]) -> dict[str, tuple[float, float, float]]:
-    """The budget of a filter estimate's JSON object (keys of ``filter_thrust_budget``)."""
-    b = {}
-    for name, unit in (("mass", "kg"), ("izz", "kgm2")):
-        if f"{name}_sigma_noise_{unit}" in out and out[f"{name}_sigma_{unit}"] is not None:
-            b[name] = (out[f"{name}_sigma_noise_{unit}"], out[f"{name}_sigma_thrust_{unit}"],
-                       out[f"{name}_sigma_{unit}"])
-    return b
 
 
 def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
@@ -371,7 +321,6 @@ def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
 def cmd_crlb(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
     from estimator.estimate import bound_sequence, load_sequence
-    from tpods.cli import estimate_realism as cli_realism
 
     out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")
     not_an_input(out_folder, args.run_dir, args.thrust_table)
@@ -436,9 +385,9 @@ def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
     """Refuse a bound that will not fit in memory, naming --pose-rate (planned poses) or the
     run's size, and announce a long one. Without ``seq``: a planned sequence's poses from
     its commands' span and --pose-rate, before they are allocated."""
+    import tpods.cli.sizes as sizes
     from estimator.plant.inputs import from_commands_csv
     from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS
-    from tpods.cli import sizes
 
     n_params = len(MODELS[args.model or DEFAULT_MODEL])
     if seq is None:
@@ -469,7 +418,7 @@ def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
 def _check_design_size(args: argparse.Namespace) -> None:
     """Refuse a design that will not fit in memory (one candidate's bound, and every scored
     candidate's trajectory, which the search keeps), naming the options; announce a long one."""
-    from tpods.cli import sizes
+    import tpods.cli.sizes as sizes
 
     n_poses = sizes.samples(args.duration, args.pose_rate)
     n_cmds = sizes.samples(args.duration, args.cmd_rate)

@@ -19,6 +19,7 @@ import numpy as np
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, result_output
+from tpods.cli.estimate_output import budget_lines, filter_budget
 
 
 def _state_values(what: str):
@@ -143,8 +144,6 @@ def report_filter(est, args) -> int:
               f"Izz {fe.ls.izz_kgm2:.6g} +/- {fe.ls.izz_sigma_kgm2:.3g} kg m^2")
     print(f"  mass  = {r.mass_kg:.6g} kg      +/- {out['mass_sigma_kg']:.3g} (1 sigma)")
     print(f"  Izz   = {r.izz_kgm2:.6g} kg m^2  +/- {out['izz_sigma_kgm2']:.3g} (1 sigma)")
-    from tpods.cli.estimate_batch import budget_lines, filter_budget
-
     for line in budget_lines(filter_budget(out)):
         print(line)
     print(f"  mean NIS {out['nis_mean']:.3g} (3 expected), "

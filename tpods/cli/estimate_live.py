@@ -14,6 +14,7 @@ from pathlib import Path
 from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
+from tpods.cli.estimate_output import budget_lines, filter_budget
 
 
 def register(est) -> None:
@@ -196,8 +197,6 @@ def cmd_live(args: argparse.Namespace) -> int:
         print(f"  centre of mass = ({summary['com_x_m']:.5f}, {summary['com_y_m']:.5f}) m "
               f"+/- ({summary['com_x_sigma_m']:.2g}, {summary['com_y_sigma_m']:.2g}) in the tracked "
               f"frame; Izz about the tracked origin {summary['izz_origin_kgm2']:.6g} kg m^2")
-    from tpods.cli.estimate_batch import budget_lines, filter_budget
-
     for line in budget_lines(filter_budget(summary)):
         print(line)
     if "ls" in summary:

@@ -11,7 +11,7 @@ from common.outputs import add_force
 
 def register(sub) -> None:
     """Add the ``tpods export`` group."""
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     g = group(sub, "export", "convert recordings to other formats")
     p = g.add_parser(

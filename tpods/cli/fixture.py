@@ -7,7 +7,7 @@ import argparse
 
 def register(sub) -> None:
     """Add ``tpods fixture`` to the `tpods` parser."""
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     g = group(sub, "fixture", "recorded fixtures of the regression tests (runs/fixtures/)")
     p = g.add_parser(

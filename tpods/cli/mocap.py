@@ -20,7 +20,7 @@ from common.outputs import add_force, stream_folder
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
     from common.zenoh_net import add_zenoh_options
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
 

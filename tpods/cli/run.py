@@ -17,7 +17,7 @@ from common.outputs import ResultFolder, add_force, stream_folder
 def register(sub) -> None:
     """Add the ``run`` group to the `tpods` parser."""
     from common.zenoh_net import add_zenoh_options
-    from tpods.cli import group
+    from tpods.cli.parser import group
 
     g = group(sub, "run", "run a module: play an input on its valves, simulate a module")
 
