@@ -10,6 +10,7 @@ from pathlib import Path
 from common.argtypes import nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, not_an_input, result_output, stream_folder
+from tpods.cli.stopping import valves_closed_exit
 
 
 def register(sub) -> None:
@@ -190,12 +191,8 @@ def cmd_characterize(args: argparse.Namespace) -> int:
                             acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
                             capture=cap_dir and cap_dir / "scale.serial.jsonl", **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
-        except Terminated:
-            print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
-            return 143
-        except KeyboardInterrupt:
-            print(f"tpods: interrupted; valves closed; partial data in {out}", file=sys.stderr)
-            return 130
+        except (Terminated, KeyboardInterrupt) as exc:
+            return valves_closed_exit(exc, f"valves closed; partial data in {out}")
     print(f"session {res.status}: {len(res.steps)} steps, {res.n_readings} readings, "
           f"{res.n_garbage} garbage line(s) skipped")
     print(f"time {res.elapsed_s:.1f} s for {res.planned_s:.1f} s planned "

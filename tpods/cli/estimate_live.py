@@ -6,7 +6,6 @@ import argparse
 import datetime as _dt
 import json
 import math
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -15,6 +14,7 @@ from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.stopping import zenoh_session
 
 
 def register(est) -> None:
@@ -75,7 +75,6 @@ def cmd_live(args: argparse.Namespace) -> int:
     from common.mcap_log import McapLog
     from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
-    from common.zenoh_net import open_session
     from estimator.live.recorder import record_streams
     from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
     from estimator.live.zenoh_run import command_keys
@@ -133,32 +132,26 @@ def cmd_live(args: argparse.Namespace) -> int:
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
     console = _Console(args.quiet)
     stop = threading.Event()
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        old[sig] = signal.signal(sig, lambda *_a: stop.set())
     status = "failed"
     res = None
     subs = []
     try:
-        session = open_session(args)
-        try:
-            if log is not None:
-                subs = record_streams(session, k, log)
-            cmds = " + ".join(command_keys(k))
-            print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
-                  f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
-            res = run_live(session, est, stop=stop, duration_s=args.duration,
-                           exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                           prefix=args.prefix, on_console=console.show)
-            status = res.status
-        finally:
-            for s in subs:
-                s.undeclare()
-            session.close()
+        with zenoh_session(args, stop) as session:
+            try:
+                if log is not None:
+                    subs = record_streams(session, k, log)
+                cmds = " + ".join(command_keys(k))
+                print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
+                      f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
+                res = run_live(session, est, stop=stop, duration_s=args.duration,
+                               exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
+                               prefix=args.prefix, on_console=console.show)
+                status = res.status
+            finally:
+                for s in subs:
+                    s.undeclare()
     finally:
         console.end()
-        for sig, h in old.items():
-            signal.signal(sig, h)
         summary = est.summary()
         if log is not None:
             log.close(status)

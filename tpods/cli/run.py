@@ -12,6 +12,7 @@ from pathlib import Path
 from common.argtypes import fraction, nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, stream_folder
+from tpods.cli.stopping import valves_closed_exit
 
 
 def register(sub) -> None:
@@ -203,14 +204,8 @@ def cmd_play(args: argparse.Namespace) -> int:
                                heartbeat_s=args.heartbeat, progress=not args.no_progress,
                                meta={"input": args.input, "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
-            except Terminated:
-                print("tpods: terminated; valves closed" + (f"; commands in {out}" if out else ""),
-                      file=sys.stderr)
-                return 143
-            except KeyboardInterrupt:
-                print("tpods: interrupted; valves closed" + (f"; commands in {out}" if out else ""),
-                      file=sys.stderr)
-                return 130
+            except (Terminated, KeyboardInterrupt) as exc:
+                return valves_closed_exit(exc, "valves closed" + (f"; commands in {out}" if out else ""))
         pub.undeclare()
     finally:
         session.close()
@@ -277,14 +272,9 @@ def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
                                meta={"input": args.input, "structure": structure.name,
                                      "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
-            except Terminated:
-                print("tpods: terminated; every module's valves closed"
-                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
-                return 143
-            except KeyboardInterrupt:
-                print("tpods: interrupted; every module's valves closed"
-                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
-                return 130
+            except (Terminated, KeyboardInterrupt) as exc:
+                return valves_closed_exit(exc, "every module's valves closed"
+                                          + (f"; commands in {out}" if out else ""))
         for p in pubs.values():
             p.undeclare()
     finally:

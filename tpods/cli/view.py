@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 
@@ -11,6 +10,7 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force
+from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
 DEFAULT_PORT = 8765
@@ -69,24 +69,15 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.write_layout is not None:
         return _write_layout(args)
 
-    from common.zenoh_net import open_session
     from tpods.viewer import LiveView
 
     console = Console(args.quiet)
     stop = threading.Event()
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        try:
-            old[sig] = signal.signal(sig, lambda *_a: stop.set())
-        except ValueError:  # not the main thread
-            pass
+    view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
+                    prefix=args.prefix, mocap_prefix=args.mocap_prefix, pose_rate=args.pose_rate)
+    view.start_server()  # a port in use or a bad host: one line, before Zenoh
     try:
-        view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
-                        prefix=args.prefix, mocap_prefix=args.mocap_prefix,
-                        pose_rate=args.pose_rate)
-        view.start_server()  # a port in use or a bad host: one line, before Zenoh
-        try:
-            view.session = session = open_session(args)
+        with zenoh_session(args, stop) as view.session:
             try:
                 view.subscribe()
                 print(f"view: serving on {view.url} (Foxglove: Open connection -> Foxglove "
@@ -95,14 +86,10 @@ def cmd_view(args: argparse.Namespace) -> int:
                 while not stop.wait(0.5):
                     console.show(view.status_line())
             finally:
-                view.close()
-                session.close()
-        finally:
-            view.close()
+                view.close()  # its subscribers before the session
     finally:
+        view.close()
         console.end()
-        for sig, h in old.items():
-            signal.signal(sig, h)
     c = view.counters
     print(f"view: stopped; {c.get('pose_shown', 0)} poses, {c.get('cmd_shown', 0)} commands, "
           f"{c.get('estimate_shown', 0)} estimates shown for {len(view.bodies)} bodies; "
