@@ -20,8 +20,6 @@ import numpy as np
 from common.argtypes import (
     IZZ_KGM2,
     MASS_KG,
-    SIGMA_POS_M,
-    SIGMA_YAW_DEG,
     float_list,
     nonneg_float,
     positive_float,
@@ -39,6 +37,7 @@ from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_bud
     structure_body_lines,
 )
 from tpods.cli.estimate_output import print_json as _print_json
+from tpods.cli.options import add_noise_sigmas, add_result_out
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -107,10 +106,7 @@ def register(sub, est, rep) -> None:
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write estimate.json, residuals.csv and residuals.png (Fig. 5) in folder DIR, "
-                        "or only the estimate to FILE.json")
-    add_force(p)
+    add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
     p.set_defaults(func=cmd_batch)
@@ -136,10 +132,7 @@ def register(sub, est, rep) -> None:
                    help="a structure: the parameters to bound (default mass,izz,cx,cy less "
                         "the [body] values known without a sigma)")
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    c.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write crlb.json and sensitivities.png (Fig. 6) in folder DIR, or only the "
-                        "bounds to FILE.json")
-    add_force(c)
+    add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
 
@@ -212,10 +205,7 @@ def _common_model_options(p) -> None:
                    help="thrust table TOML (default: the paper's Table 2)")
     p.add_argument("--clamp", action="store_true",
                    help="clamp duties into the table's valid range instead of refusing")
-    p.add_argument("--sigma-pos", type=SIGMA_POS_M, default=0.01,
-                   help="position noise sigma, m (default 0.01)")
-    p.add_argument("--sigma-yaw-deg", type=SIGMA_YAW_DEG, default=1.0,
-                   help="yaw noise sigma, deg (default 1)")
+    add_noise_sigmas(p)
 
 
 def cmd_batch(args: argparse.Namespace) -> int:

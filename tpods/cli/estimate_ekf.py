@@ -20,6 +20,7 @@ from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, result_output
 from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.options import add_result_out
 
 
 def _state_values(what: str):
@@ -186,10 +187,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write montecarlo.json, history.csv, runs.csv and the figures in folder DIR, "
-                        "or only the summary to FILE.json")
-    add_force(p)
+    add_result_out(p, "montecarlo.json, history.csv, runs.csv and the figures", "summary")
     g = p.add_argument_group(
         "structure (issue 18)",
         "--structure F: a Monte Carlo of batch LS on the structure: m and Izz drawn within "

@@ -14,6 +14,7 @@ from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.options import add_key_prefixes
 from tpods.cli.stopping import zenoh_session
 
 
@@ -60,8 +61,7 @@ def register(est) -> None:
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",
                    help="stop shortly after the player announces the end of its input")
-    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
-    p.add_argument("--mocap-prefix", default="tpods/mocap", help="pose key prefix (default tpods/mocap)")
+    add_key_prefixes(p)
     p.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no live console line")
     add_batch_options(p)

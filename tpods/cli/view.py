@@ -10,6 +10,7 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force
+from tpods.cli.options import add_key_prefixes, check_key_prefixes
 from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
@@ -46,9 +47,7 @@ def register(sub) -> None:
                    help="body to show (repeatable; default: every body seen)")
     p.add_argument("--pose-rate", type=nonneg_float, default=50.0, metavar="HZ",
                    help="poses forwarded per body and second (default 50; 0: every pose)")
-    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
-    p.add_argument("--mocap-prefix", default="tpods/mocap",
-                   help="pose key prefix (default tpods/mocap)")
+    add_key_prefixes(p)
     p.add_argument("--write-layout", metavar="FILE.json", default=None,
                    help="write a Foxglove layout for the --body names (default tpods1) to FILE "
                         "and exit")
@@ -59,9 +58,7 @@ def register(sub) -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
-        if not v.strip("/"):
-            raise UserError(f"{opt} must not be empty")
+    check_key_prefixes(args)
     if args.body is not None and not all(b.strip() for b in args.body):
         raise UserError("--body must not be empty")
     if not args.host.strip():
