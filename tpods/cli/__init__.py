@@ -4,6 +4,11 @@ Each command group has a module here (``bench``, ``calibrate``, ``mocap``, ``run
 estimator's in :mod:`tpods.cli.estimate` until it moves) with ``register(subparsers)``: it
 parses arguments, calls the packages and prints. Handlers return an exit status. User errors
 (:class:`common.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
+
+What the command modules share, they import from modules that import none of them:
+:mod:`tpods.cli.parser` (the parser class, :func:`group`), :mod:`tpods.cli.options` (option
+families written once), :mod:`tpods.cli.stopping` (signals, the Zenoh session, the valve
+commands' exit) and :mod:`tpods.cli.estimate_output` (the estimate commands' output).
 """
 
 from __future__ import annotations

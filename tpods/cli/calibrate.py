@@ -14,12 +14,11 @@ from common.constants import G_STANDARD_MPS2
 from common.errors import DeviceError, UserError
 from common.outputs import add_force, result_output
 from tpods.cli.options import add_noise_sigmas, add_result_out
+from tpods.cli.parser import group
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from tpods.cli.parser import group
-
     cal = group(sub, "calibrate", "ground-truth mass (balance) and Izz (bifilar pendulum, parts); in-situ thrust "
                  "calibration from a known body")
     _register_mass(cal)

@@ -13,6 +13,8 @@ from pathlib import Path
 from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.estimate_ekf import add_batch_options
 from tpods.cli.estimate_output import budget_lines, filter_budget
 from tpods.cli.options import add_key_prefixes
 from tpods.cli.stopping import zenoh_session
@@ -20,9 +22,6 @@ from tpods.cli.stopping import zenoh_session
 
 def register(est) -> None:
     """Add ``live`` to the ``tpods estimate`` group."""
-    from common.zenoh_net import add_zenoh_options
-    from tpods.cli.estimate_ekf import add_batch_options
-
     p = est.add_parser(
         "live", help="estimate mass and Izz live from Zenoh poses and commands",
         description="Subscribe to tpods/mocap/<body>/pose and tpods/<body>/cmd, align them (commands "

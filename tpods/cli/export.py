@@ -8,12 +8,11 @@ from pathlib import Path
 from common.errors import UserError
 from common.outputs import add_force
 from tpods.cli.options import add_key_prefixes, check_key_prefixes
+from tpods.cli.parser import group
 
 
 def register(sub) -> None:
     """Add the ``tpods export`` group."""
-    from tpods.cli.parser import group
-
     g = group(sub, "export", "convert recordings to other formats")
     p = g.add_parser(
         "mcap", help="a run folder as an MCAP file of the Zenoh messages it stands for",

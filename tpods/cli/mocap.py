@@ -12,14 +12,13 @@ from common.argtypes import nonneg_float, positive_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.parser import group
 from tpods.cli.stopping import wait_for_stop, zenoh_session
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-    from tpods.cli.parser import group
-
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
 
     p = g.add_parser(

@@ -9,13 +9,12 @@ import time
 
 from common.argtypes import nonneg_float
 from common.console import Console
+from common.zenoh_net import add_zenoh_options
 from tpods.cli.stopping import zenoh_session
 
 
 def register(sub) -> None:
     """Add ``tpods replay`` to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-
     p = sub.add_parser(
         "replay", help="publish an MCAP recording back onto Zenoh with its timing",
         description="Publish every message of an MCAP file (from `tpods mocap record`, "

@@ -10,6 +10,7 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force
+from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_key_prefixes, check_key_prefixes
 from tpods.cli.stopping import zenoh_session
 
@@ -29,8 +30,6 @@ def _port(text: str) -> int:
 
 def register(sub) -> None:
     """Add ``tpods view`` to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-
     p = sub.add_parser(
         "view", help="serve the live poses, duties and estimates to Foxglove",
         description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
