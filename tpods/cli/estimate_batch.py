@@ -37,7 +37,7 @@ from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_bud
     structure_body_lines,
 )
 from tpods.cli.estimate_output import print_json as _print_json
-from tpods.cli.options import add_noise_sigmas, add_result_out
+from tpods.cli.options import add_noise_sigmas, add_report_out, add_result_out
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -191,8 +191,7 @@ def register(sub, est, rep) -> None:
                     "batch least squares from m = 1, Izz = 0.005, compute the CRLB of each case "
                     "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
                     "sensitivities) beside the paper's numbers.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
     r.add_argument("--thrust-table", default=None, metavar="F",

@@ -18,9 +18,9 @@ import numpy as np
 
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, result_output
+from common.outputs import ResultFolder, result_output
 from tpods.cli.estimate_output import budget_lines, filter_budget
-from tpods.cli.options import add_result_out
+from tpods.cli.options import add_report_out, add_result_out
 
 
 def _state_values(what: str):
@@ -213,8 +213,7 @@ def register(sub, est, rep) -> None:
         description="Simulate the paper's 120 s phase-sine scenario for several noise seeds, run "
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
@@ -229,8 +228,7 @@ def register(sub, est, rep) -> None:
                     "does (true noise given), and write report.md (the table) and sweep.json "
                     "(every run). Target: final errors within 4 sigma in >= 99 %% of runs, none "
                     "beyond 6 sigma without a flag.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--runs", type=int_at_least(1), default=300, help="cases (default 300)")
     r.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
     r.add_argument("--methods", default="ls,ekf,ls-ekf", help="comma-separated (default all)")

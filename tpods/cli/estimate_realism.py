@@ -18,9 +18,10 @@ import numpy as np
 
 from common.argtypes import random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force
+from common.outputs import ResultFolder
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
 from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget
+from tpods.cli.options import add_report_out
 
 
 def add_model_option(p, auto: bool = True) -> None:
@@ -103,8 +104,7 @@ def register(sub, est, rep) -> None:
                     "the jointly estimated models, beside the paper's experimental RMSE; model "
                     "selection, residual whiteness, identifiability (correlations) and a Monte "
                     "Carlo over friction, bias and tilt values.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--runs", type=int, default=40,
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
     r.add_argument("--seeds", type=int, default=5,

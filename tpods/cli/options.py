@@ -3,6 +3,7 @@ wherever it appears (same names, defaults, types and help), so that it is writte
 
 - :func:`add_result_out`: ``--out DIR|FILE.json`` and ``--force`` of a command whose
   result is one JSON file, with more beside it in a folder (:func:`common.outputs.result_output`).
+- :func:`add_report_out`: the required report folder of the ``tpods report`` commands.
 - :func:`add_key_prefixes` and :func:`check_key_prefixes`: the Zenoh key prefixes of the
   commands that read or write the live streams (``view``, ``export mcap``, ``estimate live``).
 - :func:`add_noise_sigmas`: the pose noise of a fit (``estimate batch|crlb``,
@@ -27,6 +28,12 @@ def add_result_out(p: argparse.ArgumentParser, folder_files: str, only: str) -> 
     receives ``folder_files``, a FILE.json only ``the {only}``."""
     p.add_argument("--out", default=None, metavar="DIR|FILE.json",
                    help=f"write {folder_files} in folder DIR, or only the {only} to FILE.json")
+    add_force(p)
+
+
+def add_report_out(p: argparse.ArgumentParser) -> None:
+    """``--out DIR`` (required: the report folder) and ``--force``."""
+    p.add_argument("--out", required=True, metavar="DIR", help="report folder")
     add_force(p)
 
 
