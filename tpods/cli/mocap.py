@@ -169,7 +169,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     log = McapLog(out / "recording.mcap", meta={"command": "tpods mocap record",
                                                 "key": args.key}) if args.mcap else None
     rec = Recorder(out, key=args.key, t0=args.t0, mcap=log)
-    def tick() -> None:
+
+    def console_line() -> None:
         c = rec.counters
         console.show(f"record: {len(rec.bodies)} bodies | received {c['received']} | "
                      f"poses {c['recorded']} | occluded {c['occluded']} | "
@@ -178,7 +179,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     try:
         with zenoh_session(args, stop) as session:
             sub = subscribe(session, args.key, rec)
-            wait_for_stop(stop, args.duration, tick)
+            wait_for_stop(stop, args.duration, console_line)
             sub.undeclare()
     except BaseException:
         rec.close("incomplete")  # recording.json says so; what was written stays

@@ -67,11 +67,11 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     from tpods.viewer import LiveView
 
-    console = Console(args.quiet)
-    stop = threading.Event()
     view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
                     prefix=args.prefix, mocap_prefix=args.mocap_prefix, pose_rate=args.pose_rate)
     view.start_server()  # a port in use or a bad host: one line, before Zenoh
+    console = Console(args.quiet)
+    stop = threading.Event()
     try:
         with zenoh_session(args, stop) as view.session:
             try:
