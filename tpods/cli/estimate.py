@@ -13,6 +13,7 @@ from common.outputs import ResultFolder, add_force
 
 
 def register(sub) -> None:
+    from tpods.cli.design import register as register_design
     from tpods.cli.estimate_batch import register as register_batch
     from tpods.cli.estimate_ekf import register as register_ekf
     from tpods.cli.estimate_live import register as register_live
@@ -23,6 +24,7 @@ def register(sub) -> None:
     est = group(sub, "estimate", "estimate mass and Izz from a run (batch, filters, bounds)")
     rep = group(sub, "report", "generate the paper-comparison reports")
     register_batch(sub, est, rep)
+    register_design(sub)
     register_ekf(sub, est, rep)
     register_realism(sub, est, rep)
     register_live(est)
