@@ -43,7 +43,7 @@ from bench.ohaus_lines import (
     parse_line,
     parse_weight_line,
 )
-from bench.serial_link import SerialLink
+from bench.serial_link import SerialDevice, SerialLink
 from common.errors import DeviceError, UserError
 
 __all__ = ["ACQUISITION_MODES", "GROSS", "NET", "TO_GRAMS", "LineResult", "NotABalance",
@@ -70,7 +70,7 @@ ACQUISITION_MODES = ("auto", "continuous", "poll")
 """How :meth:`OhausScout.start_continuous` acquires readings (see the module docstring)."""
 
 
-class OhausScout:
+class OhausScout(SerialDevice):
     """An OHAUS Scout balance on a serial line.
 
     Args:
@@ -176,12 +176,6 @@ class OhausScout:
             self._link.close()
             self._link = None
 
-    def __enter__(self) -> OhausScout:
-        return self.open()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     @property
     def link(self) -> SerialLink:
         if self._link is None:
@@ -284,38 +278,36 @@ class OhausScout:
             self.n_readings += 1
             return r
 
-    def _setting(self, cmd: str) -> bool:
-        """Send a settings command; True if acknowledged with OK!, False if no answer."""
+    def _replies(self, cmd: str, timeout_s: float) -> Iterator[bytes]:
+        """Send ``cmd`` (continuous print stopped, stale input dropped) and yield the lines
+        that come back within ``timeout_s``."""
         self._no_continuous(cmd)
         self.link.reset_input()
         self._send(cmd)
-        deadline = clock.monotonic() + self.ack_timeout
-        while True:
-            raw = self.link.readline(deadline)
-            if raw is None:
-                return False
+        deadline = clock.monotonic() + timeout_s
+        while (raw := self.link.readline(deadline)) is not None:
+            yield raw
+
+    def _setting(self, cmd: str) -> bool:
+        """Send a settings command; True if acknowledged with OK!, False if no answer."""
+        for raw in self._replies(cmd, self.ack_timeout):
             text = raw.strip()
             if text == b"OK!":
                 return True
             if text == b"ES":
                 raise DeviceError(f"OHAUS balance refused {cmd!r} (ES)")
             self._garbage(raw)
+        return False
 
     def _reply_line(self, cmd: str) -> str:
-        self._no_continuous(cmd)
-        self.link.reset_input()
-        self._send(cmd)
-        deadline = clock.monotonic() + self.timeout
-        while True:
-            raw = self.link.readline(deadline)
-            if raw is None:
-                raise self._timeout_error(f"answer to {cmd!r}", self.timeout)
+        for raw in self._replies(cmd, self.timeout):
             text = raw.decode("ascii", "replace").strip()
             if text == "ES":
                 raise DeviceError(f"OHAUS balance refused {cmd!r} (ES)")
             if text and text != "OK!" and text.isprintable() and not _VALVE_REPLY.match(raw.strip()):
                 return text
             self._garbage(raw)
+        raise self._timeout_error(f"answer to {cmd!r}", self.timeout)
 
     # -------------------------------------------------------------- commands
     def zero(self) -> bool:

@@ -197,6 +197,17 @@ class Serial(SerialBase):
             self._pos += 1
             self._off = 0
 
+    def _consume(self, n: int) -> None:
+        """``n`` more bytes of the current event read: on to the next event once all of it
+        is (a keepalive's reply ends where the host writes again)."""
+        ev = self._events
+        self._off += n
+        if self._off >= len(ev[self._pos][2]):
+            self._pos += 1
+            self._off = 0
+            if self._ka_rx and (self._pos >= len(ev) or ev[self._pos][1] == "tx"):
+                self._ka_rx = False
+
     def _take(self, size: int) -> bytes:
         """Paced: the bytes due now, up to ``size``."""
         out = b""
@@ -208,12 +219,7 @@ class Serial(SerialBase):
                 break
             piece = data[self._off:self._off + size - len(out)]
             out += piece
-            self._off += len(piece)
-            if self._off >= len(data):
-                self._pos += 1
-                self._off = 0
-                if self._ka_rx and (self._pos >= len(ev) or ev[self._pos][1] == "tx"):
-                    self._ka_rx = False
+            self._consume(len(piece))
             self._skip_tx()
         return out
 
@@ -297,12 +303,7 @@ class Serial(SerialBase):
             else:
                 self._wait_until(t)
         out = data[self._off:self._off + size]
-        self._off += len(out)
-        if self._off >= len(data):
-            self._pos += 1
-            self._off = 0
-            if self._ka_rx and (self._pos >= len(ev) or ev[self._pos][1] == "tx"):
-                self._ka_rx = False
+        self._consume(len(out))
         return out
 
     # ------------------------------------------------------------------ writing
@@ -406,25 +407,10 @@ class Serial(SerialBase):
     def flush(self) -> None:
         pass
 
-    @property
-    def out_waiting(self) -> int:
-        return 0
-
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
+    # nothing waits to go out; the modem lines of a replayed link: ready, no ring
+    out_waiting = 0
+    cts = dsr = cd = True
+    ri = False
 
     def _update_rts_state(self) -> None:
         pass

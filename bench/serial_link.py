@@ -10,6 +10,9 @@ treating the wait as a silent device.
 serial transcript (:mod:`bench.capture`, docs/recordings.md); ``replay://PATH`` opens
 such a transcript as a device (:mod:`bench.protocol_replay`). ``line_t`` is the host
 time at which the bytes completing the last line returned were read.
+
+:class:`SerialDevice` is the drivers' common lifecycle: ``with Driver(url) as d`` opens the
+link and closes it on every exit path.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import serial
 
@@ -170,3 +173,21 @@ class SerialLink:
             pass
         if self.capture is not None:
             self.capture.close()
+
+
+class SerialDevice:
+    """A bench driver on a serial link (:class:`bench.valves.ValveController`,
+    :class:`bench.ohaus.OhausScout`): ``open()`` makes the link, ``close()`` ends it, and
+    ``with Driver(...) as d:`` does both, closing on every exit path."""
+
+    def open(self) -> Self:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -62,6 +62,14 @@ class Terminated(BaseException):
     """SIGTERM received (raised in the main thread by :func:`sigterm_raises`)."""
 
 
+def ended_by(exc: BaseException) -> tuple[str, str]:
+    """The (status, error) that run.json records for a valve run ended by ``exc``:
+    "aborted" on SIGTERM or Ctrl-C, "failed" on any other error."""
+    if isinstance(exc, KeyboardInterrupt | Terminated):
+        return "aborted", str(exc) or "interrupted (Ctrl-C)"
+    return "failed", str(exc) or exc.__class__.__name__
+
+
 @contextlib.contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Within the block SIGTERM raises :class:`Terminated` and SIGINT raises
@@ -356,11 +364,8 @@ def run_session(valves: ValveController, scale: OhausScout, config: SessionConfi
                 if guard.feed_error is not None:
                     raise guard.feed_error
         status = "success"
-    except (KeyboardInterrupt, Terminated) as exc:
-        status, error = "aborted", str(exc) or "interrupted (Ctrl-C)"
-        raise
-    except Exception as exc:
-        status, error = "failed", str(exc) or exc.__class__.__name__
+    except (KeyboardInterrupt, Terminated, Exception) as exc:
+        status, error = ended_by(exc)
         raise
     finally:
         if bar is not None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from bench import clock
-from bench.serial_link import SerialLink
+from bench.serial_link import SerialDevice, SerialLink
 from common.errors import DeviceError, UserError
 
 
@@ -54,7 +54,7 @@ def clean_reply(raw: bytes) -> tuple[str, int]:
     return kept.decode("ascii").strip(), len(raw) - len(kept)
 
 
-class ValveController:
+class ValveController(SerialDevice):
     """Protocol-v1 valve controller.
 
     Args:
@@ -116,12 +116,6 @@ class ValveController:
         if self._link is not None:
             self._link.close()
             self._link = None
-
-    def __enter__(self) -> ValveController:
-        return self.open()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     # ------------------------------------------------------------ transport
     def command(self, line: str, *, _feeder: bool = False) -> str:

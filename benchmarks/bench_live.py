@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -40,12 +39,6 @@ TARGET_P99_MS = 5.0
 BACKLOG_MS = 0.5
 """Largest rise of the median latency from the first to the last tenth of the run."""
 BODY = "benchlive"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _batch_ms() -> int | None:
@@ -179,12 +172,12 @@ def _latencies(pub_t: np.ndarray, items, t_key: str = "t_pub"):
 
 
 def run() -> list[dict]:
-    from common.zenoh_net import open_session
+    from common.zenoh_net import loopback_endpoint, open_session
 
     seconds = float(os.environ.get("TPODS_BENCH_LIVE_S", "15"))
     rate_hz = float(os.environ.get("TPODS_BENCH_LIVE_HZ", "1000"))
     ctx = mp.get_context("spawn")
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = loopback_endpoint()
     session = open_session(listen=[ep], no_multicast=True)
     exe = str(Path(sys.executable).with_name("tpods"))
     rows = []

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import difflib
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ import numpy as np
 
 from common.errors import UserError
 from common.plausible import BODY_MASS_RANGE_KG, body_problems, gyration_problem
+from common.tomlfile import read_toml, toml_number
 
 
 @dataclass(frozen=True)
@@ -152,14 +152,7 @@ def _num(tab: dict, key: str, where: str, default: float | None = None, positive
         if default is None:
             raise UserError(f"{where}: missing {key}")
         return default
-    v = tab[key]
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise UserError(f"{where}: {key} must be a finite number, got {v!r}")
-    if positive and v <= 0:
-        raise UserError(f"{where}: {key} must be positive, got {v!r}")
-    if nonneg and v < 0:
-        raise UserError(f"{where}: {key} must not be negative, got {v!r}")
-    return float(v)
+    return toml_number(tab[key], f"{where}: {key}", positive=positive, nonneg=nonneg)
 
 
 def _pair(tab: dict, key: str, where: str) -> tuple[float, float]:
@@ -211,12 +204,7 @@ def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]
     uncertainty taken as 0) is refused naming the nearest valid key; a UTF-8 BOM is skipped.
     """
     path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: file not found")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not valid TOML ({exc})") from None
+    doc = read_toml(path, "parts file")
     raw = doc.get("part")
     if not isinstance(raw, list) or not raw:
         raise UserError(f"{path}: no [[part]] tables")

@@ -40,7 +40,6 @@ from __future__ import annotations
 import difflib
 import math
 import re
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -54,6 +53,8 @@ from common.errors import UserError
 from common.plausible import check_module_spacing
 from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
+from common.tomlfile import read_toml
+from common.tomlfile import toml_number as _num
 
 TOP_KEYS = ("name", "modules", "body")
 MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "mass_kg", "izz_kgm2")
@@ -88,16 +89,6 @@ def _check_keys(data: Mapping[str, Any], valid: tuple[str, ...], where: str) -> 
         if key not in valid:
             raise UserError(f"{where}unknown key {key!r}{_nearest(key, valid)}; valid: "
                             f"{', '.join(valid)}")
-
-
-def _num(x: Any, what: str, *, positive: bool = False, nonneg: bool = False) -> float:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise UserError(f"{what} must be a finite number, got {x!r}")
-    if positive and x <= 0:
-        raise UserError(f"{what} must be positive, got {x!r}")
-    if nonneg and x < 0:
-        raise UserError(f"{what} must be >= 0, got {x!r}")
-    return float(x)
 
 
 def _pair(x: Any, what: str) -> tuple[float, float]:
@@ -312,18 +303,7 @@ class Structure:
     def load(cls, path: str | Path) -> Structure:
         """Read ``structure.toml``; UserError naming the file on any problem."""
         path = Path(path)
-        try:
-            raw = path.read_bytes()
-        except FileNotFoundError:
-            raise UserError(f"{path}: structure file not found") from None
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read the structure file ({exc.strerror or exc})") from None
-        try:
-            data = tomllib.loads(raw.decode("utf-8-sig"))
-        except UnicodeDecodeError:
-            raise UserError(f"{path}: not UTF-8 text (save it as UTF-8)") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise UserError(f"{path}: not valid TOML ({exc})") from None
+        data = read_toml(path, "structure file")
         return cls.from_dict(data, str(path), path.parent)
 
     def write(self, folder: str | Path) -> Path:

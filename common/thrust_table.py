@@ -31,6 +31,7 @@ from common.constants import GF_TO_N  # noqa: F401  (re-exported: tests and call
 from common.errors import UserError
 from common.plausible import check_duty_range
 from common.thrust_uncertainty import ThrustCalibration, ThrustUncertainty, coefficient_covariance
+from common.tomlfile import read_toml
 
 _UNIT_TO_N = {"gf": GF_TO_N, "N": 1.0}
 NEGATIVE_TOLERANCE_FS = 0.01
@@ -180,31 +181,10 @@ class ThrustTable:
 
     @classmethod
     def load(cls, path: str | Path) -> ThrustTable:
-        """Read a TOML thrust table; raise UserError with the file name on any problem.
-
-        A UTF-8 byte order mark (Windows Notepad, PowerShell) is skipped; CRLF line ends
-        are TOML.
-        """
-        path = Path(path)
-        try:
-            raw = path.read_bytes()
-        except FileNotFoundError:
-            raise UserError(f"{path}: thrust table not found") from None
-        except OSError as exc:
-            raise UserError(f"{path}: cannot read the thrust table ({exc.strerror or exc})") from None
-        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-            raise UserError(f"{path}: UTF-16 text; TOML must be UTF-8 (save it as UTF-8)")
-        try:
-            text = raw.decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            line = raw[:exc.start].count(b"\n") + 1
-            raise UserError(f"{path}: line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 "
-                            f"(TOML must be UTF-8; save it as UTF-8)") from None
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise UserError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, str(path))
+        """Read a TOML thrust table; raise UserError with the file name on any problem
+        (:func:`common.tomlfile.read_toml`: a UTF-8 byte order mark is skipped, CRLF line
+        ends are TOML)."""
+        return cls.from_dict(read_toml(path, "thrust table"), str(path))
 
     @classmethod
     def default(cls) -> ThrustTable:

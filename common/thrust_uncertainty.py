@@ -244,6 +244,26 @@ class ThrustSensitivity:
         return len(self.names) == 0
 
 
+def factor_columns(table, thrust: np.ndarray, n_open: np.ndarray,
+                   names: Sequence[str]) -> list[np.ndarray]:
+    """Derivatives of the thrusts ``(..., C)`` (N) of rows with ``n_open`` valves open with
+    respect to the in-situ factors ``names`` (``efficiency.J``: ``T_J/eff_J`` in channel J;
+    ``nozzle_scale.K``: ``T/scale_K`` on the rows with K open), one ``(..., C)`` array each."""
+    eff = table.channel_factors(thrust.shape[-1])
+    cols = []
+    for name in names:
+        kind, idx = name.split(".")
+        if kind == "efficiency":
+            j = int(idx) - 1
+            col = np.zeros_like(thrust)
+            col[..., j] = thrust[..., j] / eff[j]
+        else:
+            kk = int(idx)
+            col = np.where((n_open == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
+        cols.append(col)
+    return cols
+
+
 def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
     """Thrusts of ``duty_pct`` rows (..., C) and their derivatives with respect to every
     uncertain parameter ``table`` states (see the module doc). A parameter whose rows
@@ -285,17 +305,8 @@ def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> Thru
         blocks.append(cov)
     cal = table.calibration
     if cal is not None and cal.parameters:
-        for name in cal.parameters:
-            kind, idx = name.split(".")
-            if kind == "efficiency":
-                j = int(idx) - 1
-                col = np.zeros_like(thrust)
-                col[..., j] = thrust[..., j] / eff[j]
-            else:
-                kk = int(idx)
-                col = np.where((k == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
-            cols.append(col)
-            names.append(name)
+        cols += factor_columns(table, thrust, k, cal.parameters)
+        names += cal.parameters
         blocks.append(cal.covariance)
     P = len(names)
     jac = np.stack(cols, axis=-1) if cols else np.zeros(thrust.shape + (0,))

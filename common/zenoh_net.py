@@ -78,6 +78,15 @@ def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
                         f"for the lowest latency; zenoh's own default is 1)")
 
 
+def loopback_endpoint() -> str:
+    """A Zenoh TCP endpoint on a free loopback port, ``tcp/127.0.0.1:PORT``: the hub of a
+    private mesh of a few processes on this machine (benchmarks, examples)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
 
 def _get(src: Any, name: str, default: Any = None) -> Any:
     if src is None:

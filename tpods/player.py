@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from bench.session import Terminated
+from bench.session import Terminated, ended_by
 from common.errors import UserError
 from common.runwriter import (  # CommandLog: also tpods.player.CommandLog
     CommandLog,
@@ -226,17 +226,14 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
         status = "success"
     except _Stopped:
         status, error = "aborted", "stopped"
-    except (KeyboardInterrupt, Terminated) as exc:
-        status, error = "aborted", str(exc) or "interrupted (Ctrl-C)"
-        raise
-    except Exception as exc:
-        status, error = "failed", str(exc) or exc.__class__.__name__
+    except (KeyboardInterrupt, Terminated, Exception) as exc:
+        status, error = ended_by(exc)
         raise
     finally:
         # the safe() contexts have sent OFF and confirmed it (or raised) by now
+        t_end = clock.now()
         if bar is not None:
             bar.close()
-        t_end = clock.now()
         if any(current):  # aborted with valves open: the closing row and the end message
             sent.append((t_end, (0.0,) * n_ch))
             if rec is not None and math.isfinite(t_start):

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import foxglove
@@ -338,101 +338,95 @@ class LiveView:
         parts = key[len(head):].split("/")
         return parts[0] if len(parts) == 2 and parts[0] else None
 
-    def _sample(self, sample: Any, prefix: str, kind: str) -> tuple[str, bytes] | None:
-        self._count(f"{kind}_received")
-        body = self._body_of(str(sample.key_expr), prefix)
-        if body is None or (self.only is not None and body not in self.only):
-            self._count("other_body")
-            return None
-        return body, sample.payload.to_bytes()
-
     # ------------------------------------------------------------ callbacks (zenoh's thread)
 
-    def _on_pose(self, sample: Any) -> None:
+    def _receive(self, sample: Any, prefix: str, kind: str,
+                 show: Callable[[str, bytes], None]) -> None:
+        """A sample on ``<prefix>/<body>/<kind>`` to ``show(body, payload)``, counted; other
+        keys and bodies skipped; an error counted, never raised (it would stop the viewer)."""
         try:
-            got = self._sample(sample, self.mocap_prefix, "pose")
-            if got is None:
+            self._count(f"{kind}_received")
+            body = self._body_of(str(sample.key_expr), prefix)
+            if body is None or (self.only is not None and body not in self.only):
+                self._count("other_body")
                 return
-            body, payload = got
-            d = decode_pose(payload, self.counters)
-            if d is None:
-                self._count("pose_skipped")
-                return
-            b = self._body(body)
-            t = d["t"]
-            if t < b.last_pose_t:
-                if t > b.last_pose_t - CLOCK_RESET_S:
-                    self._count("pose_out_of_order")
-                    return
-                # the clock went back by more than CLOCK_RESET_S: a new run
-            elif t - b.last_pose_t < self.min_dt:
-                self._count("pose_decimated")
-                return
-            b.last_pose_t = t
-            log_ns = _ns(t)
-            occ = d["occluded"]
-            if occ:
-                self._count("pose_occluded")
-            else:
-                qx, qy, qz, qw = yaw_quaternion(d["yaw"])
-                sec, nsec = divmod(log_ns, 1_000_000_000)
-                b.frame.log(FrameTransform(
-                    timestamp=Timestamp(sec=sec, nsec=nsec), parent_frame_id=TABLE_FRAME,
-                    child_frame_id=body, translation=Vector3(x=d["x"], y=d["y"], z=d["z"]),
-                    rotation=Quaternion(x=qx, y=qy, z=qz, w=qw)), log_time=log_ns)
-            b.pose.log({"body": body, "t": t, "frame": d["frame"],
-                        "x": d["x"], "y": d["y"], "z": d["z"], "yaw": d["yaw"],
-                        "yaw_deg": None if occ else math.degrees(d["yaw"]), "occluded": occ},
-                       log_time=log_ns)
-            self._count("pose_shown")
-            if t >= self._t_lab or t < self._t_lab - CLOCK_RESET_S:
-                self._t_lab = t
-                now = time.time()
-                self._clock.log({"t_lab": t, "body": body, "frame": d["frame"], "t_host": now,
-                                 "lag_s": now - t}, log_time=log_ns)
-                server = self._server
-                if server is not None:
-                    server.broadcast_time(log_ns)
-        except Exception:  # never let a message stop the viewer
+            show(body, sample.payload.to_bytes())
+        except Exception:
             self._count("errors")
+
+    def _on_pose(self, sample: Any) -> None:
+        self._receive(sample, self.mocap_prefix, "pose", self._show_pose)
 
     def _on_cmd(self, sample: Any) -> None:
-        try:
-            got = self._sample(sample, self.prefix, "cmd")
-            if got is None:
-                return
-            body, payload = got
-            d = decode_command(payload, self.counters, n_channels=N_CHANNELS)
-            if d is None:
-                self._count("cmd_skipped")
-                return
-            msg = {"body": body, "t": d["t"], "seq": d["seq"], "kind": d["kind"],
-                   "duty": d["duty"], **{f"d{i + 1}": v for i, v in enumerate(d["duty"])}}
-            self._body(body).duty.log(msg, log_time=_ns(d["t"]))
-            self._count("cmd_shown")
-        except Exception:
-            self._count("errors")
+        self._receive(sample, self.prefix, "cmd", self._show_cmd)
 
     def _on_estimate(self, sample: Any) -> None:
-        try:
-            got = self._sample(sample, self.prefix, "estimate")
-            if got is None:
+        self._receive(sample, self.prefix, "estimate", self._show_estimate)
+
+    def _show_pose(self, body: str, payload: bytes) -> None:
+        d = decode_pose(payload, self.counters)
+        if d is None:
+            self._count("pose_skipped")
+            return
+        b = self._body(body)
+        t = d["t"]
+        if t < b.last_pose_t:
+            if t > b.last_pose_t - CLOCK_RESET_S:
+                self._count("pose_out_of_order")
                 return
-            body, payload = got
-            d = decode_estimate(payload)
-            views = None if d is None else estimate_view(body, d)
-            if views is None:
-                self._count("malformed")
-                self._count("estimate_skipped")
-                return
-            est, health = views
-            b = self._body(body)
-            log_ns = _ns(est["t"])
-            b.estimate.log(est, log_time=log_ns)
-            b.health.log(health, log_time=log_ns)
-            self._count("estimate_shown")
-        except Exception:
-            self._count("errors")
+            # the clock went back by more than CLOCK_RESET_S: a new run
+        elif t - b.last_pose_t < self.min_dt:
+            self._count("pose_decimated")
+            return
+        b.last_pose_t = t
+        log_ns = _ns(t)
+        occ = d["occluded"]
+        if occ:
+            self._count("pose_occluded")
+        else:
+            qx, qy, qz, qw = yaw_quaternion(d["yaw"])
+            sec, nsec = divmod(log_ns, 1_000_000_000)
+            b.frame.log(FrameTransform(
+                timestamp=Timestamp(sec=sec, nsec=nsec), parent_frame_id=TABLE_FRAME,
+                child_frame_id=body, translation=Vector3(x=d["x"], y=d["y"], z=d["z"]),
+                rotation=Quaternion(x=qx, y=qy, z=qz, w=qw)), log_time=log_ns)
+        b.pose.log({"body": body, "t": t, "frame": d["frame"],
+                    "x": d["x"], "y": d["y"], "z": d["z"], "yaw": d["yaw"],
+                    "yaw_deg": None if occ else math.degrees(d["yaw"]), "occluded": occ},
+                   log_time=log_ns)
+        self._count("pose_shown")
+        if t >= self._t_lab or t < self._t_lab - CLOCK_RESET_S:
+            self._t_lab = t
+            now = time.time()
+            self._clock.log({"t_lab": t, "body": body, "frame": d["frame"], "t_host": now,
+                             "lag_s": now - t}, log_time=log_ns)
+            server = self._server
+            if server is not None:
+                server.broadcast_time(log_ns)
+
+    def _show_cmd(self, body: str, payload: bytes) -> None:
+        d = decode_command(payload, self.counters, n_channels=N_CHANNELS)
+        if d is None:
+            self._count("cmd_skipped")
+            return
+        msg = {"body": body, "t": d["t"], "seq": d["seq"], "kind": d["kind"],
+               "duty": d["duty"], **{f"d{i + 1}": v for i, v in enumerate(d["duty"])}}
+        self._body(body).duty.log(msg, log_time=_ns(d["t"]))
+        self._count("cmd_shown")
+
+    def _show_estimate(self, body: str, payload: bytes) -> None:
+        d = decode_estimate(payload)
+        views = None if d is None else estimate_view(body, d)
+        if views is None:
+            self._count("malformed")
+            self._count("estimate_skipped")
+            return
+        est, health = views
+        b = self._body(body)
+        log_ns = _ns(est["t"])
+        b.estimate.log(est, log_time=log_ns)
+        b.health.log(health, log_time=log_ns)
+        self._count("estimate_shown")
 
     def _stats_loop(self) -> None:
         while not self._stop.wait(STATS_PERIOD_S):

@@ -29,7 +29,7 @@ import threading
 import time
 import tty
 from collections import deque
-from typing import Protocol
+from typing import Protocol, Self
 
 
 class Emulator(Protocol):
@@ -38,7 +38,44 @@ class Emulator(Protocol):
     def tick(self, now: float) -> tuple[bytes, float | None]: ...
 
 
-class PtyServer:
+class EmulatorServer:
+    """What the pty and TCP servers share: a thread that runs ``_loop`` until
+    :meth:`stop`, which wakes it, waits for it and releases the device; a context manager."""
+
+    _stop: threading.Event
+    _thread: threading.Thread
+
+    def _start(self, name: str) -> None:
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        raise NotImplementedError
+
+    def _wake(self) -> None:
+        """Interrupt the loop's wait (default: it wakes by itself within its idle time)."""
+
+    def _release(self) -> None:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        """Stop the thread and release the device (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._wake()
+        self._thread.join(timeout=2.0)
+        self._release()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class PtyServer(EmulatorServer):
     """A running pty server: ``path`` is the device to open; ``stop()`` ends it."""
 
     def __init__(self, emulator: Emulator, max_idle_s: float = 0.02, baud: float | None = None,
@@ -55,10 +92,8 @@ class PtyServer:
         os.set_blocking(self._master, False)
         self.path: str = os.ttyname(self._slave)
         self.dropped_bytes = 0
-        self._stop = threading.Event()
         self._wake_r, self._wake_w = os.pipe()
-        self._thread = threading.Thread(target=self._loop, name=f"pty-{self.path}", daemon=True)
-        self._thread.start()
+        self._start(f"pty-{self.path}")
 
     # ---------------------------------------------------------------- loop
     def _write(self, data: bytes) -> None:
@@ -120,24 +155,16 @@ class PtyServer:
                 next_tick = time.monotonic()
 
     # ------------------------------------------------------------- control
-    def stop(self) -> None:
-        """Stop the thread and close the pty (idempotent)."""
-        if self._stop.is_set():
-            return
-        self._stop.set()
+    def _wake(self) -> None:
         os.write(self._wake_w, b"x")
-        self._thread.join(timeout=2.0)
+
+    def _release(self) -> None:
+        """Close the pty."""
         for fd in (self._master, self._slave, self._wake_r, self._wake_w):
             try:
                 os.close(fd)
             except OSError:
                 pass
-
-    def __enter__(self) -> PtyServer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
 
 def serve_pty(emulator: Emulator, baud: float | None = None) -> PtyServer:

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import select
 import socket
-import threading
 import time
 
-from bench.emulators.pty import Emulator
+from bench.emulators.pty import Emulator, EmulatorServer
 
 
-class TcpServer:
+class TcpServer(EmulatorServer):
     """A running TCP server: ``url`` is ``socket://HOST:PORT``; ``stop()`` ends it."""
 
     def __init__(self, emulator: Emulator, host: str = "127.0.0.1", port: int = 0,
@@ -27,9 +26,7 @@ class TcpServer:
         self.host, self.port = self._srv.getsockname()[:2]
         self.url = f"socket://{self.host}:{self.port}"
         self._conn: socket.socket | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name=f"tcp-{self.port}", daemon=True)
-        self._thread.start()
+        self._start(f"tcp-{self.port}")
 
     def _send(self, data: bytes) -> None:
         if self._conn is None or not data:
@@ -80,19 +77,10 @@ class TcpServer:
                 self._send(self.emulator.receive(data, time.monotonic()))
                 next_tick = time.monotonic()
 
-    def stop(self) -> None:
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+    def _release(self) -> None:
+        """Close the connection and the listening socket."""
         self._drop()
         self._srv.close()
-
-    def __enter__(self) -> TcpServer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
 
 def serve_tcp(emulator: Emulator, host: str = "127.0.0.1", port: int = 0) -> TcpServer:

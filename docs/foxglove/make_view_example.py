@@ -35,7 +35,7 @@ from common.wire import (  # noqa: E402
     estimate_key,
     pose_key,
 )
-from common.zenoh_net import open_session  # noqa: E402
+from common.zenoh_net import loopback_endpoint, open_session  # noqa: E402
 from estimator.filters.ekf import run_ekf  # noqa: E402
 from estimator.plant.inputs import phase_sine  # noqa: E402
 from estimator.plant.model import PlantParams  # noqa: E402
@@ -45,14 +45,6 @@ from tpods.viewer import LiveView, topics_for  # noqa: E402
 T0 = 1763770000.0
 SPEED = 5.0
 BODY = "tpods1"
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _wait(cond, timeout=10.0) -> bool:
@@ -95,7 +87,7 @@ def stream():
 
 def main(out_png: str) -> None:
     items, truth = stream()
-    ep = f"tcp/127.0.0.1:{_free_port()}"
+    ep = loopback_endpoint()
     pub = open_session(listen=[ep], no_multicast=True)
     sub = open_session(connect=[ep], no_multicast=True)
     assert _wait(lambda: len(pub.info.peers_zid()) > 0)

@@ -20,13 +20,13 @@ from __future__ import annotations
 import math
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from common.errors import UserError
 from mocap_bridge.capture import PcapReader
 from mocap_bridge.pose import PoseSample
+from mocap_bridge.sources.playback import Pacer
 from mocap_bridge.sources.vicon_udp import DatagramDecoder, _stderr_notice
 
 QUERY_KEYS = ("speed", "port")
@@ -80,29 +80,17 @@ class PcapSource:
 
     def batches(self, stop: threading.Event) -> Iterator[list[PoseSample]]:
         decode = self.decoder.decode
-        scale = self.rate_scale
-        t0_ns = None
-        wall0 = mono0 = 0.0
+        t0_ns = pacer = None
         for dg in self.reader:
             if stop.is_set():
                 return
             if t0_ns is None:
-                t0_ns = dg.t_ns
-                wall0, mono0 = time.time(), time.monotonic()
-            rel_ns = dg.t_ns - t0_ns
-            t_src = rel_ns / 1e9
-            if scale:
-                offset = t_src / scale
-                while True:
-                    wait = mono0 + offset - time.monotonic()
-                    if wait <= 0:
-                        break
-                    if stop.wait(min(wait, 0.2)):
-                        return
-                t_recv = time.time()
-                t_nom = wall0 + offset
-            else:
-                t_recv = t_nom = time.time()
+                t0_ns, pacer = dg.t_ns, Pacer(self.rate_scale)
+            t_src = (dg.t_ns - t0_ns) / 1e9
+            times = pacer.due(t_src, stop)
+            if times is None:
+                return
+            t_recv, t_nom = times
             batch = decode(dg.payload, t_nom)
             if batch:
                 yield [s._replace(t_recv=t_recv, t_src=t_src) for s in batch]

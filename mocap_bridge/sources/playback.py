@@ -1,6 +1,7 @@
 """Timed playback: frames with times on their own timeline, re-published on the host
 clock at ``rate_scale`` times real time (0 = as fast as possible). Used by the replay
-source and by the plant simulator's source (:mod:`tpods.sim_source`).
+source and by the plant simulator's source (:mod:`tpods.sim_source`); :class:`Pacer`, the
+waiting, by the pcap source too.
 """
 
 from __future__ import annotations
@@ -17,6 +18,27 @@ from mocap_bridge.pose import PoseSample, yaw_quat
 
 # one body in one frame: body, x, y, z (m), qx, qy, qz, qw, occluded
 BodyPose = tuple[str, float, float, float, float, float, float, float, bool]
+
+
+class Pacer:
+    """Items on a source timeline released on the host clock at ``rate_scale`` times real
+    time (0: at once), counted from the moment the pacer is made (the first item)."""
+
+    def __init__(self, rate_scale: float) -> None:
+        self.rate_scale = rate_scale
+        self.wall0, self.mono0 = time.time(), time.monotonic()
+
+    def due(self, t_rel_s: float, stop: threading.Event) -> tuple[float, float] | None:
+        """Wait until the item ``t_rel_s`` source seconds after the first is due; its
+        (receive, nominal) host times, or None when ``stop`` is set while waiting."""
+        if not self.rate_scale:
+            now = time.time()
+            return now, now
+        offset = t_rel_s / self.rate_scale
+        while (wait := self.mono0 + offset - time.monotonic()) > 0:
+            if stop.wait(min(wait, 0.2)):
+                return None
+        return time.time(), self.wall0 + offset
 
 
 class Frame:
@@ -89,24 +111,14 @@ class Playback:
 
     def batches(self, stop: threading.Event) -> Iterator[list[PoseSample]]:
         t0 = self.frames[0].t_src
-        wall0 = time.time()
-        mono0 = time.monotonic()
-        scale = self.rate_scale
+        pacer = Pacer(self.rate_scale)
         for fr in self.frames:
             if stop.is_set():
                 return
-            if scale:
-                offset = (fr.t_src - t0) / scale
-                while True:
-                    wait = mono0 + offset - time.monotonic()
-                    if wait <= 0:
-                        break
-                    if stop.wait(min(wait, 0.2)):
-                        return
-                t_recv = time.time()
-                t = wall0 + offset
-            else:
-                t = t_recv = time.time()
+            times = pacer.due(fr.t_src - t0, stop)
+            if times is None:
+                return
+            t_recv, t = times
             self.counters["frames"] += 1
             yield [PoseSample(b, fr.frame, t, t_recv, x, y, z, qx, qy, qz, qw, occ, fr.t_src)
                    for (b, x, y, z, qx, qy, qz, qw, occ) in fr.poses]

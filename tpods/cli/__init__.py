@@ -4,6 +4,11 @@ Each command group has a module here (``bench``, ``calibrate``, ``mocap``, ``run
 estimator's in :mod:`tpods.cli.estimate` until it moves) with ``register(subparsers)``: it
 parses arguments, calls the packages and prints. Handlers return an exit status. User errors
 (:class:`common.errors.UserError`) print one line and exit 2; Ctrl-C exits 130.
+
+What the command modules share, they import from modules that import none of them:
+:mod:`tpods.cli.parser` (the parser class, :func:`group`), :mod:`tpods.cli.options` (option
+families written once), :mod:`tpods.cli.stopping` (signals, the Zenoh session, the valve
+commands' exit) and :mod:`tpods.cli.estimate_output` (the estimate commands' output).
 """
 
 from __future__ import annotations
@@ -14,14 +19,8 @@ import sys
 
 import tpods
 from common.errors import UserError
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse parser whose errors are one line (usage goes to --help)."""
-
-    def error(self, message: str) -> None:  # pragma: no cover - exercised via CLI tests
-        # the documented contract: every user error is one line `tpods: error: ...`, exit 2
-        self.exit(2, f"tpods: error: {message} (see '{self.prog} --help')\n")
+from tpods.cli.parser import Parser as _Parser
+from tpods.cli.parser import group  # noqa: F401 - re-exported: ``from tpods.cli import group``
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -144,14 +143,6 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 141
-
-
-def group(sub, name: str, help_text: str) -> argparse._SubParsersAction:
-    """Add a command group (``tpods NAME ...``) and return its sub-parsers."""
-    p = sub.add_parser(name, help=help_text, description=help_text)
-    p.set_defaults(func=None, parser=p)
-    g = p.add_subparsers(dest=f"{name}_command", metavar="SUBCOMMAND", parser_class=_Parser)
-    return g
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -5,17 +5,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, not_an_input, result_output, stream_folder
+from common.outputs import add_force, not_an_input, optional_folder, result_output, stream_folder
+from tpods.cli.parser import group
+from tpods.cli.stopping import stop_on_signals, valves_closed_exit
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from tpods.cli import group
-
     g = group(sub, "bench", "thrust characterisation bench: valve controller + OHAUS balance")
 
     p = g.add_parser("characterize", help="run a thrust characterisation session",
@@ -190,12 +191,8 @@ def cmd_characterize(args: argparse.Namespace) -> int:
                             acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
                             capture=cap_dir and cap_dir / "scale.serial.jsonl", **fmt) as scale:
                 res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
-        except Terminated:
-            print(f"tpods: terminated; valves closed; partial data in {out}", file=sys.stderr)
-            return 143
-        except KeyboardInterrupt:
-            print(f"tpods: interrupted; valves closed; partial data in {out}", file=sys.stderr)
-            return 130
+        except (Terminated, KeyboardInterrupt) as exc:
+            return valves_closed_exit(exc, f"valves closed; partial data in {out}")
     print(f"session {res.status}: {len(res.steps)} steps, {res.n_readings} readings, "
           f"{res.n_garbage} garbage line(s) skipped")
     print(f"time {res.elapsed_s:.1f} s for {res.planned_s:.1f} s planned "
@@ -264,15 +261,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    import signal
-    import threading
-
     from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
     from common.thrust_table import load_thrust_table
 
-    log_dir = (None if args.log_dir is None
-               else ResultFolder(args.log_dir, force=args.force, option="--log-dir",
-                                 command="tpods bench emulate"))
+    log_dir = optional_folder(args.log_dir, force=args.force, option="--log-dir",
+                              command="tpods bench emulate")
     table = load_thrust_table(args.table)
     if args.channels < 1:
         raise UserError("--channels must be at least 1")
@@ -288,21 +281,17 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                           print_rate_hz=args.rate_hz, seed=args.seed,
                           continuous_print=not args.no_continuous_print)
     stop = threading.Event()
-    old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
     sv = serve_pty(valves)
     ss = serve_pty(scout, baud=args.scale_baud)
     try:
-        print(f"valves: {sv.path}")
-        print(f"scale: {ss.path}", flush=True)
-        print("serving; Ctrl-C to stop", file=sys.stderr, flush=True)
-        try:
+        with stop_on_signals(stop):  # until --duration, Ctrl-C or SIGTERM
+            print(f"valves: {sv.path}")
+            print(f"scale: {ss.path}", flush=True)
+            print("serving; Ctrl-C to stop", file=sys.stderr, flush=True)
             stop.wait(args.duration)
-        except KeyboardInterrupt:
-            pass
     finally:
         ss.stop()
         sv.stop()
-        signal.signal(signal.SIGTERM, old)
     if log_dir is not None:
         with log_dir.writing() as d:
             with (d / "valves_log.csv").open("w") as fh:

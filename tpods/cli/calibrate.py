@@ -13,12 +13,12 @@ from common.argtypes import float_list, int_at_least, nonneg_float, positive_flo
 from common.constants import G_STANDARD_MPS2
 from common.errors import DeviceError, UserError
 from common.outputs import add_force, result_output
+from tpods.cli.options import add_noise_sigmas, add_result_out
+from tpods.cli.parser import group
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from tpods.cli import group
-
     cal = group(sub, "calibrate", "ground-truth mass (balance) and Izz (bifilar pendulum, parts); in-situ thrust "
                  "calibration from a known body")
     _register_mass(cal)
@@ -198,9 +198,7 @@ def _register_bifilar(cal) -> None:
     p.add_argument("--no-rise-ke", action="store_true",
                    help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", metavar="DIR|FILE.json",
-                   help="write result.json and plots in folder DIR, or only the result to FILE.json")
-    add_force(p)
+    add_result_out(p, "result.json and plots", "result")
     p.set_defaults(func=cmd_bifilar)
 
 
@@ -389,10 +387,7 @@ def _register_thrust(cal) -> None:
                    help="use only poses with T0 <= t <= T1, s; T0,T1 is read too")
     p.add_argument("--clamp", action="store_true",
                    help="clamp duties outside the table's valid range instead of refusing them")
-    p.add_argument("--sigma-pos", type=positive_float, default=0.01,
-                   help="position noise sigma, m (default 0.01)")
-    p.add_argument("--sigma-yaw-deg", type=positive_float, default=1.0,
-                   help="yaw noise sigma, deg (default 1)")
+    add_noise_sigmas(p)
     p.add_argument("--out", required=True, metavar="NEW.toml|DIR",
                    help="the calibrated table (NEW.toml), or a folder that receives "
                         "thrust_table.toml and calibration.json")

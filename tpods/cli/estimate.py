@@ -13,21 +13,21 @@ from common.outputs import ResultFolder, add_force
 
 
 def register(sub) -> None:
-    from tpods.cli import estimate_batch as cli_batch
-    from tpods.cli import estimate_ekf as cli_ekf
-    from tpods.cli import group
+    from tpods.cli.design import register as register_design
+    from tpods.cli.estimate_batch import register as register_batch
+    from tpods.cli.estimate_ekf import register as register_ekf
+    from tpods.cli.estimate_live import register as register_live
+    from tpods.cli.estimate_realism import register as register_realism  # issue 9: report realism
+    from tpods.cli.parser import group
 
     register_sim(sub)
     est = group(sub, "estimate", "estimate mass and Izz from a run (batch, filters, bounds)")
     rep = group(sub, "report", "generate the paper-comparison reports")
-    cli_batch.register(sub, est, rep)
-    cli_ekf.register(sub, est, rep)
-    from tpods.cli import estimate_realism as cli_realism  # issue 9: tpods report realism
-
-    cli_realism.register(sub, est, rep)
-    from tpods.cli import estimate_live as cli_live
-
-    cli_live.register(est)
+    register_batch(sub, est, rep)
+    register_design(sub)
+    register_ekf(sub, est, rep)
+    register_realism(sub, est, rep)
+    register_live(est)
 
 
 def register_sim(sub) -> None:
@@ -177,7 +177,7 @@ def clamp_named(exc: Exception) -> str:
 def check_sim_size(args: argparse.Namespace, duration_s: float, n_cmds: int | None = None) -> None:
     """Refuse a simulation that will not fit in memory (naming the option that makes it
     big) and announce one that takes long; from the options, before any allocation."""
-    from tpods.cli import sizes
+    import tpods.cli.sizes as sizes
 
     n_poses = sizes.samples(duration_s, args.pose_rate)
     cmds = sizes.samples(duration_s, args.cmd_rate) if n_cmds is None else float(n_cmds)

@@ -1,8 +1,8 @@
-"""CLI of the batch least-squares estimator, the CRLB, input design and the Table 3 report.
+"""CLI of the batch least-squares estimator, the CRLB and the Table 3 report.
 
 ``register`` adds ``tpods estimate batch`` (all methods: ``ls`` here,
-``ekf``/``ls-ekf`` delegated to :mod:`tpods.cli.estimate_ekf`), ``tpods estimate crlb``,
-``tpods design`` and ``tpods report table3``. Handlers are thin: parse, call the use case
+``ekf``/``ls-ekf`` delegated to :mod:`tpods.cli.estimate_ekf`), ``tpods estimate crlb``
+and ``tpods report table3`` (``tpods design``: :mod:`tpods.cli.design`). Handlers are thin: parse, call the use case
 (:func:`estimator.estimate.estimate_run`, :func:`estimator.estimate.bound_sequence`), print
 or write.
 """
@@ -14,23 +14,26 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from common.argtypes import (
     IZZ_KGM2,
     MASS_KG,
-    SIGMA_POS_M,
-    SIGMA_YAW_DEG,
-    float_list,
-    nonneg_float,
     positive_float,
     random_seed,
 )
-from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
-from common.errors import UserError
-from common.outputs import ResultFolder, add_force, not_an_input, result_output
+from common.outputs import ResultFolder, not_an_input, result_output
+from tpods.cli import estimate_ekf as cli_ekf
+from tpods.cli import estimate_realism as cli_realism
+from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_budget: re-exported
+    budget_lines,
+    centre_of_mass_lines,
+    filter_budget,
+    structure_body_lines,
+)
+from tpods.cli.estimate_output import print_json as _print_json
+from tpods.cli.options import add_noise_sigmas, add_report_out, add_result_out
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -72,9 +75,6 @@ def name_list(text: str) -> tuple[str, ...]:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    from tpods.cli import estimate_ekf as cli_ekf
-    from tpods.cli import estimate_realism as cli_realism
-
     p = est.add_parser(
         "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
         description="Estimate the initial state, mass and Izz of a run folder. --method ls is the "
@@ -102,10 +102,7 @@ def register(sub, est, rep) -> None:
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write estimate.json, residuals.csv and residuals.png (Fig. 5) in folder DIR, "
-                        "or only the estimate to FILE.json")
-    add_force(p)
+    add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
     p.set_defaults(func=cmd_batch)
@@ -131,61 +128,9 @@ def register(sub, est, rep) -> None:
                    help="a structure: the parameters to bound (default mass,izz,cx,cy less "
                         "the [body] values known without a sigma)")
     c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    c.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write crlb.json and sensitivities.png (Fig. 6) in folder DIR, or only the "
-                        "bounds to FILE.json")
-    add_force(c)
+    add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
-
-    d = sub.add_parser(
-        "design", help="D-optimal input design (phase-shifted sines) under a workspace bound",
-        description="Compare input sequences by the D-optimal criterion (log det of the Fisher "
-                    "information of mass and Izz, initial state marginalised) and search the "
-                    "phase-shifted-sine family (amplitude, frequency, phases; duties inside the "
-                    "table's valid range) for the best one whose predicted trajectory stays on the "
-                    "table. Writes the best sequence as commands.csv.")
-    d.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    d.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
-    d.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
-    d.add_argument("--mass", type=MASS_KG, default=PAPER_MASS_KG, help="assumed mass, kg")
-    d.add_argument("--izz", type=IZZ_KGM2, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
-    d.add_argument("--table-size", type=float_list(2), default=[2.0, 2.0], metavar="W,H",
-                   help="table size in metres, module starting at its centre (default 2,2)")
-    d.add_argument("--margin", type=nonneg_float, default=0.0,
-                   help="keep the module centre this far from the table edge, m (default 0)")
-    d.add_argument("--max-yaw-rate", type=positive_float, default=None, metavar="RAD_S",
-                   help="also require |r| <= this along the predicted trajectory (default: no limit)")
-    d.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML (default: the paper's Table 2)")
-    d.add_argument("--noise-pos", type=positive_float, default=0.01, help="position sigma, m")
-    d.add_argument("--noise-yaw-deg", type=positive_float, default=1.0, help="yaw sigma, deg")
-    d.add_argument("--candidates", type=int, default=64, help="random candidates (default 64)")
-    d.add_argument("--refine", type=int, default=2, help="Nelder-Mead refinements (default 2)")
-    d.add_argument("--refine-evals", type=int, default=60,
-                   help="evaluations per refinement (default 60)")
-    d.add_argument("--omega-range", type=float_list(2), default=[0.2, 4.0], metavar="LO,HI",
-                   help="frequency search range, rad/s (default 0.2,4)")
-    d.add_argument("--compare", nargs="*", default=[], metavar="INPUT",
-                   help="also score these inputs: phase-sine, translate-rotate, or commands.csv paths")
-    d.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
-    d.add_argument("--out", required=True, metavar="DIR",
-                   help="write commands.csv (the best input), design.json and figures here")
-    add_force(d)
-    d.add_argument("--for", dest="design_for", choices=("mass-izz", "thrust-calibration"),
-                   default="mass-izz",
-                   help="mass-izz: phase-shifted sines, D-optimal for m and Izz (default); "
-                        "thrust-calibration: gated sines that open the thrusters in different "
-                        "numbers, D-optimal for the thrust table's in-situ factors with m and "
-                        "Izz known (for tpods calibrate thrust)")
-    d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
-                   help="--for thrust-calibration: the factors to design for (default both)")
-    d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    d.add_argument("--structure", default=None, metavar="F",
-                   help="design for a structure (structure.toml): every module's duties "
-                        "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "
-                        "mass default to the file's [body] values or its geometry")
-    d.set_defaults(func=cmd_design)
 
     r = rep.add_parser(
         "table3", help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)",
@@ -193,8 +138,7 @@ def register(sub, est, rep) -> None:
                     "batch least squares from m = 1, Izz = 0.005, compute the CRLB of each case "
                     "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
                     "sensitivities) beside the paper's numbers.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
     r.add_argument("--thrust-table", default=None, metavar="F",
@@ -207,22 +151,11 @@ def _common_model_options(p) -> None:
                    help="thrust table TOML (default: the paper's Table 2)")
     p.add_argument("--clamp", action="store_true",
                    help="clamp duties into the table's valid range instead of refusing")
-    p.add_argument("--sigma-pos", type=SIGMA_POS_M, default=0.01,
-                   help="position noise sigma, m (default 0.01)")
-    p.add_argument("--sigma-yaw-deg", type=SIGMA_YAW_DEG, default=1.0,
-                   help="yaw noise sigma, deg (default 1)")
-
-
-def _print_json(obj: dict[str, Any]) -> None:
-    from common.runwriter import json_default as _json_default
-
-    sys.stdout.write(json.dumps(obj, default=_json_default) + "\n")
+    add_noise_sigmas(p)
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
     from estimator.estimate import estimate_run
-    from tpods.cli import estimate_ekf as cli_ekf
-    from tpods.cli import estimate_realism as cli_realism
 
     args.out_folder = result_output(args.out, "estimate.json", force=args.force,
                                     command="tpods estimate batch")
@@ -281,13 +214,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         if n not in ("mass", "izz"):
             i = 6 + res.names.index(n)
             print(f"  {n:<5} = {res.z0[i]:.6g} +/- {res.sigma[i]:.3g}")
-    if "com_x_m" in out:
-        print(f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
-              f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
-              f"structure {out['structure']!r}; Izz above is about it")
-        print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
-              f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
-    for line in structure_body_lines(out):
+    for line in centre_of_mass_lines(out) + structure_body_lines(out):
         print(line)
     rms = res.rms_residuals()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
@@ -302,47 +229,6 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  wrote {args.out_folder.main}"
               + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
     return 0
-
-
-def structure_body_lines(out: dict[str, Any]) -> list[str]:
-    """The text lines on a structure's [body] values used as known (fixed) or as priors
-    (the JSON's ``known_from_structure``, ``prior_from_structure``)."""
-    lines = []
-    if out.get("known_from_structure"):
-        lines.append("  known from structure.toml [body] (fixed, not estimated): " + ", ".join(
-            f"{n} {v:.6g}" for n, v in out["known_from_structure"].items())
-            + "; --estimate NAME,... estimates one")
-    if out.get("prior_from_structure"):
-        lines.append("  prior from structure.toml [body] (in the estimate): " + ", ".join(
-            f"{n} {p['mean']:.6g} +/- {p['sigma']:.3g}"
-            for n, p in out["prior_from_structure"].items()))
-    return lines
-
-
-_UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s", "kb": "N m s/m",
-          "ax": "m/s^2", "ay": "m/s^2"}
-
-
-def budget_lines(budget: dict[str, tuple[float, float, float]]) -> list[str]:
-    """The uncertainty budget as a small table (1 sigma: noise, thrust table, total); no
-    lines when the thrust part is zero everywhere (the total is the noise part)."""
-    if not any(t for _, t, _ in budget.values()):
-        return []
-    lines = [f"  {'uncertainty (1 sigma)':<22} {'noise':>10} {'thrust':>10} {'total':>10}"]
-    for name, (n, t, tot) in budget.items():
-        lab = f"{'Izz' if name == 'izz' else name} ({_UNITS.get(name, '')})"
-        lines.append(f"    {lab:<20} {n:10.3g} {t:10.3g} {tot:10.3g}")
-    return lines
-
-
-def filter_budget(out: dict[str, Any]) -> dict[str, tuple[float, float, float]]:
-    """The budget of a filter estimate's JSON object (keys of ``filter_thrust_budget``)."""
-    b = {}
-    for name, unit in (("mass", "kg"), ("izz", "kgm2")):
-        if f"{name}_sigma_noise_{unit}" in out and out[f"{name}_sigma_{unit}"] is not None:
-            b[name] = (out[f"{name}_sigma_noise_{unit}"], out[f"{name}_sigma_thrust_{unit}"],
-                       out[f"{name}_sigma_{unit}"])
-    return b
 
 
 def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
@@ -371,7 +257,6 @@ def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
 def cmd_crlb(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
     from estimator.estimate import bound_sequence, load_sequence
-    from tpods.cli import estimate_realism as cli_realism
 
     out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")
     not_an_input(out_folder, args.run_dir, args.thrust_table)
@@ -436,9 +321,9 @@ def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
     """Refuse a bound that will not fit in memory, naming --pose-rate (planned poses) or the
     run's size, and announce a long one. Without ``seq``: a planned sequence's poses from
     its commands' span and --pose-rate, before they are allocated."""
+    import tpods.cli.sizes as sizes
     from estimator.plant.inputs import from_commands_csv
     from estimator.plant.parameter_sets import DEFAULT_MODEL, MODELS
-    from tpods.cli import sizes
 
     n_params = len(MODELS[args.model or DEFAULT_MODEL])
     if seq is None:
@@ -464,159 +349,6 @@ def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
     sizes.refuse_if_too_big(what, n_bytes, fix)
     if seq is not None:
         sizes.announce(seconds, f"the bound over {n_poses:.0f} poses")
-
-
-def _check_design_size(args: argparse.Namespace) -> None:
-    """Refuse a design that will not fit in memory (one candidate's bound, and every scored
-    candidate's trajectory, which the search keeps), naming the options; announce a long one."""
-    from tpods.cli import sizes
-
-    n_poses = sizes.samples(args.duration, args.pose_rate)
-    n_cmds = sizes.samples(args.duration, args.cmd_rate)
-    evals = 1 + args.candidates + args.refine * args.refine_evals + len(args.compare)
-    one_bytes, one_s = sizes.crlb_cost(sizes.crlb_segments(n_poses, n_cmds, args.duration), 2)
-    kept = evals * sizes.DESIGN_KEPT_BYTES_PER_POSE * n_poses
-    span = (f"--duration {sizes.number(args.duration)} s at --pose-rate "
-            f"{sizes.number(args.pose_rate)} Hz and --cmd-rate {sizes.number(args.cmd_rate)} Hz")
-    # one candidate (its bound and what the search keeps of it), then all of them
-    sizes.refuse_if_too_big(
-        f"{span} is {sizes.samples_text(args.duration, args.pose_rate)} poses and "
-        f"{sizes.samples_text(args.duration, args.cmd_rate)} command rows per candidate",
-        one_bytes + kept / evals, "lower --duration, --pose-rate or --cmd-rate")
-    sizes.refuse_if_too_big(
-        f"{evals} candidates (1 + --candidates {args.candidates} + --refine {args.refine} "
-        f"x --refine-evals {args.refine_evals}"
-        f"{f' + {len(args.compare)} --compare' if args.compare else ''}) of "
-        f"{sizes.samples_text(args.duration, args.pose_rate)} "
-        f"poses each ({span})",
-        one_bytes + kept, "lower --candidates, --refine-evals, --duration or --pose-rate")
-    sizes.announce(evals * one_s, f"scoring {evals} candidates")
-
-
-def cmd_design(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from common.thrust_table import load_thrust_table
-    from estimator.batch.design import DesignSettings, evaluate_commands, search
-    from estimator.plant.inputs import make_input
-    from estimator.plant.model import PlantParams
-
-    out_folder = ResultFolder(args.out, force=args.force, command="tpods design")
-    if args.candidates < 1 or args.refine < 0 or args.refine_evals < 1:
-        raise UserError("--candidates and --refine-evals must be >= 1, --refine >= 0")
-    if args.omega_range[0] <= 0 or args.omega_range[1] <= args.omega_range[0]:
-        raise UserError("--omega-range must be LO,HI with 0 < LO < HI")
-    if min(args.table_size) <= 2 * args.margin:
-        raise UserError("--table-size must exceed twice the --margin")
-    if getattr(args, "structure", None):
-        from common.structure import Structure
-
-        known = Structure.load(args.structure).body.known()
-        if all(n in known for n in ("mass", "izz", "cx", "cy")):
-            raise UserError(f"{args.structure}: [body] gives mass, Izz and the centre of mass as "
-                            "known: nothing left to design for (give a value a sigma, or drop it)")
-    _check_design_size(args)
-    table = load_thrust_table(args.thrust_table)
-    structure = None
-    plant = PlantParams(args.mass, args.izz)
-    if getattr(args, "structure", None):
-        from common.structure import Structure
-
-        if args.design_for == "thrust-calibration":
-            raise UserError("--for thrust-calibration is not built for structures yet")
-        if args.compare:
-            raise UserError("--compare takes single-module inputs; a structure design "
-                            "compares with the phase-shifted sine over all its channels")
-        structure = Structure.load(args.structure)
-        g = structure.initial_guess()
-        given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
-        plant = PlantParams(args.mass if "mass" in given else g["mass"],
-                            args.izz if "izz" in given else g["izz"], cx=g["cx"], cy=g["cy"])
-        args.mass, args.izz = plant.mass_kg, plant.izz_kgm2
-    settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
-                              math.radians(args.noise_yaw_deg), plant,
-                              tuple(args.table_size), args.margin, args.max_yaw_rate, structure)
-    if args.design_for == "thrust-calibration":
-        from tpods.cli.calibrate import design_calibration
-
-        return design_calibration(args, table, settings, out_folder)
-    compared = []
-    for spec in args.compare:
-        cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
-        try:
-            compared.append(evaluate_commands(cmd_t, duty, table, settings, spec))
-        except UserError as exc:
-            raise UserError(f"{spec}: {exc}") from None
-    total = 1 + args.candidates + args.refine * args.refine_evals
-    with tqdm(total=total, desc="design", unit="eval", file=sys.stderr, leave=False,
-              disable=None) as bar:
-        res = search(table, settings, n_random=args.candidates, n_refine=args.refine,
-                     refine_evals=args.refine_evals, omega_range=tuple(args.omega_range),
-                     seed=args.seed, progress=bar.update)
-    with out_folder.writing() as d:
-        out = _write_design(args, res, compared, d, out_folder.path)
-    return _print_design(args, res, compared, out, out_folder.path)
-
-
-def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path) -> dict:
-    """Write the design into ``d`` (the temporary folder that becomes ``final``)."""
-    from estimator.reports.plots_batch import plot_sensitivities
-
-    best = res.best
-    n_ch = best.duty_pct.shape[1]
-    np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
-               header="t," + ",".join(f"d{i + 1}" for i in range(n_ch)), comments="", fmt="%.10g")
-    if getattr(args, "structure", None):
-        import shutil
-
-        shutil.copyfile(args.structure, d / "structure.toml")
-
-    def row(e):
-        return {"label": e.label, "logdet_info": e.logdet, "feasible": e.feasible,
-                "max_yaw_rate_rad_s": float(np.abs(e.crlb.states[:, 5]).max()),
-                "excursion_x_m": e.excursion_m[0], "excursion_y_m": e.excursion_m[1],
-                "crlb_mass_sigma_kg": e.crlb.mass_sigma_kg,
-                "crlb_izz_sigma_kgm2": e.crlb.izz_sigma_kgm2,
-                **({"crlb_com_x_sigma_m": e.crlb.sigma_of("cx"),
-                    "crlb_com_y_sigma_m": e.crlb.sigma_of("cy")} if "cx" in e.crlb.names else {}),
-                **({"amplitude_pct": e.spec.amplitude_pct, "omega_rad_s": e.spec.omega_rad_s,
-                    "phases_rad": list(e.spec.phases_rad), "mean_pct": e.spec.mean_pct}
-                   if e.spec else {})}
-
-    out = {"best": row(best), "paper": row(res.paper), "compared": [row(e) for e in compared],
-           "evaluated": res.evaluated, "improvement_logdet": best.logdet - res.paper.logdet,
-           "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
-                        "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
-                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
-                        "mass_kg": args.mass, "izz_kgm2": args.izz},
-           "criterion_parameters": list(best.crlb.names),
-           "commands_csv": str(final / "commands.csv")}
-    (d / "design.json").write_text(json.dumps(out, indent=2) + "\n")
-    for e, name in ((best, "sensitivities_best.png"), (res.paper, "sensitivities_paper.png")):
-        t = np.arange(len(e.crlb.sens_x)) / args.pose_rate
-        plot_sensitivities(t, e.crlb.sens_x[:, :, :2], e.crlb.names[:2], [args.mass, args.izz],
-                           d / name, title=e.label)
-    return out
-
-
-def _print_design(args: argparse.Namespace, res, compared, out: dict, final: Path) -> int:
-    best = res.best
-    if args.json:
-        _print_json(out)
-        return 0
-    half = np.asarray(args.table_size) / 2 - args.margin
-    print(f"D-optimal design over {args.duration:g} s ({res.evaluated} sequences scored; "
-          f"workspace |x|,|y| <= {half[0]:g}, {half[1]:g} m from the start)")
-    print(f"  {'input':<44} {'log det':>9} {'sd(m) kg':>10} {'sd(Izz)':>10} {'excursion x,y m':>17}  fits")
-    for e in [res.paper, *compared, best]:
-        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
-        print(f"  {lab:<44} {e.logdet:9.3f} {e.crlb.mass_sigma_kg:10.3g} "
-              f"{e.crlb.izz_sigma_kgm2:10.3g} {e.excursion_m[0]:8.2f},{e.excursion_m[1]:7.2f}  "
-              f"{'yes' if e.feasible else 'NO'}")
-    print(f"  best: {best.spec.describe()}")
-    print(f"  log det gain over the paper's input: {best.logdet - res.paper.logdet:+.3f}")
-    print(f"  wrote {final / 'commands.csv'} (play it or simulate it with tpods sim --input), design.json")
-    return 0
 
 
 def cmd_table3(args: argparse.Namespace) -> int:

@@ -18,7 +18,9 @@ import numpy as np
 
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, result_output
+from common.outputs import ResultFolder, result_output
+from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.options import add_report_out, add_result_out
 
 
 def _state_values(what: str):
@@ -143,8 +145,6 @@ def report_filter(est, args) -> int:
               f"Izz {fe.ls.izz_kgm2:.6g} +/- {fe.ls.izz_sigma_kgm2:.3g} kg m^2")
     print(f"  mass  = {r.mass_kg:.6g} kg      +/- {out['mass_sigma_kg']:.3g} (1 sigma)")
     print(f"  Izz   = {r.izz_kgm2:.6g} kg m^2  +/- {out['izz_sigma_kgm2']:.3g} (1 sigma)")
-    from tpods.cli.estimate_batch import budget_lines, filter_budget
-
     for line in budget_lines(filter_budget(out)):
         print(line)
     print(f"  mean NIS {out['nis_mean']:.3g} (3 expected), "
@@ -187,10 +187,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
-    p.add_argument("--out", default=None, metavar="DIR|FILE.json",
-                   help="write montecarlo.json, history.csv, runs.csv and the figures in folder DIR, "
-                        "or only the summary to FILE.json")
-    add_force(p)
+    add_result_out(p, "montecarlo.json, history.csv, runs.csv and the figures", "summary")
     g = p.add_argument_group(
         "structure (issue 18)",
         "--structure F: a Monte Carlo of batch LS on the structure: m and Izz drawn within "
@@ -216,8 +213,7 @@ def register(sub, est, rep) -> None:
         description="Simulate the paper's 120 s phase-sine scenario for several noise seeds, run "
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
@@ -232,8 +228,7 @@ def register(sub, est, rep) -> None:
                     "does (true noise given), and write report.md (the table) and sweep.json "
                     "(every run). Target: final errors within 4 sigma in >= 99 %% of runs, none "
                     "beyond 6 sigma without a flag.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--runs", type=int_at_least(1), default=300, help="cases (default 300)")
     r.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
     r.add_argument("--methods", default="ls,ekf,ls-ekf", help="comma-separated (default all)")

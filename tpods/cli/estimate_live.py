@@ -6,7 +6,6 @@ import argparse
 import datetime as _dt
 import json
 import math
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -14,13 +13,15 @@ from pathlib import Path
 from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.estimate_ekf import add_batch_options
+from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.options import add_key_prefixes
+from tpods.cli.stopping import zenoh_session
 
 
 def register(est) -> None:
     """Add ``live`` to the ``tpods estimate`` group."""
-    from common.zenoh_net import add_zenoh_options
-    from tpods.cli.estimate_ekf import add_batch_options
-
     p = est.add_parser(
         "live", help="estimate mass and Izz live from Zenoh poses and commands",
         description="Subscribe to tpods/mocap/<body>/pose and tpods/<body>/cmd, align them (commands "
@@ -59,8 +60,7 @@ def register(est) -> None:
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",
                    help="stop shortly after the player announces the end of its input")
-    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
-    p.add_argument("--mocap-prefix", default="tpods/mocap", help="pose key prefix (default tpods/mocap)")
+    add_key_prefixes(p)
     p.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no live console line")
     add_batch_options(p)
@@ -74,7 +74,6 @@ def cmd_live(args: argparse.Namespace) -> int:
     from common.mcap_log import McapLog
     from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
-    from common.zenoh_net import open_session
     from estimator.live.recorder import record_streams
     from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
     from estimator.live.zenoh_run import command_keys
@@ -132,32 +131,26 @@ def cmd_live(args: argparse.Namespace) -> int:
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
     console = _Console(args.quiet)
     stop = threading.Event()
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        old[sig] = signal.signal(sig, lambda *_a: stop.set())
     status = "failed"
     res = None
     subs = []
     try:
-        session = open_session(args)
-        try:
-            if log is not None:
-                subs = record_streams(session, k, log)
-            cmds = " + ".join(command_keys(k))
-            print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
-                  f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
-            res = run_live(session, est, stop=stop, duration_s=args.duration,
-                           exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                           prefix=args.prefix, on_console=console.show)
-            status = res.status
-        finally:
-            for s in subs:
-                s.undeclare()
-            session.close()
+        with zenoh_session(args, stop) as session:
+            try:
+                if log is not None:
+                    subs = record_streams(session, k, log)
+                cmds = " + ".join(command_keys(k))
+                print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
+                      f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
+                res = run_live(session, est, stop=stop, duration_s=args.duration,
+                               exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
+                               prefix=args.prefix, on_console=console.show)
+                status = res.status
+            finally:
+                for s in subs:
+                    s.undeclare()
     finally:
         console.end()
-        for sig, h in old.items():
-            signal.signal(sig, h)
         summary = est.summary()
         if summary.get("mass_kg") is None:  # received nothing: no success (run.json says
             status = "failed"               # failed; the command exits 2, below)
@@ -197,8 +190,6 @@ def cmd_live(args: argparse.Namespace) -> int:
         print(f"  centre of mass = ({summary['com_x_m']:.5f}, {summary['com_y_m']:.5f}) m "
               f"+/- ({summary['com_x_sigma_m']:.2g}, {summary['com_y_sigma_m']:.2g}) in the tracked "
               f"frame; Izz about the tracked origin {summary['izz_origin_kgm2']:.6g} kg m^2")
-    from tpods.cli.estimate_batch import budget_lines, filter_budget
-
     for line in budget_lines(filter_budget(summary)):
         print(line)
     if "ls" in summary:

@@ -1,7 +1,8 @@
 """CLI hooks of the model options (issue 9): ``--model`` for ``estimate batch`` and
 ``estimate crlb``, the extended-state filters, and ``tpods report realism``.
 
-The batch/CRLB commands (:mod:`tpods.cli.estimate_batch`) call :func:`add_model_option`,
+The batch/CRLB commands (:mod:`tpods.cli.estimate_batch`, which this module does not
+import) call :func:`add_model_option`,
 :func:`selection_log` (where ``--model auto`` prints its table), :func:`report_ext` (the
 output of the extended-state filters) and :func:`crlb_lines`; the use cases themselves
 are :func:`estimator.estimate.estimate_run` and :func:`estimator.estimate.bound_sequence`.
@@ -17,8 +18,10 @@ import numpy as np
 
 from common.argtypes import random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force
+from common.outputs import ResultFolder
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
+from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget
+from tpods.cli.options import add_report_out
 
 
 def add_model_option(p, auto: bool = True) -> None:
@@ -75,16 +78,9 @@ def report_ext(est, args: argparse.Namespace) -> int:
     for n in r.names:
         v, s = r.final(n)
         print(f"  {n:<5} = {v:.6g} +/- {s:.3g} (1 sigma, noise; prior sigma {SIGMA0[n]:g})")
-    from tpods.cli.estimate_batch import budget_lines, filter_budget
-
-    for line in budget_lines(filter_budget(out)):
+    # a structure (issue 18): its centre of mass as estimate batch --method ls prints it
+    for line in budget_lines(filter_budget(out)) + centre_of_mass_lines(out):
         print(line)
-    if "com_x_m" in out:  # a structure (issue 18): as estimate batch --method ls prints it
-        print(f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
-              f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
-              f"structure {out['structure']!r}; Izz above is about it")
-        print(f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
-              f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2")
     if "truth_mass_kg" in out:
         print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
               f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")
@@ -108,8 +104,7 @@ def register(sub, est, rep) -> None:
                     "the jointly estimated models, beside the paper's experimental RMSE; model "
                     "selection, residual whiteness, identifiability (correlations) and a Monte "
                     "Carlo over friction, bias and tilt values.")
-    r.add_argument("--out", required=True, metavar="DIR", help="report folder")
-    add_force(r)
+    add_report_out(r)
     r.add_argument("--runs", type=int, default=40,
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
     r.add_argument("--seeds", type=int, default=5,

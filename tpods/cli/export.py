@@ -7,12 +7,12 @@ from pathlib import Path
 
 from common.errors import UserError
 from common.outputs import add_force
+from tpods.cli.options import add_key_prefixes, check_key_prefixes
+from tpods.cli.parser import group
 
 
 def register(sub) -> None:
     """Add the ``tpods export`` group."""
-    from tpods.cli import group
-
     g = group(sub, "export", "convert recordings to other formats")
     p = g.add_parser(
         "mcap", help="a run folder as an MCAP file of the Zenoh messages it stands for",
@@ -27,9 +27,7 @@ def register(sub) -> None:
     p.add_argument("--body", default=None,
                    help="body name in the keys and payloads (default: run.json's body, else the "
                         "folder name)")
-    p.add_argument("--prefix", default="tpods", help="command/estimate/truth key prefix (default tpods)")
-    p.add_argument("--mocap-prefix", default="tpods/mocap",
-                   help="pose key prefix (default tpods/mocap)")
+    add_key_prefixes(p, "command/estimate/truth")
     p.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
                    help="host time of the run's t = 0 (default: run.json t0_lab, else 0: run time)")
     p.set_defaults(func=cmd_export_mcap)
@@ -42,9 +40,7 @@ def cmd_export_mcap(args: argparse.Namespace) -> int:
     if not is_mcap(args.out):
         raise UserError(f"--out {args.out}: tpods export mcap writes one MCAP file; give a name "
                         "ending in .mcap")
-    for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
-        if not v.strip("/"):
-            raise UserError(f"{opt} must not be empty")
+    check_key_prefixes(args)
     if not Path(args.run).is_dir():
         raise UserError(f"{args.run}: run folder not found")
     out = ResultFile(args.out, force=args.force)

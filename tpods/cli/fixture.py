@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+from tpods.cli.parser import group
+
 
 def register(sub) -> None:
     """Add ``tpods fixture`` to the `tpods` parser."""
-    from tpods.cli import group
-
     g = group(sub, "fixture", "recorded fixtures of the regression tests (runs/fixtures/)")
     p = g.add_parser(
         "add", help="copy a recording into runs/fixtures/NAME and compute its goldens",

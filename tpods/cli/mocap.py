@@ -4,24 +4,21 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 import threading
-import time
-from contextlib import contextmanager
 from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.parser import group
+from tpods.cli.stopping import wait_for_stop, zenoh_session
 
 
 def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-    from tpods.cli import group
-
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
 
     p = g.add_parser(
@@ -90,24 +87,7 @@ def register(sub) -> None:
     r.set_defaults(func=cmd_record)
 
 
-@contextmanager
-def _stop_on_signals(stop: threading.Event):
-    """SIGTERM (and SIGINT) set ``stop`` so every exit path closes cleanly."""
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        try:
-            old[sig] = signal.signal(sig, lambda *_a: stop.set())
-        except ValueError:  # not the main thread
-            pass
-    try:
-        yield
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-
-
 def cmd_bridge(args: argparse.Namespace) -> int:
-    from common.zenoh_net import open_session
     from mocap_bridge.bridge import Bridge
     from mocap_bridge.pose import AxisMap
     from mocap_bridge.sources import open_source
@@ -139,8 +119,7 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     console = Console(args.quiet)
     stop = threading.Event()
     try:
-        session = open_session(args)
-        try:
+        with zenoh_session(args, stop) as session:
             bridge = Bridge(session, prefix=args.prefix,
                             axis_map=AxisMap(up=args.up, projection=args.projection,
                                              yaw_offset_rad=math.radians(args.yaw_offset_deg)),
@@ -150,13 +129,10 @@ def cmd_bridge(args: argparse.Namespace) -> int:
                   f"(zenoh id {session.zid()})", file=sys.stderr)
             if capture is not None:
                 print(f"bridge: capturing datagrams to {capture}", file=sys.stderr)
-            with _stop_on_signals(stop):
-                if args.wait_subscriber > 0 and not bridge.wait_for_subscriber(args.wait_subscriber):
-                    print(f"bridge: no subscriber after {args.wait_subscriber:g} s, publishing "
-                          "anyway", file=sys.stderr)
-                bridge.run(source, stop=stop, duration_s=args.duration)
-        finally:
-            session.close()
+            if args.wait_subscriber > 0 and not bridge.wait_for_subscriber(args.wait_subscriber):
+                print(f"bridge: no subscriber after {args.wait_subscriber:g} s, publishing "
+                      "anyway", file=sys.stderr)
+            bridge.run(source, stop=stop, duration_s=args.duration)
     finally:
         source.close()
         console.end()
@@ -201,7 +177,6 @@ def cmd_record(args: argparse.Namespace) -> int:
     from common.mcap_log import McapLog
     from common.outputs import is_mcap, stream_file
     from common.plausible import check_finite_time
-    from common.zenoh_net import open_session
     from mocap_bridge.recorder import Recorder, subscribe
 
     check_finite_time(args.t0, "--t0")  # before the folder is made
@@ -213,24 +188,18 @@ def cmd_record(args: argparse.Namespace) -> int:
     log = McapLog(out / "recording.mcap", meta={"command": "tpods mocap record",
                                                 "key": args.key}) if args.mcap else None
     rec = Recorder(out, key=args.key, t0=args.t0, mcap=log)
+
+    def console_line() -> None:
+        c = rec.counters
+        console.show(f"record: {len(rec.bodies)} bodies | received {c['received']} | "
+                     f"poses {c['recorded']} | occluded {c['occluded']} | "
+                     f"malformed {c['malformed']}")
+
     try:
-        session = open_session(args)
-        try:
+        with zenoh_session(args, stop) as session:
             sub = subscribe(session, args.key, rec)
-            t_end = None if args.duration is None else time.monotonic() + args.duration
-            with _stop_on_signals(stop):
-                while not stop.is_set():
-                    wait = 1.0 if t_end is None else min(1.0, t_end - time.monotonic())
-                    if wait <= 0:
-                        break
-                    stop.wait(wait)
-                    c = rec.counters
-                    console.show(f"record: {len(rec.bodies)} bodies | received {c['received']} | "
-                                 f"poses {c['recorded']} | occluded {c['occluded']} | "
-                                 f"malformed {c['malformed']}")
+            wait_for_stop(stop, args.duration, console_line)
             sub.undeclare()
-        finally:
-            session.close()
     except BaseException:
         rec.close("incomplete")  # recording.json says so; what was written stays
         raise
@@ -260,28 +229,17 @@ def nothing_received(key: str) -> str:
 def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
     """``tpods mocap record --out X.mcap``: every message on the key into one MCAP file."""
     from common.mcap_log import McapLog, subscribe
-    from common.zenoh_net import open_session
 
     console = Console(args.quiet)
     stop = threading.Event()
     log = McapLog(path, meta={"command": "tpods mocap record", "key": args.key})
     status = "incomplete"
     try:
-        session = open_session(args)
-        try:
+        with zenoh_session(args, stop) as session:
             sub = subscribe(session, args.key, log)
-            t_end = None if args.duration is None else time.monotonic() + args.duration
-            with _stop_on_signals(stop):
-                while not stop.is_set():
-                    wait = 1.0 if t_end is None else min(1.0, t_end - time.monotonic())
-                    if wait <= 0:
-                        break
-                    stop.wait(wait)
-                    console.show(f"record: {log.counters['messages']} messages on "
-                                 f"{len(log.topics)} keys")
+            wait_for_stop(stop, args.duration, lambda: console.show(
+                f"record: {log.counters['messages']} messages on {len(log.topics)} keys"))
             sub.undeclare()
-        finally:
-            session.close()
         status = "incomplete" if log.counters.get("write_errors") else \
             "complete" if log.counters["messages"] else "failed"
     finally:

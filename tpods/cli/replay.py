@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
 
 from common.argtypes import nonneg_float
 from common.console import Console
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.stopping import zenoh_session
 
 
 def register(sub) -> None:
     """Add ``tpods replay`` to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-
     p = sub.add_parser(
         "replay", help="publish an MCAP recording back onto Zenoh with its timing",
         description="Publish every message of an MCAP file (from `tpods mocap record`, "
@@ -39,32 +38,20 @@ def register(sub) -> None:
 def cmd_replay(args: argparse.Namespace) -> int:
     from common.mcap_log import iter_messages
     from common.mcap_replay import remapper, replay
-    from common.zenoh_net import open_session
 
     remap = remapper(args.prefix)
     next(iter(iter_messages(args.file)), None)  # a missing or non-MCAP file: one line, before Zenoh
     console = Console(args.quiet)
     stop = threading.Event()
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        try:
-            old[sig] = signal.signal(sig, lambda *_a: stop.set())
-        except ValueError:  # not the main thread
-            pass
     try:
-        session = open_session(args)
-        try:
+        with zenoh_session(args, stop) as session:
             res = replay(session, args.file, speed=args.speed, remap=remap, stop=stop,
                          wait_subscriber_s=args.wait_subscriber,
                          on_progress=lambda p: console.show(
                              f"replay: {p['published']} messages | t {p['t_s']:.1f} s"))
             time.sleep(0.2)  # let the last messages leave before the session closes
-        finally:
-            session.close()
     finally:
         console.end()
-        for sig, h in old.items():
-            signal.signal(sig, h)
     how = "" if res["complete"] else " (file without summary: read up to its last complete chunk)"
     print(f"replay: {res['published']} messages on {len(res['keys'])} keys, {res['span_s']:.3f} s "
           f"of recording in {res['elapsed_s']:.3f} s{how}")

@@ -11,14 +11,14 @@ from pathlib import Path
 
 from common.argtypes import fraction, nonneg_float, positive_float, random_seed
 from common.errors import UserError
-from common.outputs import ResultFolder, add_force, stream_folder
+from common.outputs import add_force, optional_folder, stream_folder
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.parser import group
+from tpods.cli.stopping import stop_on_signals, valves_closed_exit, wait_for_stop
 
 
 def register(sub) -> None:
     """Add the ``run`` group to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-    from tpods.cli import group
-
     g = group(sub, "run", "run a module: play an input on its valves, simulate a module")
 
     p = g.add_parser(
@@ -207,14 +207,8 @@ def cmd_play(args: argparse.Namespace) -> int:
                                heartbeat_s=args.heartbeat, progress=not args.no_progress,
                                meta={"input": args.input, "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
-            except Terminated:
-                print("tpods: terminated; valves closed" + (f"; commands in {out}" if out else ""),
-                      file=sys.stderr)
-                return 143
-            except KeyboardInterrupt:
-                print("tpods: interrupted; valves closed" + (f"; commands in {out}" if out else ""),
-                      file=sys.stderr)
-                return 130
+            except (Terminated, KeyboardInterrupt) as exc:
+                return valves_closed_exit(exc, "valves closed" + (f"; commands in {out}" if out else ""))
         pub.undeclare()
     finally:
         session.close()
@@ -281,14 +275,9 @@ def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
                                meta={"input": args.input, "structure": structure.name,
                                      "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
-            except Terminated:
-                print("tpods: terminated; every module's valves closed"
-                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
-                return 143
-            except KeyboardInterrupt:
-                print("tpods: interrupted; every module's valves closed"
-                      + (f"; commands in {out}" if out else ""), file=sys.stderr)
-                return 130
+            except (Terminated, KeyboardInterrupt) as exc:
+                return valves_closed_exit(exc, "every module's valves closed"
+                                          + (f"; commands in {out}" if out else ""))
         for p in pubs.values():
             p.undeclare()
     finally:
@@ -302,8 +291,6 @@ def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
-    import signal
-
     import numpy as np
 
     from bench.emulators import EmulatedValveController, serve_pty
@@ -311,9 +298,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     from estimator.plant.model import PlantParams
     from tpods.plant_loop import MocapNoise, PlantLoop, push_sink, udp_sink
 
-    truth_out = (None if args.truth_out is None
-                 else ResultFolder(args.truth_out, force=args.force, option="--truth-out",
-                                   command="tpods run plant"))
+    truth_out = optional_folder(args.truth_out, force=args.force, option="--truth-out",
+                                command="tpods run plant")
     clock = _clock(args)
     table = load_thrust_table(args.thrust_table)
     ct = cr = kb = 0.0
@@ -360,30 +346,27 @@ def cmd_plant(args: argparse.Namespace) -> int:
         raise UserError(f"--mocap must be zenoh or udp:HOST:PORT, got {args.mocap!r}")
     plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
                       noise=noise, seed=args.seed)
-    old = signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    def stop_on_error() -> None:  # the plant loop stopped on an error
+        if plant.error is not None:
+            stop.set()
+
     sys.setswitchinterval(2e-4)  # the emulated controller reacts within a fraction of a ms
     servers = [serve_pty(c) for c in ctrls]
     try:
-        if bridge_thread is not None:
-            bridge_thread.start()
-        plant.start()
-        if structure is None:
-            print(f"valves: {servers[0].path}", flush=True)
-        else:
-            for m, srv in zip(structure.modules, servers, strict=True):
-                print(f"valves {m.name}: {srv.path}", flush=True)
-        print(f"plant: m {params.mass_kg:g} kg, Izz {params.izz_kgm2:g} kg m^2"
-              + (f", centre of mass ({params.cx:g}, {params.cy:g}) m" if structure else "")
-              + f", {args.pose_rate:g} Hz poses of {args.body} ({args.mocap}); Ctrl-C to stop",
-              file=sys.stderr, flush=True)
-        try:  # until --duration, Ctrl-C/SIGTERM, or the plant loop stops on an error
-            deadline = None if args.duration is None else time.monotonic() + args.duration
-            while plant.error is None and not stop.wait(
-                    0.2 if deadline is None else max(0.0, min(0.2, deadline - time.monotonic()))):
-                if deadline is not None and time.monotonic() >= deadline:
-                    break
-        except KeyboardInterrupt:
-            pass
+        with stop_on_signals(stop):  # until --duration, Ctrl-C/SIGTERM or a plant error
+            if bridge_thread is not None:
+                bridge_thread.start()
+            plant.start()
+            if structure is None:
+                print(f"valves: {servers[0].path}", flush=True)
+            else:
+                for m, srv in zip(structure.modules, servers, strict=True):
+                    print(f"valves {m.name}: {srv.path}", flush=True)
+            print(f"plant: m {params.mass_kg:g} kg, Izz {params.izz_kgm2:g} kg m^2"
+                  + (f", centre of mass ({params.cx:g}, {params.cy:g}) m" if structure else "")
+                  + f", {args.pose_rate:g} Hz poses of {args.body} ({args.mocap}); Ctrl-C to stop",
+                  file=sys.stderr, flush=True)
+            wait_for_stop(stop, args.duration, stop_on_error, every_s=0.2)
     finally:
         stop.set()
         plant.stop()
@@ -395,7 +378,6 @@ def cmd_plant(args: argparse.Namespace) -> int:
             bridge_thread.join(timeout=5.0)
         if session is not None:
             session.close()
-        signal.signal(signal.SIGTERM, old)
     if truth_out is not None:
         with truth_out.writing() as d:
             t, s = plant.truth_arrays()

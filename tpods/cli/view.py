@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 
@@ -11,6 +10,9 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force
+from common.zenoh_net import add_zenoh_options
+from tpods.cli.options import add_key_prefixes, check_key_prefixes
+from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
 DEFAULT_PORT = 8765
@@ -28,8 +30,6 @@ def _port(text: str) -> int:
 
 def register(sub) -> None:
     """Add ``tpods view`` to the `tpods` parser."""
-    from common.zenoh_net import add_zenoh_options
-
     p = sub.add_parser(
         "view", help="serve the live poses, duties and estimates to Foxglove",
         description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
@@ -46,9 +46,7 @@ def register(sub) -> None:
                    help="body to show (repeatable; default: every body seen)")
     p.add_argument("--pose-rate", type=nonneg_float, default=50.0, metavar="HZ",
                    help="poses forwarded per body and second (default 50; 0: every pose)")
-    p.add_argument("--prefix", default="tpods", help="command/estimate key prefix (default tpods)")
-    p.add_argument("--mocap-prefix", default="tpods/mocap",
-                   help="pose key prefix (default tpods/mocap)")
+    add_key_prefixes(p)
     p.add_argument("--write-layout", metavar="FILE.json", default=None,
                    help="write a Foxglove layout for the --body names (default tpods1) to FILE "
                         "and exit")
@@ -59,9 +57,7 @@ def register(sub) -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
-        if not v.strip("/"):
-            raise UserError(f"{opt} must not be empty")
+    check_key_prefixes(args)
     if args.body is not None and not all(b.strip() for b in args.body):
         raise UserError("--body must not be empty")
     if not args.host.strip():
@@ -69,24 +65,15 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.write_layout is not None:
         return _write_layout(args)
 
-    from common.zenoh_net import open_session
     from tpods.viewer import LiveView
 
+    view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
+                    prefix=args.prefix, mocap_prefix=args.mocap_prefix, pose_rate=args.pose_rate)
+    view.start_server()  # a port in use or a bad host: one line, before Zenoh
     console = Console(args.quiet)
     stop = threading.Event()
-    old = {}
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        try:
-            old[sig] = signal.signal(sig, lambda *_a: stop.set())
-        except ValueError:  # not the main thread
-            pass
     try:
-        view = LiveView(None, host=args.host, port=args.port, bodies=args.body,
-                        prefix=args.prefix, mocap_prefix=args.mocap_prefix,
-                        pose_rate=args.pose_rate)
-        view.start_server()  # a port in use or a bad host: one line, before Zenoh
-        try:
-            view.session = session = open_session(args)
+        with zenoh_session(args, stop) as view.session:
             try:
                 view.subscribe()
                 print(f"view: serving on {view.url} (Foxglove: Open connection -> Foxglove "
@@ -95,14 +82,10 @@ def cmd_view(args: argparse.Namespace) -> int:
                 while not stop.wait(0.5):
                     console.show(view.status_line())
             finally:
-                view.close()
-                session.close()
-        finally:
-            view.close()
+                view.close()  # its subscribers before the session
     finally:
+        view.close()
         console.end()
-        for sig, h in old.items():
-            signal.signal(sig, h)
     c = view.counters
     print(f"view: stopped; {c.get('pose_shown', 0)} poses, {c.get('cmd_shown', 0)} commands, "
           f"{c.get('estimate_shown', 0)} estimates shown for {len(view.bodies)} bodies; "

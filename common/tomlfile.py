@@ -1,0 +1,50 @@
+"""Reading the toolkit's TOML input files (thrust tables, structure.toml, PARTS.toml):
+the file itself (:func:`read_toml`) and the numbers in it (:func:`toml_number`), each
+problem a :class:`~common.errors.UserError` of one line that names the file.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from common.errors import UserError
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The TOML document in ``path`` (``what``: "thrust table", "structure file", ... in
+    the messages). A UTF-8 byte order mark (Windows Notepad, PowerShell) is skipped; CRLF
+    line ends are TOML; UTF-16 or other non-UTF-8 text is refused naming the line."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise UserError(f"{path}: UTF-16 text; TOML must be UTF-8 (save it as UTF-8)")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise UserError(f"{path}: line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 "
+                        f"(TOML must be UTF-8; save it as UTF-8)") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise UserError(f"{path}: not valid TOML ({exc})") from None
+
+
+def toml_number(x: Any, what: str, *, positive: bool = False, nonneg: bool = False) -> float:
+    """``x`` as a float: a finite number (not a boolean), positive or >= 0 if asked;
+    else a UserError naming ``what`` (the file and key)."""
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise UserError(f"{what} must be a finite number, got {x!r}")
+    if positive and x <= 0:
+        raise UserError(f"{what} must be positive, got {x!r}")
+    if nonneg and x < 0:
+        raise UserError(f"{what} must be >= 0, got {x!r}")
+    return float(x)
