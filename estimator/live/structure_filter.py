@@ -14,6 +14,7 @@ it reads the estimator's structure, settings, filter state, hold segments and th
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ mass and the centre of mass in the tracked frame (cx or cy given as known in the
 structure's [body] are fixed instead)."""
 
 
-def com_index(names) -> list[int | None]:
+def com_index(names: Sequence[str]) -> list[int | None]:
     """State indices of cx, cy in a state ``(x, y, psi, u, v, r, *names)`` (None: fixed)."""
     return [6 + names.index(n) if n in names else None for n in ("cx", "cy")]
 
