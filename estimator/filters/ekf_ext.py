@@ -3,7 +3,7 @@
 The state is ``z = (x, y, psi, u, v, r, theta)`` with ``theta`` the parameters in
 ``names`` (any subset of ``model.PARAM_NAMES`` holding mass and izz, e.g. the
 ``friction`` model's mass, izz, ct, cr, kb); the others are fixed. It is the filter of
-:mod:`estimator.filters.ekf` (:func:`estimator.filters.ekf.run_filter`) with the parameter set as a model
+:mod:`estimator.filters.ekf` (:func:`estimator.filters.ekf_loop.run_filter`) with the parameter set as a model
 setting; this module holds its settings, defaults and result:
 
 - prediction over the zero-order-hold segments between poses (split at every command
@@ -23,7 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from estimator.filters.ekf import PARAM_FORMS, _update, filter_plant, make_schedule, run_filter
+from estimator.filters.ekf_config import PARAM_FORMS
+from estimator.filters.ekf_kernels import _update, filter_plant
+from estimator.filters.ekf_loop import make_schedule, run_filter
 from estimator.plant.model import ARM_M, PARAM_NAMES, STATE_NAMES
 
 SIGMA0 = {"x": 0.1, "y": 0.1, "psi": math.radians(5.0), "u": 0.1, "v": 0.1,
@@ -49,7 +51,7 @@ class ExtEkfConfig:
             (default none: the parameters are constants).
         max_step_s: longest propagation step, s.
         param_form: ``"inverse"`` (default): the update corrects 1/m and 1/Izz, as the
-            8-state filter does (:func:`estimator.filters.ekf.inverse_correction`);
+            8-state filter does (:func:`estimator.filters.ekf_kernels.inverse_correction`);
             ``"direct"``: m and Izz.
     """
 

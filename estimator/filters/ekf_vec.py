@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.filters.ekf import MIN_INV_RATIO, NX, NZ, PAPER, EkfConfig, filter_plant
+from estimator.filters.ekf_config import NX, NZ, PAPER, EkfConfig
+from estimator.filters.ekf_kernels import MIN_INV_RATIO, filter_plant
 from estimator.plant.model import ALL_EFFECTS, PARAM_NAMES, array_function, jacobian_pattern, wrench
 from estimator.plant.propagate import propagate_stm_batch, segment_thrust, zoh_segments
 
@@ -61,7 +62,7 @@ def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
         s: (R, 6) states. w: (3,) body wrench (Fx, Fy, Mz) shared by all. m, izz: (R,).
         known: (ct, cr, kb, ax, ay).
     Returns:
-        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf._JAC_POS`` (every
+        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf_kernels._JAC_POS`` (every
         effect of :mod:`estimator.plant.model` compiled in), or None without ``with_jac``.
     """
     f = array_function(ALL_EFFECTS, ("mass", "izz") if with_jac else None)

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from estimator.live.counters import Counters
+
 
 @dataclass(frozen=True)
 class Pose:
@@ -33,7 +35,7 @@ class Pose:
 
 
 @dataclass
-class AlignStats:
+class AlignStats(Counters):
     poses_in: int = 0
     poses_out: int = 0
     occluded: int = 0
@@ -46,9 +48,6 @@ class AlignStats:
     cmds_bad: int = 0
     released_by_timeout: int = 0
     before_first_cmd: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(self.__dict__)
 
 
 @dataclass

@@ -29,6 +29,8 @@ import bisect
 import math
 from dataclasses import dataclass, field
 
+from estimator.live.counters import Counters
+
 DEFAULT_STALE_S = 0.25
 """Longest (host seconds) a stamp waits for every module before it is emitted with the
 lagging modules' last values held: above the player's 0.1 s heartbeat, so a healthy
@@ -36,16 +38,13 @@ stream never hits it."""
 
 
 @dataclass
-class MergeStats:
+class MergeStats(Counters):
     cmds_in: int = 0
     cmds_bad: int = 0
     other_module: int = 0
     emitted: int = 0
     incomplete: int = 0
     reemitted: int = 0
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(self.__dict__)
 
 
 @dataclass

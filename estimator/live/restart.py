@@ -11,13 +11,13 @@ the window's poses again (the paper), ``"handoff"`` only propagates through the 
 If the fit fails the EKF carries on (``ls-failed``).
 
 :class:`LsEkfRestart` is a part of :class:`estimator.live.core.LiveEstimator` (a mixin):
-it reads the estimator's pose history, aligner, thrust table and ``_step``, and on
-takeover sets its filter state.
+it reads the estimator's pose history, aligner, thrusts (:mod:`estimator.live.thrust_part`)
+and ``_step``, keeps its checkpoints as the live filter does (:mod:`estimator.live.history`),
+and on takeover sets the estimator's filter state.
 """
 
 from __future__ import annotations
 
-import bisect
 import concurrent.futures as cf
 import multiprocessing as mp
 import sys
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from estimator.live import worker as live_worker
+from estimator.live.history import checkpoint_at, history_entry, prune_checkpoints
 
 
 class LsEkfRestart:
@@ -100,20 +101,13 @@ class LsEkfRestart:
             self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
                                                 thrust, kw, sens)
 
-    def _thrust_of(self, duty):
-        """(N, 4) thrusts of duty rows: the table's, or a structure's virtual thrusts."""
-        if self.structure is not None:
-            return self.structure.virtual_thrust(duty, clamp=True)
-        return self.table.thrust_n(duty, clamp=True)
-
     def _ls_kwargs(self, initial=None) -> dict[str, Any]:
         """Keyword arguments of the batch LS fits of the live estimator (window, end of
         run): the filter's noise and known terms; for a structure its unknowns and start
         (:meth:`common.structure.Structure.initial_guess`, as ``tpods estimate batch``)."""
         cfg = self.config.ekf
         kw: dict[str, Any] = {"sigma_pos_m": cfg.sigma_meas[0], "sigma_yaw_rad": cfg.sigma_meas[2],
-                              "fixed": {"arm": cfg.arm_m, "ct": cfg.ct, "cr": cfg.cr,
-                                        "kb": cfg.kb, "ax": cfg.ax, "ay": cfg.ay}}
+                              "fixed": cfg.known_params}
         if self.structure is not None:
             kw["names"] = self._names
             kw["fixed"].update({k: v for k, v in self._fixed.items() if k in ("cx", "cy")})
@@ -169,10 +163,9 @@ class LsEkfRestart:
         ck = cu["ck"]
         if cu["rewind"] is not None:  # a command arrived for a time it already passed
             t_c, cu["rewind"] = cu["rewind"], None
-            j = bisect.bisect_right([c[0] for c in ck], t_c) - 1
-            if j >= 0:
-                t_k, idx, zk, Pk = ck[j]
-                del ck[j + 1:]
+            c = checkpoint_at(ck, t_c)
+            if c is not None:
+                t_k, idx, zk, Pk = c
                 cu.update(z=zk.copy(), P=Pk.copy(), t=t_k, i=idx + 1)
             else:  # no checkpoint that old: from the LS start again
                 ck.clear()
@@ -193,8 +186,7 @@ class LsEkfRestart:
             self.counters.catchup_updates += 1
             if not block and time.perf_counter() > deadline:
                 break
-        if len(ck) > 256 and ck[255][0] < hist_t[-1] - horizon:
-            del ck[:bisect.bisect_left([c[0] for c in ck], hist_t[-1] - horizon)]
+        prune_checkpoints(ck, hist_t[-1] - horizon)
         cu.update(z=z, P=P, t=t_prev, i=i)
         if i >= len(hist_t):  # caught up with the live filter: take over
             self.z, self.P, self.t_last = z, P, t_prev
@@ -207,6 +199,5 @@ class LsEkfRestart:
                 # the history's last entry (same pose) is the new filter's from now on: a
                 # takeover at the end of a run (the fit came late) still ends the history
                 # at the estimate reported
-                self.history[-1] = (t_prev, float(z[6]), float(np.sqrt(max(P[6, 6], 0.0))),
-                                    float(z[7]), float(np.sqrt(max(P[7, 7], 0.0))))
+                self.history[-1] = history_entry(t_prev, z, P)
 

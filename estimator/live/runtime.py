@@ -4,7 +4,10 @@ The live runtime in one import (``from estimator.live.runtime import ...``); eac
 its module:
 
 - :mod:`estimator.live.core`: :class:`LiveEstimator`, the core without any network
-  code (align, filter, rewind, publish), :class:`LiveConfig` and its defaults;
+  code (align, filter, publish), with its parts :mod:`estimator.live.history` (checkpoints,
+  rewind, NIS health), :mod:`estimator.live.structure_filter`,
+  :mod:`estimator.live.thrust_part` and :mod:`estimator.live.messages`;
+- :mod:`estimator.live.config`: :class:`LiveConfig` and its defaults, :class:`LiveCounters`;
 - :mod:`estimator.live.restart`: the ``ls-ekf`` start (batch LS on the first window in
   a background worker, :mod:`estimator.live.worker`) and the catch-up of the second filter;
 - :mod:`estimator.live.align`: commands as a zero-order hold, poses released in order;

@@ -1,0 +1,76 @@
+"""Settings and counters of the live estimator: :class:`LiveConfig`, its defaults,
+:class:`LiveCounters`.
+
+The methods (``ekf``, ``ls-ekf``), how long a pose waits for a late command, how far back a
+late command still corrects the filter, the publish rate, the LS window and the catch-up's
+budget; the checks of a user's values (``tpods: error: ...``); what the estimator counts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from common.errors import UserError
+from estimator.filters.ekf_config import PAPER, EkfConfig
+from estimator.live.counters import Counters
+
+LIVE_METHODS = ("ekf", "ls-ekf")
+DEFAULT_MAX_WAIT_S = 0.002
+"""Default bound on how long a pose waits for a late command (host seconds, counted from
+the earlier of its capture and arrival times). Commands cross Zenoh in 0.1-1 ms on one
+host or a LAN; a real mocap's own latency (3+ ms for VICON) means its poses are usually
+released on arrival. Keeps pose-to-estimate latency within a few milliseconds."""
+DEFAULT_REWIND_S = 2.0
+"""How far back (lab seconds) a command arriving after the poses it governs still
+corrects the live filter: it restores the state saved before the command and re-filters
+the poses since (``LiveConfig.rewind_s``; 0 turns this off)."""
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Settings of the live estimator (SI units; host seconds for waits and rates)."""
+
+    method: str = "ekf"
+    ekf: EkfConfig = PAPER
+    ls_window_s: float = 20.0
+    ls_start: str = "reuse"
+    max_wait_s: float = DEFAULT_MAX_WAIT_S
+    publish_rate_hz: float = 10.0
+    catchup_budget_s: float = 0.0005
+    ls_in_process: bool = False
+    n_channels: int = 4
+    rewind_s: float = DEFAULT_REWIND_S
+
+    def __post_init__(self) -> None:
+        if self.method not in LIVE_METHODS:
+            raise UserError(f"method must be one of {', '.join(LIVE_METHODS)}")
+        if self.ls_start not in ("reuse", "handoff"):
+            raise UserError("ls_start must be reuse or handoff")
+        if not (self.max_wait_s >= 0 and math.isfinite(self.max_wait_s)):
+            raise UserError("the alignment wait must be a non-negative number of seconds")
+        if not (self.publish_rate_hz >= 0 and math.isfinite(self.publish_rate_hz)):
+            raise UserError("the publish rate must be >= 0 Hz (0: every update)")
+        if self.ls_window_s <= 0:
+            raise UserError("the LS window must be positive")
+        if not (self.rewind_s >= 0 and math.isfinite(self.rewind_s)):
+            raise UserError("the rewind horizon must be a non-negative number of seconds")
+
+
+@dataclass
+class LiveCounters(Counters):
+    """What the live estimator counted (``LiveEstimator.stats()``)."""
+
+    poses_rx: int = 0
+    cmds_rx: int = 0
+    malformed: int = 0
+    other_body: int = 0
+    updates: int = 0
+    estimates_published: int = 0
+    publish_errors: int = 0
+    catchup_updates: int = 0
+    max_backlog: int = 0
+    max_queue: int = 0
+    rewinds: int = 0
+    rewind_updates: int = 0
+    before_ls: int = 0
