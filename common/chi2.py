@@ -1,5 +1,5 @@
 """The chi-square distribution's tail and quantile, computed as ``scipy.stats.chi2`` computes
-them (``sf = chdtrc``, ``ppf = 2 gammaincinv(df/2, p)``) from ``scipy.special`` alone.
+them (``sf = chdtrc``, ``isf = chdtri``, ``ppf = 2 gammaincinv(df/2, p)``) from ``scipy.special`` alone.
 
 ``import scipy.stats`` costs about 0.6 s of CPU per process here (it loads scipy.spatial,
 scipy.optimize and the docstring machinery of every distribution); every ``tpods estimate``
@@ -26,4 +26,13 @@ def ppf(p, df):
     if np.any((p < 0) | (p > 1)):
         raise ValueError("a probability lies in [0, 1]")
     out = 2.0 * special.gammaincinv(np.asarray(df, dtype=float) / 2.0, p)
+    return out if np.ndim(out) else float(out)
+
+
+def isf(q, df):
+    """The upper quantile: x with P(X > x) = q, for q in [0, 1] (arrays broadcast)."""
+    q = np.asarray(q, dtype=float)
+    if np.any((q < 0) | (q > 1)):
+        raise ValueError("a probability lies in [0, 1]")
+    out = special.chdtri(df, q)
     return out if np.ndim(out) else float(out)

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from common import chi2 as chi2_dist  # scipy.stats.chi2 without its import cost
 from common.errors import UserError
 from estimator.plant.parameter_sets import MODELS, fixed_for
 
@@ -62,7 +62,7 @@ def ljung_box(x: np.ndarray, lags: int = DEFAULT_LAGS) -> tuple[float, float, np
     acf = np.array([1.0] + [float(d[:-k] @ d[k:]) / denom for k in range(1, lags + 1)])
     k = np.arange(1, lags + 1)
     q = float(n * (n + 2) * np.sum(acf[1:] ** 2 / (n - k)))
-    return q, float(stats.chi2.sf(q, lags)), acf
+    return q, float(chi2_dist.sf(q, lags)), acf
 
 
 @dataclass
@@ -149,7 +149,7 @@ class LRTest:
 def lr_test(small: ModelFit, big: ModelFit, scale: float = 1.0) -> LRTest:
     stat = small.chi2 - big.chi2
     df = big.k - small.k
-    p = float(stats.chi2.sf(max(stat, 0.0) / scale, df)) if df > 0 else float("nan")
+    p = float(chi2_dist.sf(max(stat, 0.0) / scale, df)) if df > 0 else float("nan")
     return LRTest(small.model, big.model, stat, df, scale, p)
 
 

@@ -22,7 +22,8 @@ import functools
 import math
 
 import numpy as np
-from scipy.stats import chi2
+
+from common import chi2  # scipy.stats.chi2 without its import cost
 
 DIVERGED_NIS = 10.0
 """A mean normalised innovation squared above this over the last ``NIS_WINDOW``
@@ -74,7 +75,7 @@ class LiveHistory:
         """Checkpoints of the live filter within ``rewind_s``: (pose t, index in hist, z, P)."""
         self._rewind_t: float | None = None
         self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
-        _nis_limits()  # scipy.stats now, not in the middle of a stream
+        _nis_limits()  # the chi-square limits now, not in the middle of a stream
 
     def _after_update(self, t: float, idx: int) -> None:
         """Bookkeeping after the live filter's update with pose ``hist_t[idx]``: history,

@@ -15,6 +15,9 @@ def test_sf_and_ppf_equal_scipy_stats(df):
     p = np.array([1e-9, 0.001, 0.025, 0.5, 0.95, 0.975, 0.999])
     assert np.array_equal(chi2.ppf(p, df), reference.ppf(p, df))
     assert chi2.ppf(0.975, df) == reference.ppf(0.975, df)
+    q = np.array([1e-4 / 37, 1e-4, 0.01, 0.5, 0.99])
+    assert np.array_equal(chi2.isf(q, df), reference.isf(q, df))
+    assert chi2.isf(1e-4, df) == reference.isf(1e-4, df)
     assert isinstance(chi2.ppf(0.975, df), float) and isinstance(chi2.sf(3.0, df), float)
 
 
@@ -24,3 +27,5 @@ def test_edges():
     assert chi2.ppf(0.0, 4) == 0.0 and chi2.ppf(1.0, 4) == np.inf
     with pytest.raises(ValueError):
         chi2.ppf(1.5, 4)
+    with pytest.raises(ValueError):
+        chi2.isf(-0.1, 4)
