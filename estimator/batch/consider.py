@@ -33,7 +33,7 @@ from estimator.batch.crlb import (
     trajectory_stm,
 )
 from estimator.plant.model import ARM_M, SQRT1_2, dynamics, jac_state, output_jacobian
-from estimator.plant.propagate import segment_thrust
+from estimator.plant.segments import segment_thrust
 
 
 def thrust_input_matrix(mass: float, izz: float, arm: float = ARM_M) -> np.ndarray:

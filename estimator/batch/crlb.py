@@ -37,7 +37,8 @@ from estimator.plant.model import (
     rk4_hold_chain,
     wrench,
 )
-from estimator.plant.propagate import rk4_stm, segment_thrust, zoh_segments
+from estimator.plant.propagate import rk4_stm
+from estimator.plant.segments import segment_thrust, zoh_segments
 
 STATE_SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 """Characteristic size of x, y (m), psi (rad), u, v (m/s), r (rad/s)."""

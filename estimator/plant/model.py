@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from common.constants import ARM_M  # noqa: F401  (re-exported: the plant's nominal arm)
+from estimator.plant.segments import segment_thrust, zoh_segments
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
 PARAM_NAMES = ("mass", "izz", "ct", "cr", "kb", "ax", "ay", "cx", "cy")
@@ -467,9 +468,6 @@ def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: flo
     Returns:
         (N, 6) states at ``t_out``; psi is continuous (not wrapped).
     """
-    # lazy: propagate imports this module (a cycle at import time)
-    from estimator.plant.propagate import segment_thrust, zoh_segments
-
     events, cmd_idx, out_pos = zoh_segments(cmd_t, t_out)
     w = wrench(segment_thrust(thrust_n, cmd_idx), params.arm_m)
     dts = np.diff(events)
