@@ -244,6 +244,22 @@ class ThrustSensitivity:
         return len(self.names) == 0
 
 
+def factor_derivative(table, thrust: np.ndarray, open_count: np.ndarray, eff: Sequence[float],
+                      name: str) -> np.ndarray:
+    """Derivative of the thrusts ``(..., C)`` (N) with respect to the in-situ factor ``name``
+    of ``table`` (N per unit factor): ``T_j / eff_j`` in channel j for ``efficiency.J``,
+    ``T / nozzle_scale_K`` on the rows with K nozzles open (``open_count``) for
+    ``nozzle_scale.K``; ``eff`` the table's channel efficiencies."""
+    kind, idx = name.split(".")
+    if kind == "efficiency":
+        j = int(idx) - 1
+        col = np.zeros_like(thrust)
+        col[..., j] = thrust[..., j] / eff[j]
+        return col
+    kk = int(idx)
+    return np.where((open_count == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
+
+
 def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
     """Thrusts of ``duty_pct`` rows (..., C) and their derivatives with respect to every
     uncertain parameter ``table`` states (see the module doc). A parameter whose rows
@@ -286,15 +302,7 @@ def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> Thru
     cal = table.calibration
     if cal is not None and cal.parameters:
         for name in cal.parameters:
-            kind, idx = name.split(".")
-            if kind == "efficiency":
-                j = int(idx) - 1
-                col = np.zeros_like(thrust)
-                col[..., j] = thrust[..., j] / eff[j]
-            else:
-                kk = int(idx)
-                col = np.where((k == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
-            cols.append(col)
+            cols.append(factor_derivative(table, thrust, k, eff, name))
             names.append(name)
         blocks.append(cal.covariance)
     P = len(names)
