@@ -117,9 +117,11 @@ FIT_TARGET_S = 0.5
 PASSES_TARGET = 14.0
 """The fit in plain RK4 passes over the run (machine speed); 0.5 s was about 13 passes on the
 2-core bench machine, the fit with every effect compiled in about 17."""
-GENERALITY_TARGET = 1.05
+GENERALITY_TARGET = 1.10
 """Fit with every inactive effect given at zero (friction, tilt, a centre of mass at the
-tracked origin: a one-module structure) over the plain fit: inactive effects cost nothing."""
+tracked origin: a one-module structure) over the plain fit: inactive effects cost nothing
+(the same code runs; 1.10 leaves room for the CPU time's scatter on a shared machine, an
+effect compiled in with zeros costs 1.2-1.3x)."""
 # every parameter beyond mass and Izz given at zero: a one-module structure whose centre of
 # mass is at the tracked origin, no friction, a level table
 ZERO_EFFECTS = {"ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0, "ay": 0.0, "cx": 0.0, "cy": 0.0}
