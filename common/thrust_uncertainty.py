@@ -244,24 +244,20 @@ class ThrustSensitivity:
         return len(self.names) == 0
 
 
-def factor_columns(table, thrust: np.ndarray, n_open: np.ndarray,
-                   names: Sequence[str]) -> list[np.ndarray]:
-    """Derivatives of the thrusts ``(..., C)`` (N) of rows with ``n_open`` valves open with
-    respect to the in-situ factors ``names`` (``efficiency.J``: ``T_J/eff_J`` in channel J;
-    ``nozzle_scale.K``: ``T/scale_K`` on the rows with K open), one ``(..., C)`` array each."""
-    eff = table.channel_factors(thrust.shape[-1])
-    cols = []
-    for name in names:
-        kind, idx = name.split(".")
-        if kind == "efficiency":
-            j = int(idx) - 1
-            col = np.zeros_like(thrust)
-            col[..., j] = thrust[..., j] / eff[j]
-        else:
-            kk = int(idx)
-            col = np.where((n_open == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
-        cols.append(col)
-    return cols
+def factor_derivative(table, thrust: np.ndarray, open_count: np.ndarray, eff: Sequence[float],
+                      name: str) -> np.ndarray:
+    """Derivative of the thrusts ``(..., C)`` (N) with respect to the in-situ factor ``name``
+    of ``table`` (N per unit factor): ``T_j / eff_j`` in channel j for ``efficiency.J``,
+    ``T / nozzle_scale_K`` on the rows with K nozzles open (``open_count``) for
+    ``nozzle_scale.K``; ``eff`` the table's channel efficiencies."""
+    kind, idx = name.split(".")
+    if kind == "efficiency":
+        j = int(idx) - 1
+        col = np.zeros_like(thrust)
+        col[..., j] = thrust[..., j] / eff[j]
+        return col
+    kk = int(idx)
+    return np.where((open_count == kk)[..., None], thrust / table.nozzle_factor(kk), 0.0)
 
 
 def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
@@ -305,8 +301,9 @@ def thrust_sensitivity(table, duty_pct: np.ndarray, clamp: bool = False) -> Thru
         blocks.append(cov)
     cal = table.calibration
     if cal is not None and cal.parameters:
-        cols += factor_columns(table, thrust, k, cal.parameters)
-        names += cal.parameters
+        for name in cal.parameters:
+            cols.append(factor_derivative(table, thrust, k, eff, name))
+            names.append(name)
         blocks.append(cal.covariance)
     P = len(names)
     jac = np.stack(cols, axis=-1) if cols else np.zeros(thrust.shape + (0,))

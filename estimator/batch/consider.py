@@ -32,8 +32,17 @@ from estimator.batch.crlb import (
     reference_states,
     trajectory_stm,
 )
-from estimator.plant.model import ARM_M, SQRT1_2, dynamics, jac_state, output_jacobian
-from estimator.plant.propagate import segment_thrust
+from estimator.plant.model import (
+    ARM_M,
+    PARAM_NAMES,
+    SQRT1_2,
+    active_effects,
+    array_function,
+    jacobian_pattern,
+    output_jacobian,
+    wrench,
+)
+from estimator.plant.segments import segment_thrust
 
 
 def thrust_input_matrix(mass: float, izz: float, arm: float = ARM_M) -> np.ndarray:
@@ -54,18 +63,31 @@ def segment_maps(states: np.ndarray, grid: Grid, params: Mapping[str, float]
     s = states[:-1]
     T = grid.seg_thrust
     G = thrust_input_matrix(kw["mass"], kw["izz"], kw.get("arm", ARM_M))
+    # rates and state Jacobian in one call of the compiled plant (the effects present only)
+    eff = active_effects(kw)
+    f = array_function(eff, ())
+    pattern = jacobian_pattern(eff, ())
+    w = wrench(T, kw.get("arm", ARM_M))
+    pv = [kw.get(k, 0.0) for k in PARAM_NAMES]
 
     def rate(x):
-        return dynamics(x, T, **kw)
+        rates, vals = f(x[:, 2], x[:, 3], x[:, 4], x[:, 5], w[:, 0], w[:, 1], w[:, 2], *pv)
+        sdot = np.empty_like(x)
+        for i, v in enumerate(rates):
+            sdot[:, i] = v
+        A = np.zeros((len(x), 6, 6))
+        for (i, j), v in zip(pattern, vals, strict=True):
+            A[:, i, j] = v
+        return sdot, A
 
     hv = h[:, :, 0]
-    k1 = rate(s)
+    k1, A1 = rate(s)
     s2 = s + 0.5 * hv * k1
-    k2 = rate(s2)
+    k2, A2 = rate(s2)
     s3 = s + 0.5 * hv * k2
-    k3 = rate(s3)
+    k3, A3 = rate(s3)
     s4 = s + hv * k3
-    A1, A2, A3, A4 = (jac_state(x, T, **kw) for x in (s, s2, s3, s4))
+    _, A4 = rate(s4)
     eye = np.eye(6)
     d1 = A1
     d2 = A2 @ (eye + 0.5 * h * d1)

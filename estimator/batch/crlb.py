@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,7 +37,8 @@ from estimator.plant.model import (
     rk4_hold_chain,
     wrench,
 )
-from estimator.plant.propagate import rk4_stm, segment_thrust, zoh_segments
+from estimator.plant.propagate import rk4_stm
+from estimator.plant.segments import segment_thrust, zoh_segments
 
 STATE_SCALE = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 """Characteristic size of x, y (m), psi (rad), u, v (m/s), r (rad/s)."""
@@ -77,6 +78,16 @@ class Grid:
     node_pos: np.ndarray    # (N,) index of each node (pose time) in events
     cmd_t: np.ndarray
     thrust_n: np.ndarray
+    _lists: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def chain_inputs(self, arm_m: float) -> tuple[list, list]:
+        """Segment lengths and wrenches (arm ``arm_m``) as the lists the scalar RK4 loop
+        reads, converted once per grid (every evaluation of a fit reuses them)."""
+        got = self._lists.get(arm_m)
+        if got is None:
+            got = self._lists[arm_m] = (np.diff(self.events).tolist(),
+                                        wrench(self.seg_thrust, arm_m).tolist())
+        return got
 
 
 def make_grid(cmd_t, thrust_n, t_nodes, max_step: float = DEFAULT_MAX_STEP_S) -> Grid:
@@ -100,10 +111,10 @@ def reference_states(s0, grid: Grid, params: Mapping[str, float]) -> np.ndarray:
     """(M, 6) reference states at every grid boundary, one RK4 step per segment
     (the fused scalar loop of :func:`model.rk4_hold_chain`)."""
     p = plant_from(params)
-    w = wrench(grid.seg_thrust, p.arm_m)
+    dts, w = grid.chain_inputs(p.arm_m)
     out = np.empty((len(grid.events), 6))
     out[0] = np.asarray(s0, float)
-    rows = rk4_hold_chain(out[0], np.diff(grid.events), w, p)
+    rows = rk4_hold_chain(out[0], dts, w, p)
     if rows:
         out[1:] = rows
     return out

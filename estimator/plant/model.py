@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from common.constants import ARM_M  # noqa: F401  (re-exported: the plant's nominal arm)
+from estimator.plant.segments import segment_thrust, zoh_segments
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
 PARAM_NAMES = ("mass", "izz", "ct", "cr", "kb", "ax", "ay", "cx", "cy")
@@ -327,12 +328,19 @@ def scalar_rk4_chain(effects: tuple[int, ...], substeps: bool):
     return _compile(src, "f")
 
 
+def _present(ct, cr, kb, ax, ay, cx, cy, names) -> tuple[int, ...]:
+    """:func:`active_effects` of these parameter values with ``names`` estimated: an effect
+    whose parameters are all zero and not estimated adds exact zeros, so it is left out."""
+    return active_effects({"ct": ct, "cr": cr, "kb": kb, "ax": ax, "ay": ay, "cx": cx, "cy": cy},
+                          names)
+
+
 def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
              cx=0.0, cy=0.0):
     """State derivative ``sdot``, shape (..., 6)."""
     s = np.asarray(s, dtype=float)
     w = wrench(thrust_n, arm)
-    f = array_function(EVERY_EFFECT, None)
+    f = array_function(_present(ct, cr, kb, ax, ay, cx, cy, ()), None)
     rates = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
               mass, izz, ct, cr, kb, ax, ay, cx, cy)
     out = np.empty(np.broadcast_shapes(s.shape, w.shape[:-1] + (6,)))
@@ -345,11 +353,12 @@ def _jac(s, thrust_n, mass, izz, arm, ct, cr, kb, ax, ay, cx, cy, names, cols):
     s = np.asarray(s, dtype=float)
     w = wrench(thrust_n, arm)
     lead = np.broadcast_shapes(s.shape[:-1], w.shape[:-1], np.shape(mass), np.shape(izz))
-    f = array_function(EVERY_EFFECT, names)
+    eff = _present(ct, cr, kb, ax, ay, cx, cy, names)
+    f = array_function(eff, names)
     _, vals = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
                 mass, izz, ct, cr, kb, ax, ay, cx, cy)
     J = np.zeros(lead + (6, len(cols)))
-    for (i, j), v in zip(jacobian_pattern(EVERY_EFFECT, names), vals, strict=True):
+    for (i, j), v in zip(jacobian_pattern(eff, names), vals, strict=True):
         if j in cols:
             J[..., i, cols[j]] = v
     return J
@@ -459,9 +468,6 @@ def integrate_zoh(s0, cmd_t, thrust_n, t_out, params: PlantParams, max_step: flo
     Returns:
         (N, 6) states at ``t_out``; psi is continuous (not wrapped).
     """
-    # lazy: propagate imports this module (a cycle at import time)
-    from estimator.plant.propagate import segment_thrust, zoh_segments
-
     events, cmd_idx, out_pos = zoh_segments(cmd_t, t_out)
     w = wrench(segment_thrust(thrust_n, cmd_idx), params.arm_m)
     dts = np.diff(events)

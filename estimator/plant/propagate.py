@@ -32,23 +32,29 @@ from estimator.plant.model import (
     PARAM_NAMES,
     active_effects,
     array_function,
-    dynamics,
-    jac_params,
-    jac_state,
     jacobian_pattern,
     scalar_stage,
+    wrench,
 )
+from estimator.plant.segments import segment_thrust, zoh_segments  # noqa: F401  (re-exported)
 
 ParamDict = Mapping[str, "float | np.ndarray"]
 
 
-def _top_rate(s, thrust, params: ParamDict, names: Sequence[str], phi_top):
-    """RHS of the state and of the top 6 rows of Phi: (sdot (...,6), phidot (...,6,n))."""
-    Js = jac_state(s, thrust, **params)
-    Jt = jac_params(s, thrust, **params, names=tuple(names))
-    dphi = Js @ phi_top
-    dphi[..., 6:] += Jt
-    return dynamics(s, thrust, **params), dphi
+def _stage_function(params: ParamDict, names: tuple[str, ...]):
+    """The compiled rates-and-Jacobian function of the effects ``params`` and ``names`` need
+    (:func:`model.active_effects`: an effect whose parameters are all zero and not estimated
+    costs nothing), its pattern split into state and parameter columns."""
+    eff = active_effects(params, names)
+    pattern = jacobian_pattern(eff, names)
+    cols_s = [(k, i, j) for k, (i, j) in enumerate(pattern) if j < 6]
+    cols_t = [(k, i, j - 6) for k, (i, j) in enumerate(pattern) if j >= 6]
+    return array_function(eff, names), cols_s, cols_t
+
+
+STM_BLOCK = 1024
+"""Segments propagated together by :func:`rk4_stm`: the working set of a block stays in the
+processor's cache (the result does not depend on it: every segment is independent)."""
 
 
 def rk4_stm(s, thrust_n, dt, params: ParamDict, names: Sequence[str] = ("mass", "izz"),
@@ -60,62 +66,96 @@ def rk4_stm(s, thrust_n, dt, params: ParamDict, names: Sequence[str] = ("mass", 
         thrust_n: (..., 4) constant thrusts over the segment, N.
         dt: scalar or (...) segment lengths, s (0 allowed: gives the identity).
         params: keyword parameters of ``model.dynamics`` (mass, izz, arm, ct, cr, kb,
-            ax, ay), each a scalar or an array broadcastable to the leading shape.
+            ax, ay, cx, cy), each a scalar or an array broadcastable to the leading shape.
         names: the estimated parameters, the extra columns of Phi.
         n_sub: RK4 steps per segment.
 
     Returns:
         ``(s_end (..., 6), Phi (..., 6+p, 6+p))``.
+
+    Each RK4 stage evaluates the rates and the Jacobian once, with only the effects that
+    are present compiled in (:func:`_stage_function`); one leading dimension of scalar
+    parameters is propagated in blocks of :data:`STM_BLOCK` segments.
     """
+    names = tuple(names)
     s = np.asarray(s, dtype=float)
-    p = len(names)
-    n = 6 + p
+    n = 6 + len(names)
     lead = np.broadcast_shapes(s.shape[:-1], np.shape(thrust_n)[:-1], np.shape(dt))
-    s = np.broadcast_to(s, lead + (6,)).copy()
-    h = (np.asarray(dt, dtype=float) / n_sub)[..., None]
+    s = np.broadcast_to(s, lead + (6,))
+    w = np.broadcast_to(wrench(thrust_n, params.get("arm", ARM_M)), lead + (3,))
+    h = np.broadcast_to(np.asarray(dt, dtype=float) / n_sub, lead)
+    pv = [params.get(k, 0.0) for k in PARAM_NAMES]
+    stage = _stage_function(params, names)
+    s_end = np.empty(lead + (6,))
+    full = np.zeros(lead + (n, n))
+    full[..., 6:, 6:] = np.eye(len(names))
+    if len(lead) == 1 and all(np.ndim(v) == 0 for v in pv):
+        for a in range(0, lead[0], STM_BLOCK):
+            b = a + STM_BLOCK
+            _rk4_stm_block(stage, s[a:b], w[a:b], h[a:b], pv, n_sub, s_end[a:b], full[a:b])
+    else:
+        _rk4_stm_block(stage, s, w, h, pv, n_sub, s_end, full)
+    return s_end, full
+
+
+def _rk4_stm_block(stage, s, w, h, pv, n_sub: int, s_end, full) -> None:
+    """:func:`rk4_stm` of one block: end states into ``s_end``, the top six rows of the
+    transition matrices into ``full[..., :6, :]``.
+
+    The stage matrices ``dPhi = J_s Phi + [0 J_theta]`` are formed in preallocated buffers
+    (the first stage from ``Phi = [I 0]`` without a product), in the same order of
+    operations as RK4 written out on whole arrays.
+    """
+    f, cols_s, cols_t = stage
+    lead = s.shape[:-1]
+    n = full.shape[-1]
+    s = s.copy()
+    h = h[..., None]
     hm = h[..., None]
+    fx, fy, mz = w[..., 0], w[..., 1], w[..., 2]
+    Js = np.zeros(lead + (6, 6))  # zero outside the Jacobian's pattern
+    Jt = np.zeros(lead + (6, n - 6))
+
+    def rate(q, phi_top, out):
+        """sdot (..., 6); d Phi_top / dt written into ``out`` (None: Phi_top = [I 0])."""
+        rates, vals = f(q[..., 2], q[..., 3], q[..., 4], q[..., 5], fx, fy, mz, *pv)
+        for k, i, j in cols_s:
+            Js[..., i, j] = vals[k]
+        for k, i, j in cols_t:
+            Jt[..., i, j] = vals[k]
+        if phi_top is None:
+            out[..., :6] = Js
+            out[..., 6:] = Jt
+        else:
+            np.matmul(Js, phi_top, out=out)
+            out[..., 6:] += Jt
+        sdot = np.empty(lead + (6,))
+        for i, v in enumerate(rates):
+            sdot[..., i] = v
+        return sdot
+
     phi = np.zeros(lead + (6, n))
     phi[..., :, :6] = np.eye(6)
-    for _ in range(n_sub):
-        k1s, k1p = _top_rate(s, thrust_n, params, names, phi)
-        k2s, k2p = _top_rate(s + 0.5 * h * k1s, thrust_n, params, names, phi + 0.5 * hm * k1p)
-        k3s, k3p = _top_rate(s + 0.5 * h * k2s, thrust_n, params, names, phi + 0.5 * hm * k2p)
-        k4s, k4p = _top_rate(s + h * k3s, thrust_n, params, names, phi + hm * k3p)
+    k1p, k2p, k3p, k4p, tmp = (np.empty(lead + (6, n)) for _ in range(5))
+    for sub in range(n_sub):
+        k1s = rate(s, None if sub == 0 else phi, k1p)
+        np.multiply(0.5 * hm, k1p, out=tmp)
+        k2s = rate(s + 0.5 * h * k1s, np.add(phi, tmp, out=tmp), k2p)
+        np.multiply(0.5 * hm, k2p, out=tmp)
+        k3s = rate(s + 0.5 * h * k2s, np.add(phi, tmp, out=tmp), k3p)
+        np.multiply(hm, k3p, out=tmp)
+        k4s = rate(s + h * k3s, np.add(phi, tmp, out=tmp), k4p)
         s = s + h / 6.0 * (k1s + 2 * k2s + 2 * k3s + k4s)
-        phi = phi + hm / 6.0 * (k1p + 2 * k2p + 2 * k3p + k4p)
-    full = np.zeros(lead + (n, n))
+        # phi + hm/6 (k1p + 2 k2p + 2 k3p + k4p)
+        np.multiply(2, k2p, out=tmp)
+        np.add(k1p, tmp, out=tmp)
+        np.multiply(2, k3p, out=k2p)
+        np.add(tmp, k2p, out=tmp)
+        np.add(tmp, k4p, out=tmp)
+        np.multiply(hm / 6.0, tmp, out=tmp)
+        np.add(phi, tmp, out=phi)
+    s_end[...] = s
     full[..., :6, :] = phi
-    full[..., 6:, 6:] = np.eye(p)
-    return s, full
-
-
-def zoh_segments(cmd_t: np.ndarray, t_nodes: np.ndarray):
-    """Split ``[t_nodes[0], t_nodes[-1]]`` at every node and every command switch.
-
-    Args:
-        cmd_t: (Nc,) increasing switch times; row j holds on [cmd_t[j], cmd_t[j+1]).
-        t_nodes: (N,) non-decreasing times that must be segment boundaries (poses).
-
-    Returns:
-        ``(events, cmd_idx, node_pos)``: (M,) boundary times, (M-1,) index of the
-        command row active on each segment (-1 before the first command: zero
-        thrust), and (N,) position of each node in ``events``.
-    """
-    cmd_t = np.asarray(cmd_t, dtype=float)
-    t_nodes = np.asarray(t_nodes, dtype=float)
-    inner = cmd_t[(cmd_t > t_nodes[0]) & (cmd_t < t_nodes[-1])]
-    events = np.union1d(t_nodes, inner)
-    cmd_idx = np.searchsorted(cmd_t, events[:-1], side="right") - 1
-    node_pos = np.searchsorted(events, t_nodes)
-    return events, cmd_idx, node_pos
-
-
-def segment_thrust(thrust_n: np.ndarray, cmd_idx: np.ndarray) -> np.ndarray:
-    """(M-1, 4) thrust on each segment (zero before the first command)."""
-    thrust_n = np.asarray(thrust_n, dtype=float)
-    out = thrust_n[np.clip(cmd_idx, 0, None)]
-    out[cmd_idx < 0] = 0.0
-    return out
 
 
 # --------------------------------------------------------------------------------------
