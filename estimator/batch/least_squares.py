@@ -452,6 +452,20 @@ def _solve_scaled(Lam, lam, scale, mu):
     return y / d * scale  # unscaled step in q
 
 
+STALL_RTOL = 1e-3
+"""A step of the last stage that lowers the cost by less than this fraction of it, at a cost
+above :data:`MISFIT_RATIO` times the noise's, counts towards a stall (the standard relative
+cost-change criterion, applied where the model does not fit: a fit within the noise runs to
+``tol`` as before)."""
+
+STALL_STEPS = 3
+"""Steps in a row that stall the fit (not converged: the model does not fit)."""
+
+MISFIT_RATIO = RESIDUAL_RATIO**2
+"""Cost per residual (in noise variances) above which the model does not fit: the residual
+RMS :data:`RESIDUAL_RATIO` times the stated noise."""
+
+
 def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stats,
         reg: float = 0.0):
     """Levenberg-Marquardt / Gauss-Newton on one horizon.
@@ -508,9 +522,17 @@ def _lm(prob: _Problem, z, scale, tol_scaled, tol_sigma, max_iter, history, stat
                 history.append(cost)
             return z, True, Lam, Lq, res, states
         if cost_new <= cost:
+            # the last stage stalls when a fit far from the noise (the model does not fit)
+            # gains less than STALL_RTOL of its cost STALL_STEPS steps in a row
+            crawl = (tol_sigma is None and cost - cost_new < STALL_RTOL * cost
+                     and cost_new > MISFIT_RATIO * 3 * len(prob.pose_t))
+            stats["crawl"] = stats.get("crawl", 0) + 1 if crawl else 0
             z, q, cost, res, states = z_new, q_new, cost_new, res_new, states_new
             stats["iterations"] += 1
             history.append(cost)
+            if stats["crawl"] >= STALL_STEPS:
+                stats["stalled"] = cost / (3 * len(prob.pose_t))
+                return z, False, Lam, Lq, res, states
             mu = 0.0 if mu < 1e-6 else mu / 10.0
             Lam, lam = prob.normal(z, res, states)
         else:
@@ -677,6 +699,10 @@ def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, si
     corr = float(cov[im, ii] / (sigma[im] * sigma[ii])) if im is not None and ii is not None else float("nan")
     msg = ("converged" if converged else
            f"not converged after {stats['iterations']} iterations ({stats['rejected']} rejected steps)")
+    if stats.get("stalled"):
+        msg = (f"not converged: stalled after {stats['iterations']} iterations (the cost fell by "
+               f"less than {STALL_RTOL:g} of itself in {STALL_STEPS} steps in a row at "
+               f"{stats['stalled']:.3g}x the noise's): the model does not fit the data")
     if failed:
         msg = "not converged: " + failed
     rms = np.sqrt(np.mean(res**2, axis=0))
