@@ -19,7 +19,7 @@ module's thruster 3 gives 4 % less thrust than the bench's nozzle (:func:`tpods.
    (``--time-scale``).
 6. **batch**: batch least squares on the run the live estimator recorded, with the bench
    table (before calibration, in a process of its own: :mod:`tpods.demo_fit`), the
-   calibrated table (after) and the true table (check).
+   calibrated table (after) and the true table at the plant's own valve switch times (check).
 
 Both flights measure how late the emulated valves switched (:func:`tpods.demo_procs.switch_lag_ms`)
 and warn when the machine cannot keep up with the time scale.

@@ -1,15 +1,20 @@
 """One batch least-squares fit of the demo's recorded run with a thrust table (the use case
 of ``tpods estimate batch``): the estimate with its total sigma and the sigma's noise and
 thrust-table parts. A light module of its own so the batch stage of ``tpods demo``
-(:func:`tpods.demo_stages.stage_batch`) can run one fit in another process.
+(:func:`tpods.demo_stages.stage_batch`) can run one fit in another process. Also the
+plant's valve switches (saved, and as a run's commands) for the check fit with the truth.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from common.errors import UserError
 from common.runfolder import Run, read_run
@@ -30,6 +35,36 @@ def batch_row(run: Run, table: ThrustTable) -> dict[str, Any]:
             "izz_sigma_noise_kgm2": b["izz"][0], "izz_sigma_thrust_kgm2": b["izz"][1],
             "converged": res.converged, "thrust_note": res.thrust_note,
             "fit_s": time.monotonic() - t0}
+
+
+def save_switches(path: Path, switches: Sequence[tuple[float, Sequence[float]]],
+                  t0_lab_s: float) -> None:
+    """Write the plant's valve switches (``(lab time, duties %)``, as
+    :attr:`tpods.plant_loop.PlantLoop.switches`) to ``path`` as ``t,d1..d4`` on the run's
+    time base (``t`` = lab time - ``t0_lab_s``, like commands.csv and truth.csv), to the
+    nanosecond: when the simulated module's thrusts really changed."""
+    rows = [[float(t) - t0_lab_s, *map(float, d)] for t, d in switches]
+    n = len(rows[0]) - 1 if rows else 4
+    header = ",".join(["t"] + [f"d{j}" for j in range(1, n + 1)])
+    np.savetxt(path, np.asarray(rows, float).reshape(-1, n + 1), delimiter=",", header=header,
+               comments="", fmt="%.9f")
+
+
+def switch_run(run: Run, switches_csv: Path) -> Run:
+    """``run`` with its commands replaced by the plant's own valve switches
+    (:func:`save_switches`): the thrust the simulated module really followed. commands.csv
+    holds the player's stamps, which the emulated valves follow a few lab milliseconds late
+    (more on a busy machine), an error that no pose noise sigma covers (``tpods demo``'s
+    check fit with the true table: a run spinning to hundreds of radians states Izz to
+    ~1e-5 relative, and a 1 ms jitter biases it by tens of sigma). Of equal times the
+    last row holds (zero-order hold)."""
+    sw = np.loadtxt(switches_csv, delimiter=",", skiprows=1, ndmin=2)
+    if sw.size == 0:
+        raise UserError(f"{switches_csv} holds no valve switch")
+    t, duty = np.maximum.accumulate(sw[:, 0]), sw[:, 1:]
+    last = np.append(np.diff(t) > 0, True)
+    return dataclasses.replace(run, cmd_t=t[last], duty_pct=duty[last], thrust_n=None,
+                               thrust_t=None)
 
 
 def batch_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:

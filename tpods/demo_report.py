@@ -204,9 +204,10 @@ def _batch_lines(out: Path, bench: dict[str, Any], batch: dict[str, Any],
     lines = [one("before calibration (the bench table)", bench["table_path"], batch["before"])]
     if cal is not None and batch.get("after") is not None:
         lines.append(one("after calibration", cal["table_path"], batch["after"]))
-    lines += ["", "The same fit with the plant's true thrust table (the last row of the summary) "
-              "shows what remains once the calibration error is taken away (the emulation's "
-              "valve-timing jitter, docs/live.md): with 1 cm / 1 deg poses the statistical sigma "
+    lines += ["", "The same fit with the plant's true thrust table at its own valve switch "
+              "times (the last row of the summary; run/switches.csv, not the player's stamps, "
+              "which the emulated valves follow late: docs/live.md) shows what remains once the "
+              "calibration error is taken away: with 1 cm / 1 deg poses the statistical sigma "
               "is far below the effect of a thrust table that is off by a fraction of a percent "
               "(the paper's point: calibration, not noise, limits these estimates), which is why "
               "the sigma must carry the table's uncertainty."]

@@ -48,6 +48,8 @@ from estimator.batch.crlb import DEFAULT_MAX_STEP_S, PARAM_SCALE, STATE_SCALE, s
 from estimator.batch.ls_problem import (  # noqa: F401  (DEFAULT_INITIAL, LOG_PARAMS re-exported)
     DEFAULT_INITIAL,
     LOG_PARAMS,
+    STALL_RTOL,
+    STALL_STEPS,
     HorizonProblem,
     as_prior,
     first_horizon,
@@ -205,6 +207,10 @@ def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, si
     corr = float(cov[im, ii] / (sigma[im] * sigma[ii])) if im is not None and ii is not None else float("nan")
     msg = ("converged" if converged else
            f"not converged after {stats['iterations']} iterations ({stats['rejected']} rejected steps)")
+    if stats.get("stalled"):
+        msg = (f"not converged: stalled after {stats['iterations']} iterations (the cost fell by "
+               f"less than {STALL_RTOL:g} of itself in {STALL_STEPS} steps in a row at "
+               f"{stats['stalled']:.3g}x the noise's): the model does not fit the data")
     if failed:
         msg = "not converged: " + failed
     rms = np.sqrt(np.mean(res**2, axis=0))

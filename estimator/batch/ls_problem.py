@@ -24,6 +24,7 @@ from estimator.batch.crlb import (
     safe_inverse,
     trajectory_stm,
 )
+from estimator.batch.plausibility import RESIDUAL_RATIO
 from estimator.plant.model import (
     PARAM_NAMES,
     STATE_NAMES,
@@ -219,6 +220,20 @@ def solve_scaled(Lam, lam, scale, mu):
     return y / d * scale  # unscaled step in q
 
 
+STALL_RTOL = 1e-3
+"""A step of the last stage that lowers the cost by less than this fraction of it, at a cost
+above :data:`MISFIT_RATIO` times the noise's, counts towards a stall (the standard relative
+cost-change criterion, applied where the model does not fit: a fit within the noise runs to
+``tol`` as before)."""
+
+STALL_STEPS = 3
+"""Steps in a row that stall the fit (not converged: the model does not fit)."""
+
+MISFIT_RATIO = RESIDUAL_RATIO**2
+"""Cost per residual (in noise variances) above which the model does not fit: the residual
+RMS :data:`RESIDUAL_RATIO` times the stated noise."""
+
+
 def levenberg_marquardt(prob: HorizonProblem, z, scale, tol_scaled, tol_sigma, max_iter, history, stats,
         reg: float = 0.0):
     """Levenberg-Marquardt / Gauss-Newton on one horizon.
@@ -275,9 +290,17 @@ def levenberg_marquardt(prob: HorizonProblem, z, scale, tol_scaled, tol_sigma, m
                 history.append(cost)
             return z, True, Lam, Lq, res, states
         if cost_new <= cost:
+            # the last stage stalls when a fit far from the noise (the model does not fit)
+            # gains less than STALL_RTOL of its cost STALL_STEPS steps in a row
+            crawl = (tol_sigma is None and cost - cost_new < STALL_RTOL * cost
+                     and cost_new > MISFIT_RATIO * 3 * len(prob.pose_t))
+            stats["crawl"] = stats.get("crawl", 0) + 1 if crawl else 0
             z, q, cost, res, states = z_new, q_new, cost_new, res_new, states_new
             stats["iterations"] += 1
             history.append(cost)
+            if stats["crawl"] >= STALL_STEPS:
+                stats["stalled"] = cost / (3 * len(prob.pose_t))
+                return z, False, Lam, Lq, res, states
             mu = 0.0 if mu < 1e-6 else mu / 10.0
             Lam, lam = prob.normal(z, res, states)
         else:
