@@ -45,9 +45,10 @@ import numpy as np
 from common.argtypes import parse_time_window
 from common.errors import UserError
 from estimator.batch.crlb import DEFAULT_MAX_STEP_S, PARAM_SCALE, STATE_SCALE, safe_inverse
-from estimator.batch.ls_problem import (  # noqa: F401  (DEFAULT_INITIAL, LOG_PARAMS re-exported)
+from estimator.batch.ls_problem import (  # noqa: F401  (DEFAULT_INITIAL, LOG_PARAMS, MISFIT_RATIO re-exported)
     DEFAULT_INITIAL,
     LOG_PARAMS,
+    MISFIT_RATIO,
     STALL_RTOL,
     STALL_STEPS,
     HorizonProblem,
