@@ -143,9 +143,8 @@ def check_duty_rows(duty: np.ndarray, line_no: Sequence[int] | np.ndarray, path:
     lo, hi = DUTY_RANGE_PCT
     bad = (d < lo) | (d > hi)
     if bad.any():
-        row, col = (int(v) for v in np.argwhere(bad)[0])
-        raise UserError(f"{path}: line {int(line_no[row])}: duty outside 0..100 % "
-                        f"(d{col + 1} = {d[row, col]:g})")
+        row = int(np.argwhere(bad)[0][0])
+        raise UserError(f"{path}: line {int(line_no[row])}: duty outside 0..100 %")
     if valid_pct is not None:
         vlo, vhi = valid_pct
         bad = (d > 0) & ((d < vlo) | (d > vhi))

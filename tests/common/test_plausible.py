@@ -53,7 +53,7 @@ def test_duty_rows_and_ranges():
     with pytest.raises(UserError, match=r"^c.csv: line 3: duty d2 = 95 % is outside the thrust table's"):
         pl.check_duty_rows(d, [2, 3], "c.csv", (10.0, 90.0))
     d[0, 0] = -1
-    with pytest.raises(UserError, match=r"^c.csv: line 2: duty outside 0..100 % \(d1 = -1\)"):
+    with pytest.raises(UserError, match=r"^c.csv: line 2: duty outside 0..100 %$"):
         pl.check_duty_rows(d, [2, 3], "c.csv")
     pl.check_duty_range(10, 90, "x")
     pl.check_duty_range(50, 50, "x")
