@@ -16,11 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
+from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import ResultFolder, result_output
 from tpods.cli.estimate_output import budget_lines, filter_budget
-from tpods.cli.options import add_report_out, add_result_out
+from tpods.cli.options import (
+    add_cmd_rate,
+    add_input_choice,
+    add_json_flag,
+    add_pose_rate,
+    add_random_seed,
+    add_report_out,
+    add_result_out,
+    add_sim_duration,
+)
 
 
 def _state_values(what: str):
@@ -177,16 +186,15 @@ def register(sub, est, rep) -> None:
     p.add_argument("--runs", type=int_at_least(2), default=500, help="number of runs (default 500)")
     p.add_argument("--spread", type=fraction, default=0.5,
                    help="relative half-width of the uniform m, Izz draw (default 0.5)")
-    p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    add_sim_duration(p)
+    add_input_choice(p)
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
                    help="filter start (default ekf)")
-    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
-    p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
-    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+    add_random_seed(p)
+    add_pose_rate(p)
+    add_cmd_rate(p)
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(p)
     add_result_out(p, "montecarlo.json, history.csv, runs.csv and the figures", "summary")
     g = p.add_argument_group(
         "structure (issue 18)",
@@ -214,10 +222,10 @@ def register(sub, est, rep) -> None:
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
     add_report_out(r)
-    r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    add_sim_duration(r)
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
-    r.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(r)
     r.set_defaults(func=cmd_report_ekf)
 
     r = rep.add_parser(
