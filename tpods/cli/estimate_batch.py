@@ -30,6 +30,7 @@ from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_bud
     centre_of_mass_lines,
     filter_budget,
     structure_body_lines,
+    write_json,
 )
 from tpods.cli.estimate_output import print_json as _print_json
 from tpods.cli.options import (
@@ -191,7 +192,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         from estimator.reports.plots_batch import plot_residuals
 
         with args.out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            write_json(main, out)
             if d is not None:
                 np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
                            header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")

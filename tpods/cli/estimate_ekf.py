@@ -19,7 +19,7 @@ import numpy as np
 from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import ResultFolder, result_output
-from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
 from tpods.cli.options import (
     add_cmd_rate,
     add_input_choice,
@@ -126,7 +126,7 @@ def report_filter(est, args) -> int:
         from estimator.reports.plots_ekf import plot_error_bounds
 
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            write_json(main, out)
             cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
                                                                                        "underweighted"]
             if d is not None:
@@ -262,6 +262,17 @@ def check_montecarlo_size(args: argparse.Namespace) -> None:
         n_bytes, "lower --duration, --pose-rate or --cmd-rate")
 
 
+def _run_study(run, cfg, stopped_at):
+    """Run a Monte Carlo study ``run(cfg)`` with its progress bar and return it with its
+    summary; after Ctrl-C, say on stderr where it stopped (``stopped_at(result)``)."""
+    res = run(cfg, progress=True)
+    summ = res.summary()
+    if res.interrupted:
+        print(f"tpods: interrupted {stopped_at(res)}; writing the statistics so far",
+              file=sys.stderr)
+    return res, summ
+
+
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     check_montecarlo_size(args)
     if args.structure is not None:
@@ -286,15 +297,10 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
                        ls_window_s=args.ls_window, ls_start=args.ls_start, filter=cfg_f)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    res = run_montecarlo(cfg, progress=True)
-    summ = res.summary()
-    if res.interrupted:
-        print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
-              file=sys.stderr)
+    res, summ = _run_study(run_montecarlo, cfg, lambda res: f"at t = {res.t[-1]:.2f} s")
     if out_folder is not None:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(
-                {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
+            write_json(main, {"summary": summ, "config": config_dict(cfg)})
             if d is not None:
                 cols, data = res.history_table()
                 np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
@@ -361,15 +367,11 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
         seed=args.seed, pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
         noise_pos_m=args.noise_pos if args.noise_pos is not None else 0.01,
         noise_yaw_rad=math.radians(args.noise_yaw_deg if args.noise_yaw_deg is not None else 1.0))
-    res = run_structure_montecarlo(cfg, progress=True)
-    summ = res.summary()
-    if res.interrupted:
-        print(f"tpods: interrupted after {res.done} runs; writing the statistics so far",
-              file=sys.stderr)
+    res, summ = _run_study(run_structure_montecarlo, cfg, lambda res: f"after {res.done} runs")
     if out_folder is not None:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps({"summary": summ, "config": cfg.to_dict(),
-                                        "failed_runs": res.messages}, indent=2, default=str) + "\n")
+            write_json(main, {"summary": summ, "config": cfg.to_dict(),
+                              "failed_runs": res.messages})
             if d is not None:
                 cols, data = res.runs_table()
                 np.savetxt(d / "runs.csv", data, delimiter=",", header=",".join(cols),
