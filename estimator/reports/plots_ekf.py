@@ -27,22 +27,36 @@ def plot_error_bounds(t, est, sigma, path, truth=None, title: str = "") -> Path:
         name, unit = _LABELS[j]
         s3 = 3 * sigma[:, j]
         if truth is not None:
-            e = est[:, j] - truth[j]
-            ax.fill_between(t, -s3, s3, color="tab:blue", alpha=0.2, label=r"$\pm 3\sigma$")
-            ax.plot(t, e, color="tab:red", lw=1, label="error")
-            ax.axhline(0, color="k", lw=0.5)
-            ax.set_ylabel(f"{name} error [{unit}]")
-            late = t >= t[0] + 0.1 * (t[-1] - t[0])
-            lim = max(np.max(np.abs(e[late])), np.max(s3[late])) * 1.3
-            if np.isfinite(lim) and lim > 0:
-                ax.set_ylim(-lim, lim)
+            draw_error_band(ax, t, est[:, j] - truth[j], s3, f"{name} error [{unit}]")
         else:
             ax.fill_between(t, est[:, j] - s3, est[:, j] + s3, color="tab:blue", alpha=0.2,
                             label=r"$\pm 3\sigma$")
             ax.plot(t, est[:, j], color="tab:red", lw=1, label="estimate")
             ax.set_ylabel(f"{name} [{unit}]")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=8)
+    return save_time_panels(fig, axes, path, title)
+
+
+def draw_error_band(ax, t, e, s3, ylabel: str, ylabel_fontsize: float | None = None) -> None:
+    """One panel of an error history: the error ``e`` inside its +/- 3 sigma band ``s3``
+    (same units, arrays over time ``t``, s), the y range fitted to the last 90 % of the run."""
+    ax.fill_between(t, -s3, s3, color="tab:blue", alpha=0.2, label=r"$\pm 3\sigma$")
+    ax.plot(t, e, color="tab:red", lw=1, label="error")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_ylabel(ylabel, **({} if ylabel_fontsize is None else {"fontsize": ylabel_fontsize}))
+    if len(t) > 1:
+        late = t >= t[0] + 0.1 * (t[-1] - t[0])
+        lim = 1.3 * max(float(np.max(np.abs(e[late]))), float(np.max(s3[late])))
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-lim, lim)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+
+
+def save_time_panels(fig, axes, path, title: str = "") -> Path:
+    """Label the shared time axis, title the top panel (if ``title``), write the PNG and
+    close the figure."""
     axes[-1].set_xlabel("time [s]")
     if title:
         axes[0].set_title(title)

@@ -22,6 +22,7 @@ from matplotlib.patches import Ellipse, Polygon
 
 from common.constants import ARM_M, MODULE_SIDE_M
 from common.structure import module_wrench_1
+from estimator.reports.plots_ekf import draw_error_band, save_time_panels
 
 matplotlib.use("Agg")  # PNG files only, no window
 
@@ -208,22 +209,5 @@ def plot_structure_errors(t, est, sigma, truth, path: str | Path, title: str = "
         name, unit, f = _PARAM_LABELS[j]
         e = (est[:, j] - truth[j]) * f
         s3 = 3 * sigma[:, j] * f
-        ax.fill_between(t, -s3, s3, color="tab:blue", alpha=0.2, label=r"$\pm 3\sigma$")
-        ax.plot(t, e, color="tab:red", lw=1, label="error")
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set_ylabel(f"{name}\nerror [{unit}]", fontsize=9)
-        if len(t) > 1:
-            late = t >= t[0] + 0.1 * (t[-1] - t[0])
-            lim = 1.3 * max(float(np.max(np.abs(e[late]))), float(np.max(s3[late])))
-            if np.isfinite(lim) and lim > 0:
-                ax.set_ylim(-lim, lim)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time [s]")
-    if title:
-        axes[0].set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+        draw_error_band(ax, t, e, s3, f"{name}\nerror [{unit}]", ylabel_fontsize=9)
+    return save_time_panels(fig, axes, path, title)

@@ -8,9 +8,10 @@ import sys
 import threading
 from pathlib import Path
 
-from common.argtypes import nonneg_float, positive_float, random_seed
+from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, not_an_input, optional_folder, result_output, stream_folder
+from tpods.cli.options import add_duty_limits, add_no_progress, add_random_seed, add_watchdog_ms
 from tpods.cli.parser import group
 from tpods.cli.stopping import stop_on_signals, valves_closed_exit
 
@@ -37,8 +38,8 @@ def register(sub) -> None:
     p.add_argument("--zero-every", type=int, default=1, help="measure the zero after every N steps (default 1)")
     p.add_argument("--pwm-hz", type=positive_float, default=10.0, help="PWM frequency, Hz (default 10)")
     p.add_argument("--nozzle-under-test", type=int, default=1, help="valve channel on the balance (default 1)")
-    p.add_argument("--duty-limits", default="10,90", help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
-    p.add_argument("--watchdog-ms", type=int, default=500, help="controller watchdog, ms (default 500)")
+    add_duty_limits(p)
+    add_watchdog_ms(p)
     p.add_argument("--valves-baud", type=int, default=115200, help="valve controller baud rate (default 115200)")
     p.add_argument("--scale-baud", type=int, default=9600, help="balance baud rate (default 9600)")
     p.add_argument("--scale-format", default="8N1", help="balance data bits, parity, stop bits (default 8N1; Scout Pro USB: 7N1)")
@@ -59,7 +60,7 @@ def register(sub) -> None:
                         "scale.serial.jsonl; docs/recordings.md) into the run folder, or into DIR; "
                         "replay them with --valves replay://PATH --scale replay://PATH")
     add_force(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(p)
     p.set_defaults(func=cmd_characterize)
 
     f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run",
@@ -105,7 +106,7 @@ def register(sub) -> None:
     e.add_argument("--scale-baud", type=positive_float, default=None,
                    help="pace the balance's pty like an 8N1 serial line at this baud rate "
                         "(default: no pacing; a Scout runs at 9600)")
-    e.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
+    add_random_seed(e)
     e.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds")
     e.add_argument("--log-dir", default=None, help="on exit write valves_log.csv and scale_sent.csv here")
     add_force(e, "--log-dir")

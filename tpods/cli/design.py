@@ -16,12 +16,19 @@ from common.argtypes import (
     float_list,
     nonneg_float,
     positive_float,
-    random_seed,
 )
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force
 from tpods.cli.estimate_output import print_json
+from tpods.cli.options import (
+    add_cmd_rate,
+    add_json_flag,
+    add_pose_rate,
+    add_random_seed,
+    add_sim_duration,
+    add_thrust_table,
+)
 
 
 def register(sub) -> None:
@@ -33,9 +40,9 @@ def register(sub) -> None:
                     "phase-shifted-sine family (amplitude, frequency, phases; duties inside the "
                     "table's valid range) for the best one whose predicted trajectory stays on the "
                     "table. Writes the best sequence as commands.csv.")
-    d.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    d.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
-    d.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+    add_sim_duration(d)
+    add_cmd_rate(d)
+    add_pose_rate(d)
     d.add_argument("--mass", type=MASS_KG, default=PAPER_MASS_KG, help="assumed mass, kg")
     d.add_argument("--izz", type=IZZ_KGM2, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
     d.add_argument("--table-size", type=float_list(2), default=[2.0, 2.0], metavar="W,H",
@@ -44,8 +51,7 @@ def register(sub) -> None:
                    help="keep the module centre this far from the table edge, m (default 0)")
     d.add_argument("--max-yaw-rate", type=positive_float, default=None, metavar="RAD_S",
                    help="also require |r| <= this along the predicted trajectory (default: no limit)")
-    d.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML (default: the paper's Table 2)")
+    add_thrust_table(d)
     d.add_argument("--noise-pos", type=positive_float, default=0.01, help="position sigma, m")
     d.add_argument("--noise-yaw-deg", type=positive_float, default=1.0, help="yaw sigma, deg")
     d.add_argument("--candidates", type=int, default=64, help="random candidates (default 64)")
@@ -56,7 +62,7 @@ def register(sub) -> None:
                    help="frequency search range, rad/s (default 0.2,4)")
     d.add_argument("--compare", nargs="*", default=[], metavar="INPUT",
                    help="also score these inputs: phase-sine, translate-rotate, or commands.csv paths")
-    d.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
+    add_random_seed(d)
     d.add_argument("--out", required=True, metavar="DIR",
                    help="write commands.csv (the best input), design.json and figures here")
     add_force(d)
@@ -68,7 +74,7 @@ def register(sub) -> None:
                         "Izz known (for tpods calibrate thrust)")
     d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
                    help="--for thrust-calibration: the factors to design for (default both)")
-    d.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(d)
     d.add_argument("--structure", default=None, metavar="F",
                    help="design for a structure (structure.toml): every module's duties "
                         "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "

@@ -6,10 +6,18 @@ import argparse
 import math
 import sys
 
-from common.argtypes import float_list, fraction, nonneg_float, positive_float, random_seed
+from common.argtypes import float_list, fraction, nonneg_float, positive_float
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force
+from tpods.cli.options import (
+    add_cmd_rate,
+    add_input_choice,
+    add_pose_rate,
+    add_random_seed,
+    add_sine_amplitude,
+    add_thrust_table,
+)
 
 
 def register(sub) -> None:
@@ -35,8 +43,7 @@ def register_sim(sub) -> None:
         "sim", help="simulate a TPODS run and write a run folder",
         description="Simulate the planar TPODS plant under held thruster commands and write a run "
                     "folder (commands.csv, poses.csv, truth.csv, run.json).")
-    p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    add_input_choice(p)
     p.add_argument("--duration", type=positive_float, default=None,
                    help="seconds (default 120; a commands.csv input: its whole length)")
     p.add_argument("--mass", type=positive_float, default=None,
@@ -55,19 +62,17 @@ def register_sim(sub) -> None:
                    help="viscous friction N s/m, rotational friction N m s/rad, yaw bias N m s/m")
     p.add_argument("--tilt", type=float_list(2), default=None, metavar="AX,AY",
                    help="constant lab-frame disturbance acceleration, m/s^2")
-    p.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML (default: the paper's Table 2)")
+    add_thrust_table(p)
     p.add_argument("--clamp", action="store_true", help="clamp duties into the table's valid range")
-    p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
-    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
-    p.add_argument("--amplitude", type=nonneg_float, default=20.0,
-                   help="phase-sine amplitude, duty percent (default 20)")
+    add_pose_rate(p)
+    add_cmd_rate(p)
+    add_sine_amplitude(p)
     p.add_argument("--omega", type=positive_float, default=1.0,
                    help="phase-sine frequency, rad/s (default 1)")
     p.add_argument("--noise-pos", type=nonneg_float, default=0.01, help="position noise sigma, m")
     p.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="yaw noise sigma, deg")
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped at random")
-    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
+    add_random_seed(p)
     p.add_argument("--out", required=True, help="run folder to write")
     add_force(p)
     p.set_defaults(func=cmd_sim)

@@ -21,7 +21,6 @@ from common.argtypes import (
     IZZ_KGM2,
     MASS_KG,
     positive_float,
-    random_seed,
 )
 from common.outputs import ResultFolder, not_an_input, result_output
 from tpods.cli import estimate_ekf as cli_ekf
@@ -31,9 +30,18 @@ from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_bud
     centre_of_mass_lines,
     filter_budget,
     structure_body_lines,
+    write_json,
 )
 from tpods.cli.estimate_output import print_json as _print_json
-from tpods.cli.options import add_noise_sigmas, add_report_out, add_result_out
+from tpods.cli.options import (
+    add_json_flag,
+    add_noise_seed,
+    add_noise_sigmas,
+    add_report_out,
+    add_result_out,
+    add_sim_duration,
+    add_thrust_table,
+)
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -101,7 +109,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--tol", type=positive_float, default=1e-8,
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(p)
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
@@ -127,7 +135,7 @@ def register(sub, est, rep) -> None:
     c.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
                    help="a structure: the parameters to bound (default mass,izz,cx,cy less "
                         "the [body] values known without a sigma)")
-    c.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(c)
     add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
     c.set_defaults(func=cmd_crlb)
@@ -139,16 +147,14 @@ def register(sub, est, rep) -> None:
                     "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
                     "sensitivities) beside the paper's numbers.")
     add_report_out(r)
-    r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    r.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
-    r.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML (default: the paper's Table 2)")
+    add_sim_duration(r)
+    add_noise_seed(r)
+    add_thrust_table(r)
     r.set_defaults(func=cmd_table3)
 
 
 def _common_model_options(p) -> None:
-    p.add_argument("--thrust-table", default=None, metavar="F",
-                   help="thrust table TOML (default: the paper's Table 2)")
+    add_thrust_table(p)
     p.add_argument("--clamp", action="store_true",
                    help="clamp duties into the table's valid range instead of refusing")
     add_noise_sigmas(p)
@@ -186,7 +192,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         from estimator.reports.plots_batch import plot_residuals
 
         with args.out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            write_json(main, out)
             if d is not None:
                 np.savetxt(d / "residuals.csv", np.column_stack([res.t, res.residuals]), delimiter=",",
                            header="t,res_x_m,res_y_m,res_psi_rad", comments="", fmt="%.10g")

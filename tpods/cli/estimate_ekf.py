@@ -16,11 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from common.argtypes import fraction, int_at_least, nonneg_float, positive_float, random_seed
+from common.argtypes import fraction, int_at_least, nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import ResultFolder, result_output
-from tpods.cli.estimate_output import budget_lines, filter_budget
-from tpods.cli.options import add_report_out, add_result_out
+from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
+from tpods.cli.options import (
+    add_cmd_rate,
+    add_input_choice,
+    add_json_flag,
+    add_pose_rate,
+    add_random_seed,
+    add_report_out,
+    add_result_out,
+    add_sim_duration,
+)
 
 
 def _state_values(what: str):
@@ -117,7 +126,7 @@ def report_filter(est, args) -> int:
         from estimator.reports.plots_ekf import plot_error_bounds
 
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            write_json(main, out)
             cols = ["t"] + list(STATE_NAMES) + [f"sigma_{n}" for n in STATE_NAMES] + ["updated", "nis",
                                                                                        "underweighted"]
             if d is not None:
@@ -177,16 +186,15 @@ def register(sub, est, rep) -> None:
     p.add_argument("--runs", type=int_at_least(2), default=500, help="number of runs (default 500)")
     p.add_argument("--spread", type=fraction, default=0.5,
                    help="relative half-width of the uniform m, Izz draw (default 0.5)")
-    p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
-    p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    add_sim_duration(p)
+    add_input_choice(p)
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default="ekf",
                    help="filter start (default ekf)")
-    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
-    p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
-    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+    add_random_seed(p)
+    add_pose_rate(p)
+    add_cmd_rate(p)
     p.add_argument("--drop", type=fraction, default=0.0, help="fraction of frames dropped")
-    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(p)
     add_result_out(p, "montecarlo.json, history.csv, runs.csv and the figures", "summary")
     g = p.add_argument_group(
         "structure (issue 18)",
@@ -214,10 +222,10 @@ def register(sub, est, rep) -> None:
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
     add_report_out(r)
-    r.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+    add_sim_duration(r)
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
-    r.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+    add_json_flag(r)
     r.set_defaults(func=cmd_report_ekf)
 
     r = rep.add_parser(
@@ -254,6 +262,17 @@ def check_montecarlo_size(args: argparse.Namespace) -> None:
         n_bytes, "lower --duration, --pose-rate or --cmd-rate")
 
 
+def _run_study(run, cfg, stopped_at):
+    """Run a Monte Carlo study ``run(cfg)`` with its progress bar and return it with its
+    summary; after Ctrl-C, say on stderr where it stopped (``stopped_at(result)``)."""
+    res = run(cfg, progress=True)
+    summ = res.summary()
+    if res.interrupted:
+        print(f"tpods: interrupted {stopped_at(res)}; writing the statistics so far",
+              file=sys.stderr)
+    return res, summ
+
+
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     check_montecarlo_size(args)
     if args.structure is not None:
@@ -278,15 +297,10 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
                        ls_window_s=args.ls_window, ls_start=args.ls_start, filter=cfg_f)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    res = run_montecarlo(cfg, progress=True)
-    summ = res.summary()
-    if res.interrupted:
-        print(f"tpods: interrupted at t = {res.t[-1]:.2f} s; writing the statistics so far",
-              file=sys.stderr)
+    res, summ = _run_study(run_montecarlo, cfg, lambda res: f"at t = {res.t[-1]:.2f} s")
     if out_folder is not None:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(
-                {"summary": summ, "config": config_dict(cfg)}, indent=2, default=str) + "\n")
+            write_json(main, {"summary": summ, "config": config_dict(cfg)})
             if d is not None:
                 cols, data = res.history_table()
                 np.savetxt(d / "history.csv", data, delimiter=",", header=",".join(cols), comments="",
@@ -353,15 +367,11 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
         seed=args.seed, pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
         noise_pos_m=args.noise_pos if args.noise_pos is not None else 0.01,
         noise_yaw_rad=math.radians(args.noise_yaw_deg if args.noise_yaw_deg is not None else 1.0))
-    res = run_structure_montecarlo(cfg, progress=True)
-    summ = res.summary()
-    if res.interrupted:
-        print(f"tpods: interrupted after {res.done} runs; writing the statistics so far",
-              file=sys.stderr)
+    res, summ = _run_study(run_structure_montecarlo, cfg, lambda res: f"after {res.done} runs")
     if out_folder is not None:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps({"summary": summ, "config": cfg.to_dict(),
-                                        "failed_runs": res.messages}, indent=2, default=str) + "\n")
+            write_json(main, {"summary": summ, "config": cfg.to_dict(),
+                              "failed_runs": res.messages})
             if d is not None:
                 cols, data = res.runs_table()
                 np.savetxt(d / "runs.csv", data, delimiter=",", header=",".join(cols),

@@ -15,7 +15,7 @@ from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.estimate_ekf import add_batch_options
-from tpods.cli.estimate_output import budget_lines, filter_budget
+from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
 from tpods.cli.options import add_key_prefixes
 from tpods.cli.stopping import zenoh_session
 
@@ -158,8 +158,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             log.close(status)
         if rec is not None:
             rec.close(status, {"final": summary})
-            (Path(args.out) / "estimate.json").write_text(
-                json.dumps(summary, indent=2, default=str) + "\n")
+            write_json(Path(args.out) / "estimate.json", summary)
     c = summary["counters"]
     if summary.get("mass_kg") is None:  # received nothing (or no commands): say so, exit 2
         raise UserError(nothing_received(c, k, args.body))

@@ -1,6 +1,6 @@
 """Text and JSON output shared by the estimate commands (``estimate batch`` with every
 method, ``estimate crlb``, ``estimate live``): the uncertainty budget table, a structure's
-centre of mass and [body] lines, one JSON object on stdout.
+centre of mass and [body] lines, one JSON object on stdout, a result JSON file.
 
 The command modules (:mod:`tpods.cli.estimate_batch`, :mod:`tpods.cli.estimate_ekf`,
 :mod:`tpods.cli.estimate_realism`, :mod:`tpods.cli.estimate_live`) import these; this
@@ -22,6 +22,11 @@ def print_json(obj: dict[str, Any]) -> None:
     from common.runwriter import json_default
 
     sys.stdout.write(json.dumps(obj, default=json_default) + "\n")
+
+
+def write_json(path, obj: dict[str, Any]) -> None:
+    """``obj`` as an indented JSON file at ``path`` (other values as their ``str``)."""
+    path.write_text(json.dumps(obj, indent=2, default=str) + "\n")
 
 
 def budget_lines(budget: dict[str, tuple[float, float, float]]) -> list[str]:

@@ -20,7 +20,7 @@ from common.argtypes import random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
-from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget
+from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget, write_json
 from tpods.cli.options import add_report_out
 
 
@@ -62,7 +62,7 @@ def report_ext(est, args: argparse.Namespace) -> int:
     out_folder = getattr(args, "out_folder", None)
     if out_folder is not None:
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            main.write_text(json.dumps(out, indent=2, default=str) + "\n")
+            write_json(main, out)
             cols = ["t", *r.labels, *(f"sigma_{n}" for n in r.labels), "updated", "nis"]
             if d is not None:
                 np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),

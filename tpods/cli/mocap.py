@@ -13,6 +13,7 @@ from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
+from tpods.cli.options import add_quiet
 from tpods.cli.parser import group
 from tpods.cli.stopping import wait_for_stop, zenoh_session
 
@@ -82,7 +83,7 @@ def register(sub) -> None:
                    help="stop after S seconds (default: Ctrl-C)")
     r.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
                    help="host time of t = 0 for live sources (default: first sample)")
-    r.add_argument("--quiet", action="store_true", help="no console line")
+    add_quiet(r)
     add_zenoh_options(r)
     r.set_defaults(func=cmd_record)
 

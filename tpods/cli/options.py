@@ -8,6 +8,12 @@ wherever it appears (same names, defaults, types and help), so that it is writte
   commands that read or write the live streams (``view``, ``export mcap``, ``estimate live``).
 - :func:`add_noise_sigmas`: the pose noise of a fit (``estimate batch|crlb``,
   ``calibrate thrust``).
+- single options written alike by several commands: the valve controller's
+  (:func:`add_duty_limits`, :func:`add_watchdog_ms`), a simulated run's (:func:`add_input_choice`,
+  :func:`add_sine_amplitude`, :func:`add_sim_duration`, :func:`add_cmd_rate`,
+  :func:`add_pose_rate`, :func:`add_thrust_table`, :func:`add_random_seed`,
+  :func:`add_noise_seed`) and the console's (:func:`add_json_flag`, :func:`add_quiet`,
+  :func:`add_no_progress`).
 
 The Zenoh connection options are :func:`common.zenoh_net.add_zenoh_options`; ``--force``
 alone is :func:`common.outputs.add_force`. Nothing here imports a heavy library
@@ -18,7 +24,7 @@ from __future__ import annotations
 
 import argparse
 
-from common.argtypes import SIGMA_POS_M, SIGMA_YAW_DEG
+from common.argtypes import SIGMA_POS_M, SIGMA_YAW_DEG, nonneg_float, positive_float, random_seed
 from common.errors import UserError
 from common.outputs import add_force
 
@@ -58,3 +64,72 @@ def add_noise_sigmas(p: argparse.ArgumentParser) -> None:
                    help="position noise sigma, m (default 0.01)")
     p.add_argument("--sigma-yaw-deg", type=SIGMA_YAW_DEG, default=1.0,
                    help="yaw noise sigma, deg (default 1)")
+
+
+def add_duty_limits(p: argparse.ArgumentParser) -> None:
+    """``--duty-limits LOW,HIGH`` (%, default 10,90) the valve controller allows."""
+    p.add_argument("--duty-limits", default="10,90",
+                   help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
+
+
+def add_watchdog_ms(p: argparse.ArgumentParser) -> None:
+    """``--watchdog-ms`` (default 500) of the valve controller."""
+    p.add_argument("--watchdog-ms", type=int, default=500, help="controller watchdog, ms (default 500)")
+
+
+def add_no_progress(p: argparse.ArgumentParser) -> None:
+    """``--no-progress``: no progress bar."""
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_random_seed(p: argparse.ArgumentParser) -> None:
+    """``--seed`` (default 0) of a random draw."""
+    p.add_argument("--seed", type=random_seed, default=0, help="random seed (default 0)")
+
+
+def add_sim_duration(p: argparse.ArgumentParser) -> None:
+    """``--duration`` (s, default 120) of a simulated run."""
+    p.add_argument("--duration", type=positive_float, default=120.0, help="seconds (default 120)")
+
+
+def add_cmd_rate(p: argparse.ArgumentParser) -> None:
+    """``--cmd-rate`` (Hz, default 50) of a generated input."""
+    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
+
+
+def add_pose_rate(p: argparse.ArgumentParser) -> None:
+    """``--pose-rate`` (Hz, default 120) of simulated poses."""
+    p.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+
+
+def add_thrust_table(p: argparse.ArgumentParser) -> None:
+    """``--thrust-table F``: the thrust table TOML (default the paper's Table 2)."""
+    p.add_argument("--thrust-table", default=None, metavar="F",
+                   help="thrust table TOML (default: the paper's Table 2)")
+
+
+def add_json_flag(p: argparse.ArgumentParser) -> None:
+    """``--json``: print exactly one JSON object on stdout."""
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+
+
+def add_input_choice(p: argparse.ArgumentParser) -> None:
+    """``--input``: phase-sine, translate-rotate or a commands.csv."""
+    p.add_argument("--input", default="phase-sine",
+                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+
+
+def add_sine_amplitude(p: argparse.ArgumentParser) -> None:
+    """``--amplitude`` (duty %, default 20) of the phase-sine input."""
+    p.add_argument("--amplitude", type=nonneg_float, default=20.0,
+                   help="phase-sine amplitude, duty percent (default 20)")
+
+
+def add_noise_seed(p: argparse.ArgumentParser) -> None:
+    """``--seed`` (default 0) of the simulated noise."""
+    p.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
+
+
+def add_quiet(p: argparse.ArgumentParser) -> None:
+    """``--quiet``: no console line."""
+    p.add_argument("--quiet", action="store_true", help="no console line")

@@ -10,6 +10,7 @@ import time
 from common.argtypes import nonneg_float
 from common.console import Console
 from common.zenoh_net import add_zenoh_options
+from tpods.cli.options import add_quiet
 from tpods.cli.stopping import zenoh_session
 
 
@@ -30,7 +31,7 @@ def register(sub) -> None:
     p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
                    help="wait up to S seconds for a subscriber of the first key before "
                         "publishing (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no console line")
+    add_quiet(p)
     add_zenoh_options(p)
     p.set_defaults(func=cmd_replay)
 

@@ -9,10 +9,20 @@ import threading
 import time
 from pathlib import Path
 
-from common.argtypes import fraction, nonneg_float, positive_float, random_seed
+from common.argtypes import fraction, nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, optional_folder, stream_folder
 from common.zenoh_net import add_zenoh_options
+from tpods.cli.options import (
+    add_cmd_rate,
+    add_duty_limits,
+    add_input_choice,
+    add_no_progress,
+    add_noise_seed,
+    add_pose_rate,
+    add_sine_amplitude,
+    add_watchdog_ms,
+)
 from tpods.cli.parser import group
 from tpods.cli.stopping import stop_on_signals, valves_closed_exit, wait_for_stop
 
@@ -35,8 +45,7 @@ def register(sub) -> None:
                         "--valves NAME=URL,..., each module's commands on tpods/<module>/cmd, one "
                         "commands.csv with 4 columns per module; any controller's lost link "
                         "closes them all")
-    p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+    add_input_choice(p)
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="seconds of input (default 120; a commands.csv input: its whole length, "
                         "cut to S when given)")
@@ -44,14 +53,12 @@ def register(sub) -> None:
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="write commands.csv and run.json here")
     add_force(p)
-    p.add_argument("--cmd-rate", type=positive_float, default=50.0, help="Hz (default 50)")
-    p.add_argument("--amplitude", type=nonneg_float, default=20.0,
-                   help="phase-sine amplitude, duty percent (default 20)")
+    add_cmd_rate(p)
+    add_sine_amplitude(p)
     p.add_argument("--omega", type=positive_float, default=1.0, help="phase-sine rad/s (default 1)")
     p.add_argument("--pwm-hz", type=positive_float, default=10.0, help="PWM frequency (default 10)")
-    p.add_argument("--watchdog-ms", type=int, default=500, help="controller watchdog, ms (default 500)")
-    p.add_argument("--duty-limits", default="10,90",
-                   help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
+    add_watchdog_ms(p)
+    add_duty_limits(p)
     p.add_argument("--heartbeat", type=positive_float, default=0.1, metavar="S",
                    help="re-announce the command in force after S s without one (default 0.1)")
     p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
@@ -60,7 +67,7 @@ def register(sub) -> None:
     p.add_argument("--capture", nargs="?", const=True, default=None, metavar="DIR",
                    help="record a byte-exact transcript of the valve controller's serial link "
                         "(valves.serial.jsonl, docs/recordings.md) into the --out folder, or into DIR")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(p)
     add_zenoh_options(p)
     p.set_defaults(func=cmd_play)
 
@@ -77,11 +84,11 @@ def register(sub) -> None:
                    help="true friction terms (default none)")
     s.add_argument("--thrust-table", default=None, metavar="F",
                    help="true thrust table (default the paper's Table 2)")
-    s.add_argument("--pose-rate", type=positive_float, default=120.0, help="Hz (default 120)")
+    add_pose_rate(s)
     s.add_argument("--noise-pos", type=nonneg_float, default=0.01, help="m (default 0.01)")
     s.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="deg (default 1)")
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
-    s.add_argument("--seed", type=random_seed, default=0, help="noise seed (default 0)")
+    add_noise_seed(s)
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
     s.add_argument("--structure", default=None, metavar="F",
                    help="simulate a structure (structure.toml): one emulated controller per module "

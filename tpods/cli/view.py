@@ -11,7 +11,7 @@ from common.console import Console
 from common.errors import UserError
 from common.outputs import add_force
 from common.zenoh_net import add_zenoh_options
-from tpods.cli.options import add_key_prefixes, check_key_prefixes
+from tpods.cli.options import add_key_prefixes, add_quiet, check_key_prefixes
 from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
@@ -51,7 +51,7 @@ def register(sub) -> None:
                    help="write a Foxglove layout for the --body names (default tpods1) to FILE "
                         "and exit")
     add_force(p, "--write-layout")
-    p.add_argument("--quiet", action="store_true", help="no console line")
+    add_quiet(p)
     add_zenoh_options(p)
     p.set_defaults(func=cmd_view)
 
