@@ -169,7 +169,7 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
     with times.stage("4/6 in-situ thrust calibration: the module as the known body",
                      "calibration run + fit"):
         cal = stage_calibrate(out, args, bench, mass, bif)
-    times.paced("calibration run + fit", cal["live"]["duration_lab_s"] / args.time_scale)
+    times.paced("calibration run + fit", cal["live"]["duration_lab_s"] / cal["live"]["time_scale"])
 
     with times.stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)",
                      "module run (live)"):

@@ -218,6 +218,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
         summary["switch_lag_ms"] = lag = switch_lag_ms(module.plant.switches, d / "play")
         summary["truth_t"], summary["truth_s"], summary["t0_lab"] = t_truth - t0_lab, s_truth, t0_lab
         summary["timing_s"], summary["duration_lab_s"] = phases, duration
+        summary["time_scale"] = args.time_scale
         print_run_timing(name, lag, phases, args.time_scale)
         return summary
     finally:
@@ -241,10 +242,12 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
     from estimator.batch.thrust_calibration import calibrate_run
 
     duration = 28.0 if args.quick else 42.0  # two or three 14 s cycles
-    # at the run's time scale: a late valve switch on a busy machine is an impulse error the
-    # efficiencies would absorb, so stage_run measures the switches' lag and warns when the
-    # machine cannot keep up (docs/live.md)
-    live = stage_run(out, args, bench["table_path"], name="calibration",
+    # at most real time: the valves switch every 0.5 s here, and a late switch on a busy
+    # machine is an impulse error the efficiencies would absorb (docs/live.md; at 2x the
+    # factors' shared error reached 4.2-4.6 sigma in the test suite, issue 26); stage_run
+    # still measures the switches' lag and warns when the machine cannot keep up
+    slow = argparse.Namespace(**{**vars(args), "time_scale": min(args.time_scale, 1.0)})
+    live = stage_run(out, slow, bench["table_path"], name="calibration",
                      input_name="translate-rotate", duration=duration)
     d = out / "calibration"
     run = read_run(d / "live")
