@@ -58,6 +58,25 @@ def runs_mixed():
             for m, i, s in ((2.268, 3.78e-3, 0), (1.4, 2.2e-3, 1), (3.3, 5.9e-3, 2))]
 
 
+# files whose tests take longest (the demo end-to-ends and the characterisation session wait on
+# lab time; the coverage and Monte Carlo studies compute): run first, so that no parallel worker
+# is left with one of them at the end while the others idle (`make test`, pytest-xdist)
+LONGEST_FIRST = (
+    "tests/tpods/test_demo.py", "tests/tpods/test_demo_structure.py",
+    "tests/bench/test_session.py", "tests/estimator/batch/test_consider.py",
+    "tests/estimator/test_montecarlo.py", "tests/estimator/test_sweep.py",
+    "tests/estimator/plant/test_sim.py", "tests/tpods/test_e2e.py",
+    "tests/tpods/cli/test_estimate_structure_models.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The files of :data:`LONGEST_FIRST` first, in that order; every file's tests stay
+    together and in their order (module fixtures are shared as before)."""
+    rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+
+
 def pytest_addoption(parser):
     parser.addoption("--update-goldens", action="store_true", default=False,
                      help="rewrite the golden outputs of tests/regression (prints what moved)")
