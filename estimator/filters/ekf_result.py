@@ -12,8 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from common import chi2  # scipy.stats.chi2 without its import cost
-
 NIS_BLOCK = 120
 """Updates per block of :attr:`EkfResult.nis_block_excess` (1 s at 120 Hz)."""
 
@@ -88,6 +86,8 @@ class EkfResult:
         trustworthy. Also true when :attr:`nis_block_excess` is above 1 (issue 17: a filter
         inconsistent on the way can end with a normal tail around a wrong value).
         """
+        from common import chi2  # lazy: scipy.special, not loaded by `tpods --help` (PRESETS)
+
         n = max(1, int(self.updated.sum()) // 10)
         tail = self.nis_tail_mean
         if tail > max(4.0, float(chi2.ppf(0.999, 3 * n)) / n):
@@ -104,6 +104,8 @@ class EkfResult:
         NIS but a collapsed covariance around a wrong value: seen in the issue-17 sweep,
         Izz 25 sigma off with a tail NIS of 4.8, after block means of 11-15). NaN without a
         full block."""
+        from common import chi2  # lazy: scipy.special, not loaded by `tpods --help` (PRESETS)
+
         nis = self.nis[self.updated]
         nis = nis[~np.isnan(nis)]
         nb = len(nis) // NIS_BLOCK
