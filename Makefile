@@ -16,9 +16,11 @@ $(STAMP): pyproject.toml
 
 # in parallel over the machine's cores (pytest-xdist; one worker more gained nothing here:
 # 422 s against 418 s); the longest files start first (tests/conftest.py); the 15 slowest
-# tests are listed at the end
+# tests are listed at the end. One OpenBLAS thread per process: the workers already use every
+# core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s CPU, 0.09 s with one
+# thread) in each of the suite's few hundred `tpods` subprocesses
 test: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n auto --durations=15
+	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --durations=15
 
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/tpods demo
