@@ -37,7 +37,13 @@ from calibration.bifilar_fit import (
     noise_sigma,
 )
 from calibration.suspension import Suspension
-from calibration.swing_lsq import LsqFit, find_second_mode, fit_model, name_second_mode
+from calibration.swing_lsq import (
+    LsqFit,
+    find_second_mode,
+    fit_model,
+    min_mode_omega,
+    name_second_mode,
+)
 from calibration.swing_model import SignalModel, angle_start_from_damped_sine
 from common.errors import UserError
 
@@ -49,6 +55,9 @@ variances (4 parameters: a 1e-9 chance of keeping one in white noise)."""
 AMPLITUDE_MAX_DEG = 15.0
 """Largest swing assumed for a trace without an angle scale (bifilar and trifilar swings
 are released at 5-20 deg; a trace's rms amplitude is below its release angle)."""
+NONLINEAR_MAX_NFEV = 60
+"""The large-angle fit converges in 5-20 evaluations from the damped sine's start; a trace
+it cannot describe is not worth more (the residual check then reports it)."""
 SIGNALS = {"angle": ("yaw", "rad"), "rate": ("yaw rate", "rad/s"), "signal": ("trace", "units")}
 
 
@@ -85,7 +94,7 @@ def _linear_fits(t, y, rate: bool, curved: bool, mode2: bool) -> tuple[LsqFit, L
     if cand is None:
         return f0, f0
     a2, b2, w2 = cand
-    m1 = SignalModel(rate, True, True, curved=f0.model.curved)
+    m1 = SignalModel(rate, True, True, curved=f0.model.curved, mode2_omega_min=min_mode_omega(t))
     b = list(f0.beta)
     f1 = fit_model(m1, t, y, [*b[:6], a2, b2, 2 * math.log(w2), 0.0, *b[6:]])
     if f0.ssr - f1.ssr < MODE2_CHI2_DROP * f0.noise**2:
@@ -103,9 +112,10 @@ def _nonlinear_fit(t, y, rate: bool, s: Suspension, lin: LsqFit, vertical_ke: bo
                         f"horizontal (check the {s.arm_key} and the length; a rate in deg/s "
                         "given as rad/s?)")
     w2 = _w2_guess(math.exp(lnwd2), amp, s.spacing_m, s.length_m, s.g, vertical_ke)
-    model = SignalModel(rate, False, lin.model.mode2, s.spacing_m, s.length_m, s.g, vertical_ke)
+    model = SignalModel(rate, False, lin.model.mode2, s.spacing_m, s.length_m, s.g, vertical_ke,
+                        mode2_omega_min=lin.model.mode2_omega_min)
     beta0 = [math.log(w2), 2 * sg, 1e-6, th0, om0, n0, n1, *lin.beta[6:10]]
-    return fit_model(model, t, y, beta0)
+    return fit_model(model, t, y, beta0, max_nfev=NONLINEAR_MAX_NFEV)
 
 
 def _sensitivities(f: LsqFit, t: np.ndarray, s: Suspension) -> dict[str, float]:

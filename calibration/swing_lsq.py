@@ -67,21 +67,24 @@ class LsqFit:
         return float(math.sqrt(max(self.cov[i, i], 0.0)))
 
 
-def fit_model(model: SignalModel, t: np.ndarray, y: np.ndarray, beta0) -> LsqFit:
-    """Bounded least squares of ``model`` to (t, y) from ``beta0`` (clipped into the bounds)."""
+def fit_model(model: SignalModel, t: np.ndarray, y: np.ndarray, beta0, max_nfev: int = 200
+              ) -> LsqFit:
+    """Bounded least squares of ``model`` to (t, y) from ``beta0`` (clipped into the bounds),
+    at most ``max_nfev`` evaluations besides the Jacobian's."""
     lo, hi = model.bounds()
     b0 = np.clip(np.asarray(beta0, float), lo, hi)
     big = 1e3 * (float(np.ptp(y)) + 1.0)
 
     def res(b):
         try:
-            r = model(b, t) - y
+            with np.errstate(all="ignore"):
+                r = model(b, t) - y
         except (FloatingPointError, OverflowError, ValueError, ZeroDivisionError):
             return np.full_like(y, big)
         return r if np.all(np.isfinite(r)) else np.full_like(y, big)
 
     r = least_squares(res, b0, bounds=(lo, hi), method="trf", x_scale="jac", xtol=1e-12,
-                      ftol=1e-12, gtol=1e-10, max_nfev=400)
+                      ftol=1e-12, gtol=1e-10, max_nfev=max_nfev)
     free = r.active_mask == 0
     J = r.jac
     dof = max(1, len(y) - int(free.sum()))
@@ -90,6 +93,12 @@ def fit_model(model: SignalModel, t: np.ndarray, y: np.ndarray, beta0) -> LsqFit
     Jf = J[:, free]
     inv[np.ix_(free, free)] = np.linalg.pinv(Jf.T @ Jf)
     return LsqFit(model, r.x, inv * s2, r.fun, J, inv, free, int(r.nfev))
+
+
+def min_mode_omega(t: np.ndarray) -> float:
+    """The lowest frequency (rad/s) a second mode may have: 1.5 cycles over the trace (a
+    slower wander is drift, not a mode)."""
+    return 2.0 * math.pi * 1.5 / float(t[-1] - t[0])
 
 
 def find_second_mode(t: np.ndarray, resid: np.ndarray, omega_main: float
@@ -105,7 +114,7 @@ def find_second_mode(t: np.ndarray, resid: np.ndarray, omega_main: float
     nfft = 1 << int(math.ceil(math.log2(grid.size * 8)))
     spec = np.abs(np.fft.rfft((rg - rg.mean()) * np.hanning(grid.size), nfft))
     w = 2.0 * math.pi * np.fft.rfftfreq(nfft, dt)
-    spec[(w < 2.0 * math.pi * 1.5 / tt[-1]) | (np.abs(w / omega_main - 1.0) < MAIN_BAND)] = 0.0
+    spec[(w < min_mode_omega(t)) | (np.abs(w / omega_main - 1.0) < MAIN_BAND)] = 0.0
     spec[w > 0.4 * math.pi / dt] = 0.0  # above 0.2 of the sampling rate: noise
     if not np.any(spec > 0):
         return None

@@ -55,6 +55,8 @@ class SignalModel:
     g: float = G_STANDARD
     vertical_ke: bool = True
     curved: bool = False
+    mode2_omega_min: float = 0.0
+    """Lower bound of the second mode's frequency (rad/s): it must oscillate in the trace."""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -62,8 +64,11 @@ class SignalModel:
                 + (CURVE_NAMES if self.curved else ()))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Lower bound 0 on every damping coefficient, none elsewhere."""
+        """Lower bound 0 on every damping coefficient and ``mode2_omega_min`` on the second
+        mode's frequency; none elsewhere."""
         lo = np.array([0.0 if n in DAMPING_NAMES else -np.inf for n in self.names])
+        if self.mode2 and self.mode2_omega_min > 0:
+            lo[self.names.index("ln_w2sq")] = 2.0 * math.log(self.mode2_omega_min)
         return lo, np.full(len(lo), np.inf)
 
     def __call__(self, beta: np.ndarray, t: np.ndarray, spacing_m: float | None = None,
@@ -77,7 +82,7 @@ class SignalModel:
                 k2, k3 = beta[-2:]
                 y = y + k2 * y * y + k3 * y * y * y
         else:
-            lw2, c1, c2, a0, v0 = beta[:5]
+            lw2, c1, c2, a0, v0 = (float(v) for v in beta[:5])  # plain floats: fast RK4
             th, om = model_state(t, a0, v0, math.exp(lw2), c1, c2,
                                  self.spacing_m if spacing_m is None else spacing_m,
                                  self.length_m if length_m is None else length_m,
