@@ -19,14 +19,12 @@ from dataclasses import dataclass
 
 from calibration.bifilar_eq19 import (
     G_STANDARD,
-    GYRATION_RANGE,
-    LENGTH_RANGE_M,
-    MASS_MAX_KG,
     IzzResult,
     check_geometry,
     geometry_warnings,
     izz_eq19,
     izz_from_times,
+    plausibility_warnings,
 )
 from common.errors import UserError
 
@@ -46,26 +44,9 @@ def trifilar_warnings(mass_kg: float, radius_m: float, length_m: float, izz_kgm2
                       ) -> list[str]:
     """The trifilar twin of :func:`geometry_warnings`: R or L out of a lab's range, a mass in
     grams, a radius of gyration far from R."""
-    out = []
-    lo, hi = RADIUS_RANGE_M
-    if not lo <= radius_m <= hi:
-        out.append(f"string radius R = {radius_m:g} m is outside {lo:g}-{hi:g} m (--radius is in "
-                   f"metres: typed in {'cm or mm' if radius_m > hi else 'another unit'}?)")
-    lo, hi = LENGTH_RANGE_M
-    if not lo <= length_m <= hi:
-        out.append(f"string length L = {length_m:g} m is outside {lo:g}-{hi:g} m (--length is in "
-                   f"metres: typed in {'cm or mm' if length_m > hi else 'another unit'}?)")
-    if mass_kg > MASS_MAX_KG:
-        out.append(f"mass {mass_kg:g} kg is above {MASS_MAX_KG:g} kg (--mass is in kg: typed in g?)")
-    if izz_kgm2 > 0 and mass_kg > 0 and radius_m > 0:
-        ratio = math.sqrt(izz_kgm2 / mass_kg) / radius_m
-        lo, hi = GYRATION_RANGE
-        if not lo <= ratio <= hi:
-            out.append(f"the period does not fit the geometry: radius of gyration sqrt(I/m) = "
-                       f"{math.sqrt(izz_kgm2 / mass_kg):.3g} m is {ratio:.3g}x the string radius "
-                       f"R = {radius_m:g} m (expected {lo:g}-{hi:g}x): check --radius, --length "
-                       "(metres), --mass (kg) and the timed oscillation count")
-    return out
+    return plausibility_warnings(mass_kg, length_m, "L", izz_kgm2,
+                                 arm=("string radius R", "--radius", radius_m, RADIUS_RANGE_M),
+                                 reference=("the string radius R", radius_m))
 
 
 @dataclass(frozen=True)

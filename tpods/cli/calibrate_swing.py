@@ -46,10 +46,6 @@ def register_bifilar(cal) -> None:
     p.add_argument("--length", type=positive_float, required=True, metavar="H_M",
                    help="unsupported vertical length h of the strings, m")
     src = _sources(p)
-    p.add_argument("--cycles", type=int_at_least(1), default=10,
-                   help="full oscillations per timing (default 10)")
-    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
-                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
     p.add_argument("--u-spacing", type=nonneg_float, default=1e-3, metavar="M",
                    help="standard uncertainty of D, m (default 0.001)")
     _rest(p, src, "kind_bifilar")
@@ -72,16 +68,13 @@ def register_trifilar(cal) -> None:
     p.add_argument("--length", type=positive_float, required=True, metavar="L_M",
                    help="vertical length L of the strings, m")
     src = _sources(p)
-    p.add_argument("--cycles", type=int_at_least(1), default=10,
-                   help="full oscillations per timing (default 10)")
-    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
-                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
     p.add_argument("--u-radius", type=nonneg_float, default=1e-3, metavar="M",
                    help="standard uncertainty of R, m (default 0.001)")
     _rest(p, src, "kind_trifilar")
 
 
 def _sources(p):
+    """The four sources (one required), then --cycles and --u-mass."""
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--times", type=float_list(), metavar="T1,T2,...",
                      help="stopwatch time of --cycles full oscillations per trial, s")
@@ -91,6 +84,10 @@ def _sources(p):
                      help="a gyro's yaw-rate log: CSV time and rate (rad/s, s by default)")
     src.add_argument("--trace", metavar="FILE",
                      help="CSV time and any value proportional to the swing angle (pixels, counts)")
+    p.add_argument("--cycles", type=int_at_least(1), default=10,
+                   help="full oscillations per timing (default 10)")
+    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
+                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
     return src
 
 
