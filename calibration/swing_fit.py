@@ -55,6 +55,8 @@ variances (4 parameters: a 1e-9 chance of keeping one in white noise)."""
 AMPLITUDE_MAX_DEG = 15.0
 """Largest swing assumed for a trace without an angle scale (bifilar and trifilar swings
 are released at 5-20 deg; a trace's rms amplitude is below its release angle)."""
+AT_BOUND = 1e-6
+"""A damping coefficient below this (1/s or 1/rad) is reported as held at its bound 0."""
 NONLINEAR_MAX_NFEV = 60
 """The large-angle fit converges in 5-20 evaluations from the damped sine's start; a trace
 it cannot describe is not worth more (the residual check then reports it)."""
@@ -245,8 +247,9 @@ def _details(t, y, signal, s: Suspension, f0: LsqFit, lin: LsqFit, nl: LsqFit | 
             "izz_fit_kgm2": izz_nl - s.tare_izz_kgm2, "c1_per_s": float(nl.beta[1]),
             "c2_per_rad": float(nl.beta[2]), "k1_nms": float(nl.beta[1]) * izz_nl,
             "k2_nms2": float(nl.beta[2]) * izz_nl,
-            "damping_at_bound": [n for n, fr in zip(nl.model.names[1:3], nl.free[1:3], strict=True)
-                                 if not fr],
+            "damping_at_bound": [n for n, fr, v in zip(nl.model.names[1:3], nl.free[1:3],
+                                                       nl.beta[1:3], strict=True)
+                                 if not fr or v < AT_BOUND],
             "amplitude_correction": izz_nl / izz_period - 1.0,
             "amplitude_start_deg": math.degrees(float(np.abs(theta[:n_first]).max())),
             "amplitude_end_deg": math.degrees(float(np.abs(theta[-n_first:]).max())),
