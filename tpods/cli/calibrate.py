@@ -25,6 +25,9 @@ def register(sub) -> None:
     _register_bifilar(cal)
     _register_combine(cal)
     _register_thrust(cal)
+    from tpods.cli.calibrate_pendulum import register_pendulum_check
+
+    register_pendulum_check(cal)
 
 
 def _print_json(obj) -> None:
