@@ -273,3 +273,26 @@ def read_series(path) -> dict[str, np.ndarray]:
                 raise UserError(f"{p}: line {lineno}: column {c}: {cell!r} is not a finite number")
             out[c].append(v)
     return {c: np.array(v) for c, v in out.items()}
+
+
+def load_check_summary(path, where: str = "pendulum_check") -> dict[str, Any]:
+    """The summary (:meth:`PendulumCheck.summary`, plus ``file``) of a check's JSON written by
+    ``tpods calibrate pendulum-check --json`` or ``--out``; a UserError naming ``where``
+    when the file is missing or is not a check."""
+    import json
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{where}: {p}: file not found") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise UserError(f"{where}: {p}: not a pendulum check's JSON ({exc.__class__.__name__})") from None
+    keys = ("verdict", "verdict_line", "i0_kgm2", "i0_sigma_kgm2", "test_mass_kg",
+            "test_mass_sigma_kg", "known_test_mass_kg", "test_mass_difference_sigmas",
+            "scale_factor", "scale_factor_sigma", "chi2", "dof", "p_value")
+    if not isinstance(doc, dict) or doc.get("verdict") not in ("pass", "fail") \
+            or any(k not in doc for k in keys):
+        raise UserError(f"{where}: {p}: not a pendulum check's JSON (tpods calibrate pendulum-check --json)")
+    return {"file": str(p), **{k: doc[k] for k in keys}}
