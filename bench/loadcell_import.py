@@ -27,7 +27,6 @@ whether it holds on/off pulses (``"valves": "on/off"``) or duty steps.
 
 from __future__ import annotations
 
-import csv
 import math
 import re
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from common.csvlines import read_csv_lines
 from common.errors import UserError
 from common.thrust_table import GF_TO_N
 
@@ -112,20 +112,10 @@ def parse_valves(cell: str, fmt: str, where: str) -> list[float]:
 
 
 def _read_rows(path: Path) -> tuple[list[str], list[tuple[int, list[str]]]]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise UserError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: unreadable ({exc.__class__.__name__}; a CSV text file?)") from None
-    lines = [(i, ln) for i, ln in enumerate(text.splitlines(), 1)
-             if ln.strip() and not ln.lstrip().startswith("#")]
+    lines = read_csv_lines(path)
     if len(lines) < 2:
         raise UserError(f"{path}: no data rows")
-    delim = "\t" if "\t" in lines[0][1] and "," not in lines[0][1] else ","
-    parsed = list(csv.reader([ln for _, ln in lines], delimiter=delim))
-    return [h.strip() for h in parsed[0]], [(i, row) for (i, _), row in zip(lines[1:], parsed[1:],
-                                                                             strict=True)]
+    return [h.strip() for h in lines[0][1]], lines[1:]
 
 
 def read_log(path: str | Path, columns: dict[str, str] | None = None, force_unit: str = "g",

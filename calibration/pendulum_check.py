@@ -232,22 +232,17 @@ def read_series(path) -> dict[str, np.ndarray]:
     izz_sigma_kgm2`` or ``period_s, period_sigma_s``; optional ``radius_sigma_m``; other
     columns ignored, ``#`` lines are comments. Returns the columns present as arrays; a
     missing column or a cell that is not a finite number is a UserError naming the line."""
-    import csv
     from pathlib import Path
 
+    from common.csvlines import read_csv_lines
+
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise UserError(f"{p}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: unreadable ({exc.__class__.__name__})") from None
-    lines = [(i, ln) for i, ln in enumerate(text.splitlines(), 1)
-             if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
+    numbered = read_csv_lines(p)
+    if not numbered:
         raise UserError(f"{p}: empty (expected a header radius_m,izz_kgm2,izz_sigma_kgm2 "
                         "or radius_m,period_s,period_sigma_s)")
-    rows = list(csv.reader([ln for _, ln in lines]))
+    lines = [(i, None) for i, _ in numbered]
+    rows = [r for _, r in numbered]
     header = [h.strip() for h in rows[0]]
     if "radius_m" not in header:
         raise UserError(f"{p}: line {lines[0][0]}: no radius_m column (header {','.join(header)})")
