@@ -66,10 +66,14 @@ def register(sub) -> None:
 
     register_import(g)
 
-    f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run",
+    f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run (or on/off pulses)",
                      description="Least squares (paper Eqs. 8-11) of orders 1-4 per nozzle count; writes a "
-                                 "thrust table TOML with fit statistics and two plots.")
-    f.add_argument("run_dir", metavar="RUN_DIR", help="folder written by `tpods bench characterize`")
+                                 "thrust table TOML with fit statistics and two plots. A session of "
+                                 "on/off pulses (tpods bench import) gives the steady force per valve "
+                                 "and per count, and each valve's dead time and rise "
+                                 "(pulse_fit.json; docs/loadcell.md).")
+    f.add_argument("run_dir", metavar="RUN_DIR",
+                   help="folder written by `tpods bench characterize` or `tpods bench import`")
     f.add_argument("--order", default="auto", choices=("auto", "1", "2", "3", "4"),
                    help="polynomial order, or auto (pick by --criterion; default)")
     f.add_argument("--criterion", default="aicc", choices=("aicc", "bic", "cv"),

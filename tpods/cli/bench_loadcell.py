@@ -97,7 +97,8 @@ def cmd_fit_pulses(args: argparse.Namespace) -> int:
     res = fit_pulses(raw, steps, scale_rel=args.scale_rel)
     ignored = [o for o, v in (("--order", args.order != "auto"), ("--reference", args.reference),
                               ("--pressure-psi", args.pressure_psi),
-                              ("--balance-linearity-g", args.balance_linearity_g)) if v]
+                              ("--balance-linearity-g", args.balance_linearity_g),
+                              ("--plot-dir", args.plot_dir), ("--criterion", args.criterion != "aicc")) if v]
     warnings = list(res.warnings) + ([f"{', '.join(ignored)}: not used for on/off pulses"]
                                      if ignored else [])
     doc = {**res.to_dict(), "warnings": warnings, "session": str(args.run_dir),
