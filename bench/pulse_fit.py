@@ -124,7 +124,8 @@ def update_period(t_s: np.ndarray, y: np.ndarray) -> float:
     return float(np.median(short))
 
 
-def _model(p: np.ndarray, t: np.ndarray, t_cmd: float) -> np.ndarray:
+def fopdt_step(p: np.ndarray, t: np.ndarray, t_cmd: float) -> np.ndarray:
+    """The first-order-plus-dead-time edge at times ``t``; ``p = (y0, A, delay, rise)``."""
     y0, a, d, tau = p
     x = np.maximum(t - t_cmd - d, 0.0)
     return y0 + a * (1.0 - np.exp(-x / tau))
@@ -164,7 +165,7 @@ def fit_edge(t_s: np.ndarray, y: np.ndarray, t_cmd: float, row_period_s: float,
     best = None
     for dd in (d0, d0 + 0.5 * t_update_s, max(0.0, d0 - 0.5 * t_update_s), d0 + t_update_s):
         p0 = np.array([y0, a, min(dd, hi[2] * 0.99), min(tau0, hi[3] * 0.99)])
-        sol = least_squares(lambda p: _model(p, ts, t_cmd) - ys, p0, bounds=(lo, hi))
+        sol = least_squares(lambda p: fopdt_step(p, ts, t_cmd) - ys, p0, bounds=(lo, hi))
         if best is None or sol.cost < best.cost:
             best = sol
     r = best.fun

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from bench.pulse_fit import PulseFit, _model  # noqa: E402
+from bench.pulse_fit import PulseFit, fopdt_step  # noqa: E402
 
 
 def plot_pulse_edges(raw: pd.DataFrame, fit: PulseFit, path: str | Path) -> Path:
@@ -33,7 +33,7 @@ def plot_pulse_edges(raw: pd.DataFrame, fit: PulseFit, path: str | Path) -> Path
                         color=col, alpha=0.35)
             if row.get(kd) is not None:
                 x = np.linspace(-0.5, 2.5, 300)
-                ax.plot(x, _model(np.array([0.0, 1.0, row[kd], row[kr]]), x, 0.0), "-", lw=2,
+                ax.plot(x, fopdt_step(np.array([0.0, 1.0, row[kd], row[kr]]), x, 0.0), "-", lw=2,
                         color=col, label=f"valve {valve}: {kd[:-2].replace('_', ' ')} "
                                          f"{row[kd] * 1e3:.0f} ms, {kr[:-2]} {row[kr] * 1e3:.0f} ms")
         ax.axvline(0.0, color="0.5", lw=0.8)

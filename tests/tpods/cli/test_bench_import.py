@@ -11,6 +11,7 @@ import pytest
 from common.thrust_table import GF_TO_N
 from tests.support.cli import run
 from tests.support.pulse_logs import pulse_log
+from tpods.cli import main
 
 
 def test_import_then_fit_pulses_json(tpods_exe, tmp_path):
@@ -68,12 +69,12 @@ def test_import_a_duty_staircase_and_fit_polynomials(tpods_exe, tmp_path):
     ("a,b\n1,2\n", "no column 't_s' for t"),
     ("", "no data rows"),
 ])
-def test_damaged_logs_are_one_line_exit_2(tpods_exe, tmp_path, text, needle):
+def test_damaged_logs_are_one_line_exit_2(tmp_path, capsys, text, needle):
     f = tmp_path / "bad.csv"
     f.write_text(text)
-    r = run(tpods_exe, "bench", "import", str(f), "--out", str(tmp_path / "o"))
-    assert r.returncode == 2 and r.stderr.startswith("tpods: error:")
-    assert r.stderr.count("\n") == 1 and needle in r.stderr, r.stderr
+    assert main(["bench", "import", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tpods: error:") and err.count("\n") == 1 and needle in err, err
     assert not (tmp_path / "o").exists()
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from calibration.pendulum_check import simulate_series
 from tests.support.cli import run
+from tpods.cli import main
 
 RADII = np.arange(0.25, 0.751, 0.05)
 
@@ -68,9 +69,9 @@ def test_periods_with_the_trifilar_geometry(tpods_exe, tmp_path):
     ("", "empty"),
     ("\x00\xff\xfe", "unreadable"),
 ])
-def test_damaged_series_is_one_line_exit_2(tpods_exe, tmp_path, text, needle):
+def test_damaged_series_is_one_line_exit_2(tmp_path, capsys, text, needle):
     f = tmp_path / "s.csv"
     f.write_bytes(text.encode("latin-1"))
-    r = run(tpods_exe, "calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02")
-    assert r.returncode == 2 and r.stderr.startswith("tpods: error:")
-    assert r.stderr.count("\n") == 1 and needle in r.stderr, r.stderr
+    assert main(["calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tpods: error:") and err.count("\n") == 1 and needle in err, err
