@@ -81,7 +81,8 @@ def check_from_args(args: argparse.Namespace):
         given = [o for o, v in (("--string-radius", args.string_radius), ("--spacing", args.spacing),
                                 ("--length", args.length), ("--mass", args.mass)) if v is not None]
         if given:
-            raise UserError(f"{args.series} gives inertias: {', '.join(given)} apply to periods only")
+            raise UserError(f"{args.series} gives inertias, not periods: {', '.join(given)} "
+                            "would be ignored (they describe the pendulum for periods)")
         izz, s_izz = cols["izz_kgm2"], cols["izz_sigma_kgm2"]
     try:
         return check_series(cols["radius_m"], izz, s_izz, args.test_mass_kg,
