@@ -1,5 +1,5 @@
 """The test-mass check (calibration.pendulum_check) and the scale-free period of a swing
-trace (calibration.swing_period) on simulated data."""
+trace (calibration.pendulum_check_periods) on simulated data."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from calibration.pendulum_check import (
     izz_from_periods,
     simulate_series,
 )
-from calibration.swing_period import swing_period
+from calibration.pendulum_check_periods import swing_period
 from common.errors import UserError
 
 RADII = np.arange(0.25, 0.751, 0.05)
