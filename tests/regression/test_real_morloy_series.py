@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.cli import run
-from tests.support.real_morloy import trace_period
+from tests.support.morloy_series_periods import trace_period
 
 HERE = Path(__file__).resolve().parents[2] / "runs" / "fixtures" / "real" / "morloy-trifilar-series"
 STATED_IP = {"5s": (0.23479, 0.00035), "10s": (0.23452, 0.00029), "20s": (0.23448, 0.00021)}

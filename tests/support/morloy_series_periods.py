@@ -1,7 +1,7 @@
 """Derive the per-radius swing periods of the morloy/trifilar-mass-prop test-mass series
 (runs/fixtures/real/morloy-trifilar-series/) from the laser-dot pixel traces:
 
-    python -m tests.support.real_morloy SOURCE/data/Inertia runs/fixtures/real/morloy-trifilar-series
+    python -m tests.support.morloy_series_periods SOURCE/data/Inertia runs/fixtures/real/morloy-trifilar-series
 
 SOURCE is a checkout of https://github.com/morloy/trifilar-mass-prop at commit
 f4989ebb99832d8cfb7e52de13c9e1adc3747224. Each trace ``<series>/<radius>.csv`` (tab-separated
