@@ -23,7 +23,7 @@ share a clock): the timing floor of a delay or a rise is the rows' resolution
 ``dt / sqrt(12)``, and ``T_u / sqrt(12)`` for an edge faster than one update (rise < ``T_u``),
 which lands between two readings; a floor is not reduced by averaging edges.
 
-**Edges.** A first-order-plus-dead-time step, fitted (Levenberg-Marquardt with bounds,
+**Edges.** A first-order-plus-dead-time step, fitted (trust-region least squares with bounds,
 several starting delays) to each opening edge from ``pre_s`` before the command to
 ``span_s`` after it::
 
