@@ -21,6 +21,12 @@ PARTS.toml (see calibration/examples/truss_two_modules.toml):
     mass_sigma_kg = 1.4e-3   # optional uncertainties
     izz_sigma_kgm2 = 2e-5
     position_sigma_m = 0.002
+
+A top-level ``pendulum_check = "check.json"`` (a ``tpods calibrate pendulum-check --json``
+or ``--out`` result, relative to PARTS.toml) names the test-mass check of the pendulum whose
+swings gave the parts' ``izz_kgm2``; a part's own ``pendulum_check`` overrides it. The
+result then carries each check's verdict (``pendulum_checks``), and a failed check is a
+warning naming the parts it concerns.
 """
 
 from __future__ import annotations
@@ -50,6 +56,8 @@ class Part:
     mass_sigma_kg: float = 0.0
     izz_sigma_kgm2: float = 0.0
     position_sigma_m: float = 0.0
+    pendulum_check: dict[str, Any] | None = None
+    """The summary of the test-mass check of the pendulum that gave ``izz_kgm2``, if named."""
 
 
 @dataclass
@@ -66,9 +74,14 @@ class Composite:
     izz_com_sigma_kgm2: float
     parts: list[dict[str, Any]] = field(default_factory=list)
     com_sigma_m: tuple[float, float] = (0.0, 0.0)
+    pendulum_checks: list[dict[str, Any]] = field(default_factory=list)
+    """Each named pendulum check's summary with the ``parts`` whose Izz it concerns."""
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(self.__dict__)
+        d = dict(self.__dict__)
+        if not d["pendulum_checks"]:
+            del d["pendulum_checks"]
+        return d
 
 
 def compare(gt: Composite, est: dict[str, Any]) -> list[dict[str, Any]]:
@@ -125,7 +138,18 @@ def combine(parts: list[Part], about: str | tuple[float, float] = "com") -> Comp
     return Composite(M, float(math.sqrt((um**2).sum())), (float(c[0]), float(c[1])),
                      (float(o[0]), float(o[1])), izz_o, float(math.sqrt(var_o)), izz_c,
                      float(math.sqrt(var_c)), rows,
-                     (float(math.sqrt(var_com[0])), float(math.sqrt(var_com[1]))))
+                     (float(math.sqrt(var_com[0])), float(math.sqrt(var_com[1]))),
+                     _pendulum_checks(parts))
+
+
+def _pendulum_checks(parts: list[Part]) -> list[dict[str, Any]]:
+    """The parts' pendulum checks, one entry per check file with the parts it concerns."""
+    out: dict[str, dict[str, Any]] = {}
+    for p in parts:
+        if p.pendulum_check is not None:
+            entry = out.setdefault(p.pendulum_check["file"], {**p.pendulum_check, "parts": []})
+            entry["parts"].append(p.name)
+    return list(out.values())
 
 
 def plausibility_warnings(parts: list[Part], res: Composite) -> list[str]:
@@ -139,6 +163,11 @@ def plausibility_warnings(parts: list[Part], res: Composite) -> list[str]:
         what += [w for w in [gyration_problem(p.mass_kg, p.izz_kgm2, whole_body=False)] if w]
         if what:
             out.append(f"part {p.name!r}: {'; '.join(what)}: mass_kg typed in grams?")
+    for chk in res.pendulum_checks:
+        if chk["verdict"] != "pass":
+            names = ", ".join(repr(n) for n in chk["parts"])
+            out.append(f"part(s) {names}: Izz from a pendulum that failed its test-mass check "
+                       f"({chk['file']}: {chk['verdict_line']})")
     whole = body_problems(res.mass_kg, res.izz_com_kgm2)
     if whole:
         out.append(f"the composite: {'; '.join(whole)}: implausible for an air-table body; "
@@ -184,8 +213,8 @@ def part_izz(tab: dict, mass_kg: float, where: str) -> float:
 
 
 PART_KEYS = ("name", "mass_kg", "izz_kgm2", "shape", "length_m", "size_m", "radius_m",
-             "position_m", "mass_sigma_kg", "izz_sigma_kgm2", "position_sigma_m")
-TOP_KEYS = ("about", "part")
+             "position_m", "mass_sigma_kg", "izz_sigma_kgm2", "position_sigma_m", "pendulum_check")
+TOP_KEYS = ("about", "part", "pendulum_check")
 
 
 def _check_keys(tab: dict, valid: tuple[str, ...], where: str) -> None:
@@ -209,6 +238,23 @@ def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]
     if not isinstance(raw, list) or not raw:
         raise UserError(f"{path}: no [[part]] tables")
     _check_keys(doc, TOP_KEYS, str(path))
+    checks: dict[str, dict[str, Any]] = {}
+
+    def check(tab: dict, where: str) -> dict[str, Any] | None:
+        """The summary of the pendulum check ``tab`` names (read once per file)."""
+        from calibration.pendulum_check import load_check_summary
+
+        name = tab.get("pendulum_check")
+        if name is None:
+            return None
+        if not isinstance(name, str) or not name.strip():
+            raise UserError(f"{where}: pendulum_check must be the path of a check's JSON, got {name!r}")
+        f = str(path.parent / name)
+        if f not in checks:
+            checks[f] = load_check_summary(f, f"{where}: pendulum_check")
+        return checks[f]
+
+    top_check = check(doc, str(path))
     parts = []
     for i, tab in enumerate(raw, start=1):
         name = str(tab.get("name", f"part {i}"))
@@ -216,10 +262,12 @@ def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]
         _check_keys(tab, PART_KEYS, where)
         m = _num(tab, "mass_kg", where, positive=True)
         x, y = _pair(tab, "position_m", where)
+        own = check(tab, where)
         parts.append(Part(name, m, part_izz(tab, m, where), x, y,
                           _num(tab, "mass_sigma_kg", where, 0.0),
                           _num(tab, "izz_sigma_kgm2", where, 0.0),
-                          _num(tab, "position_sigma_m", where, 0.0)))
+                          _num(tab, "position_sigma_m", where, 0.0),
+                          own if own is not None else top_check if "izz_kgm2" in tab else None))
     about = doc.get("about", "com")
     if isinstance(about, str):
         if about != "com":

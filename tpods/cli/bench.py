@@ -62,19 +62,28 @@ def register(sub) -> None:
     add_force(p)
     add_no_progress(p)
     p.set_defaults(func=cmd_characterize)
+    from tpods.cli.bench_loadcell import register_import
 
-    f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run",
+    register_import(g)
+
+    f = g.add_parser("fit", help="fit thrust polynomials to a characterisation run (or on/off pulses)",
                      description="Least squares (paper Eqs. 8-11) of orders 1-4 per nozzle count; writes a "
-                                 "thrust table TOML with fit statistics and two plots.")
-    f.add_argument("run_dir", metavar="RUN_DIR", help="folder written by `tpods bench characterize`")
+                                 "thrust table TOML with fit statistics and two plots. A session of "
+                                 "on/off pulses (tpods bench import) gives the steady force per valve "
+                                 "and per count, and each valve's dead time and rise "
+                                 "(pulse_fit.json; docs/loadcell.md).")
+    f.add_argument("run_dir", metavar="RUN_DIR",
+                   help="folder written by `tpods bench characterize` or `tpods bench import`")
     f.add_argument("--order", default="auto", choices=("auto", "1", "2", "3", "4"),
                    help="polynomial order, or auto (pick by --criterion; default)")
     f.add_argument("--criterion", default="aicc", choices=("aicc", "bic", "cv"),
                    help="order selection: AICc (default), BIC or leave-one-step-out CV")
     f.add_argument("--out", default=None, metavar="FILE.toml|DIR",
                    help="thrust table to write: FILE.toml, or thrust_table.toml in folder DIR "
-                        "(default RUN_DIR/thrust_table.toml)")
+                        "(default RUN_DIR/thrust_table.toml); on/off pulses: FILE.json or DIR "
+                        "(default RUN_DIR/pulse_fit.json)")
     add_force(f, "--out")
+    f.add_argument("--json", action="store_true", help="print one JSON object (the fit) on stdout")
     f.add_argument("--pressure-psi", type=positive_float, default=None, help="accumulator pressure to record")
     f.add_argument("--balance-linearity-g", type=positive_float, default=None, metavar="G",
                    help="the balance's linearity, +/- g (default: 2 x its readability, read from "
@@ -213,7 +222,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from bench.session import read_session
     from common.outputs import check_plain_folder
     from common.thrust_table import ThrustTable
+    from tpods.cli.bench_loadcell import cmd_fit_pulses, pulse_session
 
+    if pulse_session(args.run_dir):  # on/off valves (bench import): forces, delays, rises
+        return cmd_fit_pulses(args)
     # the --out rule: FILE.toml is the table; a folder receives thrust_table.toml and the plots
     out_file = result_output(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
                              "thrust_table.toml", force=args.force, command="tpods bench fit")
@@ -245,6 +257,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
         plot_dir.mkdir(parents=True, exist_ok=True)
         p1 = plot_fit_orders(result, plot_dir / f"{out.stem}_orders.png", truth=reference)
         p2 = plot_time_series(raw, plot_dir / f"{out.stem}_timeseries.png", steps)
+    if args.json:
+        json.dump({"thrust_table": str(out), "plots": [str(p1), str(p2)],
+                   "selected_order": {str(k): n for k, n in result.selected.items()},
+                   **table.extra}, sys.stdout, indent=2, default=float)
+        sys.stdout.write("\n")
+        return 0
     hdr = f"{'nozzles':>7} {'order':>5} {'rms_gf':>8} {'cv_rms_gf':>9} {'AICc':>8} {'BIC':>8}"
     print(hdr)
     for k in sorted(result.fits):

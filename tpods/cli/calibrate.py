@@ -28,6 +28,9 @@ def register(sub) -> None:
     register_trifilar(cal)
     _register_combine(cal)
     _register_thrust(cal)
+    from tpods.cli.calibrate_pendulum import register_pendulum_check
+
+    register_pendulum_check(cal)
 
 
 def _print_json(obj) -> None:
