@@ -30,10 +30,10 @@ from common.errors import UserError
 from mocap_bridge.exports.table import (
     FloorPlane,
     PoseTable,
+    data_rows,
     euler_matrices,
     finish,
     length_factor,
-    parse_cell,
     quat_matrices,
     resolve_yaw,
 )
@@ -104,23 +104,8 @@ def read_motive_csv(text: str, *, body: str | None = None, plane: FloorPlane | N
         raise UserError(f"{what}: line {frame_row + 1}: rigid body {chosen} has no column {', '.join(missing)}")
     len_unit = _length_unit(meta.get("Length Units"), units, what)
     need = [idx[w] for w in want_pos + want_rot]
-    times, vals, n_occ, frames = [], [], 0, 0
-    for k in range(frame_row + 1, len(rows)):
-        row = rows[k]
-        if not any(c.strip() for c in row):
-            continue
-        frames += 1
-        t = parse_cell(row[1] if len(row) > 1 else "", f"{what}: line {k + 1}, column 2 (Time)")
-        if np.isnan(t):
-            raise UserError(f"{what}: line {k + 1}: the Time cell is empty")
-        v = [parse_cell(row[j], f"{what}: line {k + 1}, column {j + 1} ({chosen} {axes[j]})")
-             if j < len(row) else np.nan for j in need]
-        if np.isnan(v).any():
-            n_occ += 1
-            continue
-        times.append(t)
-        vals.append(v)
-    a = np.array(vals, float).reshape(-1, len(need))
+    labels = [f"{chosen} {c}" if k >= 2 else c for k, c in enumerate(axes)]
+    times, a, frames, n_occ = data_rows(rows[frame_row + 1:], frame_row + 2, 1, need, labels, what)
     p = a[:, :3] * length_factor(len_unit)
     if quat:
         psi, note = resolve_yaw({"quaternion": quat_matrices(a[:, 3:7])}, plane, None, what)
@@ -133,7 +118,7 @@ def read_motive_csv(text: str, *, body: str | None = None, plane: FloorPlane | N
               "rate_hz": _rate(meta), "units": {"length": len_unit, "angle": "quaternion" if quat else "deg"},
               "rotation_type": rot_type, "rotation": note, "axes": plane.describe(),
               "coordinate_space": meta.get("Coordinate Space")}
-    return finish(np.array(times, float), x, y, psi, frames, n_occ, source, what)
+    return finish(times, x, y, psi, frames, n_occ, source, what)
 
 
 def _rate(meta: dict[str, str]) -> float | None:

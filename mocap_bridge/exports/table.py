@@ -214,6 +214,32 @@ def parse_cell(cell: str, where: str) -> float:
     return v
 
 
+def data_rows(rows: list[list[str]], first_line: int, time_col: int, need: list[int],
+              labels: list[str], what: str) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The time cell and the ``need`` cells of every non-empty data row (``rows[k]`` is
+    file line ``first_line + k``; ``labels[j]`` names column j in messages). A row with an
+    empty or NaN pose cell is occluded; an empty time cell, or text anywhere, is a
+    :class:`UserError`. Returns ``(times, values (N, len(need)), data rows, occluded)``."""
+    times, vals, n_rows, n_occ = [], [], 0, 0
+    for k, row in enumerate(rows):
+        if not any(c.strip() for c in row):
+            continue
+        ln = first_line + k
+        n_rows += 1
+        t = parse_cell(row[time_col] if time_col < len(row) else "",
+                       f"{what}: line {ln}, column {time_col + 1} ({labels[time_col]})")
+        if math.isnan(t):
+            raise UserError(f"{what}: line {ln}: the {labels[time_col]} cell is empty")
+        v = [parse_cell(row[j], f"{what}: line {ln}, column {j + 1} ({labels[j]})") if j < len(row)
+             else math.nan for j in need]
+        if any(math.isnan(x) for x in v):
+            n_occ += 1
+            continue
+        times.append(t)
+        vals.append(v)
+    return np.array(times, float), np.array(vals, float).reshape(-1, len(need)), n_rows, n_occ
+
+
 def finish(t_source_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, psi_rad: np.ndarray,
            frames: int, occluded: int, source: dict[str, Any], what: str) -> PoseTable:
     """A :class:`PoseTable` of the kept frames: a frame whose time equals the previous

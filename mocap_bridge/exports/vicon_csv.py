@@ -24,18 +24,16 @@ import csv
 import io
 import re
 
-import numpy as np
-
 from common.errors import UserError
 from mocap_bridge.exports.table import (
     FloorPlane,
     PoseTable,
     angle_factor,
+    data_rows,
     euler_matrices,
     finish,
     helical_matrices,
     length_factor,
-    parse_cell,
     quat_matrices,
     resolve_yaw,
 )
@@ -141,22 +139,7 @@ def read_vicon_csv(text: str, *, body: str | None = None, plane: FloorPlane | No
     first = unit_line + 1 if has_units else unit_line
     rows = _rows("\n".join(lines[first:end]), delim)
     need = [idx[c] for c in ("TX", "TY", "TZ", "RX", "RY", "RZ")] + ([idx["RW"]] if "RW" in idx else [])
-    frames, vals, n_occ = [], [], 0
-    for k, row in enumerate(rows):
-        ln = first + k + 1
-        if not any(c.strip() for c in row):
-            continue
-        fr = parse_cell(row[0], f"{what}: line {ln}, column 1 (Frame)")
-        if np.isnan(fr):
-            raise UserError(f"{what}: line {ln}: the Frame cell is empty")
-        v = [parse_cell(row[j], f"{what}: line {ln}, column {j + 1} ({cols[j]})") if j < len(row) else np.nan
-             for j in need]
-        if np.isnan(v).any():
-            n_occ += 1
-            continue
-        frames.append(fr)
-        vals.append(v)
-    a = np.array(vals, float).reshape(-1, len(need))
+    frames, a, n_rows, n_occ = data_rows(rows, first + 1, 0, need, cols, what)
     p = a[:, :3] * length_factor(len_unit)
     rot = a[:, 3:]
     if quat:
@@ -170,7 +153,7 @@ def read_vicon_csv(text: str, *, body: str | None = None, plane: FloorPlane | No
               "section": section, "body": chosen, "rate_hz": rate_hz,
               "units": {"length": len_unit, "angle": "quaternion" if quat else ang_unit},
               "rotation": note, "axes": plane.describe()}
-    return finish(np.array(frames, float) / rate_hz, x, y, psi, len(frames) + n_occ, n_occ, source, what)
+    return finish(frames / rate_hz, x, y, psi, n_rows, n_occ, source, what)
 
 
 def _units(file_len: str | None, file_ang: str | None, given: tuple[str | None, str | None] | None,
