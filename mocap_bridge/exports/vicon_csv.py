@@ -114,6 +114,8 @@ def read_vicon_csv(text: str, *, body: str | None = None, plane: FloorPlane | No
         rate_hz = float(re.split(r"[,;]", lines[i0 + 1])[0])
     except ValueError:
         raise UserError(f"{what}: line {i0 + 2}: the frame rate {lines[i0 + 1]!r} is not a number") from None
+    if not rate_hz > 0:
+        raise UserError(f"{what}: line {i0 + 2}: the frame rate {rate_hz:g} Hz is not positive")
     col_line = next((j for j in range(i0 + 1, end) if re.match(r"\s*Frame\s*[,;]\s*Sub Frame", lines[j])), None)
     if col_line is None:
         raise UserError(f"{what}: no 'Frame,Sub Frame,...' column row in the {section} section")

@@ -112,8 +112,11 @@ def _read_text(path: str) -> str:
 
 
 def _run_folder(out: str) -> Path:
-    from common.outputs import check_plain_folder
+    from common.outputs import check_plain_folder, names_a_file
 
+    if out and names_a_file(out):
+        raise UserError(f"--out {out} names a file; tpods import writes a run folder; give a folder name "
+                        f"(without {Path(out).suffix})")
     run = check_plain_folder(out, "--out")
     run.mkdir(parents=True, exist_ok=True)
     return run

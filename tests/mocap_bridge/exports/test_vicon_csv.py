@@ -181,6 +181,8 @@ def test_euler_xyz_yaw_is_the_heading_of_the_body_x_axis():
      r"no units row under the column row \(line 5\); give the units with --units"),
     ("Objects\nfast\n,,Global Angle b:b,,,,,\nFrame,Sub Frame,RX,RY,RZ,TX,TY,TZ\n,,rad,rad,rad,mm,mm,mm\n",
      r"line 2: the frame rate 'fast' is not a number"),
+    ("Objects\n0\n,,Global Angle b:b,,,,,\nFrame,Sub Frame,RX,RY,RZ,TX,TY,TZ\n,,rad,rad,rad,mm,mm,mm\n",
+     r"line 2: the frame rate 0 Hz is not positive"),
     ("Objects\n100\n,,Global Angle b:b,,,,,\nFrame,Sub Frame,RX,RY,RZ,TX,TY,TZ\n,,rad,rad,rad,mm,mm,mm\n1,0,,,,,,\n",
      r"no frame with a pose \(1 data rows, 1 occluded\)"),
     ("Objects\n100\n,,Global Angle b:b,,,,,\nFrame,Sub Frame,RX,RY,RZ,TX,TY,TZ\n,,rad,rad,rad,mm,mm,mm\n"

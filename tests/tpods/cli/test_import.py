@@ -104,6 +104,7 @@ def test_a_motive_export_and_a_wrench_log(tpods_exe, tmp_path):
       "yaw=Telemetry_Yaw_deg", "--time-unit", "s", "--units", "mm,deg"],
      ["line 2, column 22 (MPC_Status): 'OPTIMAL' is not a number"]),
     (["poses", "{hmv}", "--out", "{out}", "--plane", "xx"], ["--plane 'xx'"]),
+    (["poses", "{hmv}", "--out", "{out}.json"], ["names a file; tpods import writes a run folder"]),
     (["commands", "{aevar}", "--out", "{out}", "--columns", "t=Control_Time,valves=Command_Vector",
       "--time-unit", "s"], ["give the valves: --vehicle FILE"]),
     (["commands", "{aevar}", "--out", "{out}", "--columns", "t=Control_Time,valves=Command_Vector",
