@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -136,13 +137,16 @@ def _read_meta(run: Path) -> dict[str, Any] | None:
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], rows, formats, force: bool) -> None:
-    """``rows`` into ``path`` through the run writer, beside and renamed."""
+    """``rows`` into ``path`` through the run writer (``CsvLog``), written beside, fsynced
+    and renamed (``ResultFile``): a crash leaves the old file or the new one whole."""
     from common.outputs import ResultFile
     from common.runwriter import CsvLog
 
     out = ResultFile(path, force=force, option="--out")
     with out.writing() as tmp, CsvLog(tmp, columns, formats, flush_every_s=None) as log:
         log.write_many(rows)
+        log.flush()
+        os.fsync(log.fh.fileno())  # on disk before the rename makes it the run's file
 
 
 def _origin(meta: dict[str, Any] | None, run: Path, other: str) -> float | None:
