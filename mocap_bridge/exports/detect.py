@@ -64,6 +64,10 @@ def read_poses(text: str, options: PoseOptions, what: str = "file") -> PoseTable
     plane = FloorPlane.parse(options.plane) if options.plane else None
     length, angle = _units(options.units)
     if options.columns is not None:
+        for name, value in (("--body", options.body), ("--rotation", options.rotation)):
+            if value is not None:
+                raise UserError(f"{name} is for Vicon and Motive exports; a --columns file holds one "
+                                "body and names its orientation columns")
         cols = parse_column_map(options.columns, POSE_KEYS)
         return read_generic_csv(text, cols, plane=plane, units=(length, angle),
                                 time_unit=options.time_unit, yaw_sign=options.yaw_sign, what=what)

@@ -147,9 +147,15 @@ def read_vicon_csv(text: str, *, body: str | None = None, plane: FloorPlane | No
     if quat:
         psi, note = resolve_yaw({"quaternion": quat_matrices(rot[:, [0, 1, 2, 3]])}, plane, None, what)
     else:
+        kind = declared.get(chosen, "")
+        said = rotation is None and ("helical" in kind or "euler" in kind or "xyz" in kind)
+        if said:
+            rotation = "helical" if "helical" in kind else "euler-xyz"  # the file says which
         r = rot * angle_factor(ang_unit)
         psi, note = resolve_yaw({"euler-xyz": euler_matrices(r, "xyz"), "helical": helical_matrices(r)},
                                 plane, rotation, what)
+        if said:
+            note = note.replace("(given)", "(named in the header)")
     x, y = plane.position(p)
     source = {"format": f"vicon-{'tracker' if section == 'Objects' else 'nexus'}-csv",
               "section": section, "body": chosen, "rate_hz": rate_hz,

@@ -112,6 +112,11 @@ def test_bad_maps_and_cells_are_one_line(columns, text, message):
         read_poses(text, PoseOptions(columns=columns, units="m,rad", time_unit="s"), "p.csv")
 
 
+def test_export_options_are_refused_with_columns():
+    with pytest.raises(UserError, match=r"--body is for Vicon and Motive exports"):
+        read_poses(AEVAR, PoseOptions(columns=AEVAR_COLUMNS, time_unit="s", body="sat"), "real.csv")
+
+
 def test_a_plain_csv_without_columns_asks_for_them():
     with pytest.raises(UserError, match=r"not a Vicon or Motive export.*give the columns with --columns"):
         read_poses(AEVAR, PoseOptions(), "real.csv")

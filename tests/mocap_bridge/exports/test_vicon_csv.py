@@ -161,6 +161,13 @@ def test_undeclared_euler_or_helical_is_accepted_level_and_asked_tilted():
     assert e.source["rotation"] == "euler-xyz (given)"
 
 
+def test_a_declared_rotation_kind_is_used():
+    text = _tilted("0.4,0.3,1.2").replace("Global Angle b:b", "Global Angle (Helical) b:b")
+    h = read_poses(text, PoseOptions(), "h.csv")
+    assert h.psi_rad[0] == pytest.approx(read_poses(_tilted("0.4,0.3,1.2"), PoseOptions(rotation="helical"), "t").psi_rad[0])
+    assert h.source["rotation"] == "helical (named in the header)"
+
+
 def test_euler_xyz_yaw_is_the_heading_of_the_body_x_axis():
     # R = Rx(0.4) Ry(0.3) Rz(1.2): the body x axis is R[:, 0]
     from mocap_bridge.exports.table import euler_matrices
