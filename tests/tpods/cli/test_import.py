@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 
 from tests.support.cli import run
+from tpods.cli import main
 
 ROOT = Path(__file__).resolve().parents[3]
 AEVAR = ROOT / "runs/fixtures/real/aevarofjord-air-bearing"
@@ -112,10 +114,11 @@ def test_a_motive_export_and_a_wrench_log(tpods_exe, tmp_path):
     (["commands", "{aevar}", "--out", "{out}", "--columns", "t=Control_Time,valves=Command_Hex",
       "--time-unit", "s", "--valves", "8", "--as", "hex"], ["'0x01000000' sets bits beyond valve 8"]),
 ])
-def test_user_errors_are_one_line(tpods_exe, tmp_path, args, needles):
+def test_user_errors_are_one_line(tmp_path, capsys, args, needles):
     fill = {"out": str(tmp_path / "o"), "aevar": str(AEVAR / "real_test_data_excerpt.csv"), "hmv": str(HMV)}
-    p = run(tpods_exe, "import", *[a.format(**fill) for a in args])
-    _one_line_error(p, *needles)
+    code = main(["import", *[a.format(**fill) for a in args]])  # in-process: the same main() as tpods
+    captured = capsys.readouterr()
+    _one_line_error(SimpleNamespace(returncode=code, stderr=captured.err), *needles)
     assert not (tmp_path / "o" / "poses.csv").exists()
 
 
