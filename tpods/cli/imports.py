@@ -222,6 +222,7 @@ def _copy_vehicle(src: str, run: Path, force: bool) -> None:
     """The vehicle file into ``RUN/vehicle.toml`` (beside and renamed); an identical copy
     is left as it is, a different one only replaced with ``--force``."""
     from common.outputs import ResultFile
+    from common.tomlfile import read_toml
 
     dest = run / "vehicle.toml"
     data = Path(src).read_bytes()
@@ -230,14 +231,11 @@ def _copy_vehicle(src: str, run: Path, force: bool) -> None:
     out = ResultFile(dest, force=force, option="--out")
     with out.writing() as tmp:
         tmp.write_bytes(data)
-    doc_dir = Path(src).parent
-    for line in data.decode("utf-8-sig").splitlines():  # thrust tables the vehicle names
-        key, eq, val = line.partition("=")
-        if key.strip() == "thrust_table" and eq:
-            name = val.split("#")[0].strip().strip("\"'")
-            if name and not Path(name).is_absolute() and (doc_dir / name).is_file():
-                (run / name).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(doc_dir / name, run / name)
+    for th in read_toml(src, "vehicle file").get("thrusters", []):  # the thrust tables it names
+        name = th.get("thrust_table") if isinstance(th, dict) else None
+        if isinstance(name, str) and not Path(name).is_absolute() and (Path(src).parent / name).is_file():
+            (run / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(Path(src).parent / name, run / name)
 
 
 def cmd_import_commands(args: argparse.Namespace) -> int:
@@ -269,12 +267,12 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
     import numpy as np
 
     rows = np.column_stack([t, v])
+    if args.vehicle:  # first: a different vehicle.toml there is refused before any file is written
+        _copy_vehicle(args.vehicle, run, args.force)
     if table.kind == "wrench":
         _write_csv(run / name, ("t", "fx", "fy", "mz"), rows, "%.12g", args.force)
     else:
         _write_csv(run / name, command_columns(v.shape[1]), rows, ["%.9g"] + ["%.6g"] * v.shape[1], args.force)
-    if args.vehicle:
-        _copy_vehicle(args.vehicle, run, args.force)
     fields = meta if meta is not None else run_header("import-commands", status="complete")
     fields["commands_source"] = {"file": str(args.file), **table.source,
                                  **({"vehicle": str(args.vehicle), "thrusters": names} if names else {})}
