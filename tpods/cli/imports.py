@@ -53,7 +53,8 @@ def register(sub) -> None:
                    help="the unit of the --columns time column, unless its name states it")
     p.add_argument("--plane", default=None, metavar="AB",
                    help="the mocap axes that are the table's x and y, each optionally signed: xy "
-                        "(default for Vicon and --columns), x-z (default for Motive, Y-up), zx, ...")
+                        "(default for Vicon and --columns), x-z (default for Motive, Y-up), zx, ... "
+                        "(a leading minus needs =: --plane=-yx)")
     p.add_argument("--yaw-sign", type=float, default=1.0, choices=(1.0, -1.0), metavar="1|-1",
                    help="multiply the yaw by -1 when the source turns the other way")
     p.add_argument("--rotation", default=None, metavar="KIND",
