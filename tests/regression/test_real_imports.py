@@ -56,7 +56,7 @@ def test_air_bearing_poses_rows_time_base_and_units(poses, source):
     assert poses.counts == {"frames": 417, "kept": 417, "occluded": 0, "repeated": 0}
     np.testing.assert_allclose(np.diff(poses.t_s), 0.06, atol=1e-9)  # one row per 60 ms step
     assert poses.t0_source_s == pytest.approx(54.0)
-    # units: the source's own m and rad columns (Current_*, real.py:441-476) agree
+    # units: the source's own m and rad columns agree (Current_*, real.py:440-488, 616-618)
     np.testing.assert_allclose(poses.x_m, source.Current_X, atol=1e-9)
     np.testing.assert_allclose(poses.y_m, source.Current_Y, atol=1e-9)
     np.testing.assert_allclose(np.angle(np.exp(1j * (poses.psi_rad - source.Current_Yaw))), 0, atol=1e-9)
