@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     from tpods.cli.estimate import register as register_estimator
     from tpods.cli.export import register as register_export
     from tpods.cli.fixture import register as register_fixture
+    from tpods.cli.imports import register as register_import
     from tpods.cli.mocap import register as register_mocap
     from tpods.cli.replay import register as register_replay
     from tpods.cli.run import register as register_run
@@ -50,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_run(sub)
     register_replay(sub)
     register_export(sub)
+    register_import(sub)
     register_fixture(sub)
     register_view(sub)
     register_demo(sub)
