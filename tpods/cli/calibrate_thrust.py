@@ -32,23 +32,29 @@ def register_thrust(cal) -> None:
                     "estimator reads it and carries its uncertainty. A run that cannot separate "
                     "the factors (a thruster never opened; --per both on a run with one nozzle "
                     "count, such as the phase-shifted sine) is refused; 'tpods design --for "
-                    "thrust-calibration' designs one that can.")
+                    "thrust-calibration' designs one that can. Without --izz, Izz is estimated "
+                    "with the factors (only the mass known), with its total sigma; a run that "
+                    "does not inform both (no rotation, or no net force) is refused. A factor "
+                    "near zero or negative names a dead or reversed thruster (and no table is "
+                    "written for a non-positive one).")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run folder of the known body")
     p.add_argument("--mass", type=positive_float, required=True, metavar="KG",
                    help="known mass of the body, kg")
     p.add_argument("--mass-sigma", type=nonneg_float, default=0.0, metavar="KG",
                    help="its standard uncertainty, kg (default 0; tpods calibrate mass gives it)")
-    p.add_argument("--izz", type=positive_float, required=True, metavar="KGM2",
-                   help="known Izz of the body, kg m^2")
+    p.add_argument("--izz", type=positive_float, default=None, metavar="KGM2",
+                   help="known Izz of the body, kg m^2 (omit it: Izz is estimated with the "
+                        "factors, only the mass known)")
     p.add_argument("--izz-sigma", type=nonneg_float, default=0.0, metavar="KGM2",
                    help="its standard uncertainty, kg m^2 (default 0; tpods calibrate bifilar "
                         "gives it)")
     p.add_argument("--thrust-table", required=True, metavar="T.toml",
                    help="the table to calibrate ('table2': the built-in Table 2)")
-    p.add_argument("--per", choices=("thruster", "nozzles", "both"), default="thruster",
+    p.add_argument("--per", choices=("thruster", "nozzles", "both", "common"), default="thruster",
                    help="thruster: efficiency of each thruster (default); nozzles: scale of each "
                         "nozzle count the run uses; both: efficiencies and the scales of the "
-                        "other counts relative to the count the run holds longest")
+                        "other counts relative to the count the run holds longest; common: one "
+                        "scale of every thrust")
     p.add_argument("--model", choices=("ideal", "friction", "friction+tilt"), default="ideal",
                    help="nuisance parameters estimated beside the factors: ideal (none, "
                         "default), friction (ct, cr, kb), friction+tilt (also ax, ay)")
@@ -78,6 +84,9 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     not_an_input(out, args.run_dir, None if builtin else args.thrust_table)
     table = ThrustTable.default() if builtin else ThrustTable.load(args.thrust_table)
     run = read_run(args.run_dir)
+    if args.izz is None and args.izz_sigma:
+        raise UserError("--izz-sigma is the uncertainty of a known --izz; without --izz, Izz is "
+                        "estimated (its sigma is reported)")
     for p in body_problems(args.mass, args.izz):  # before the fit, which may then fail
         print(f"tpods: warning: the known body (--mass, --izz): {p}: implausible for an "
               "air-table body (kg and kg m^2?)", file=sys.stderr)
@@ -90,27 +99,40 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     if not res.converged:
         raise UserError(f"{run.path}: the calibration did not converge "
                         f"({res.iterations} iterations); no table written")
-    new = res.new_table(table, run=str(run.path))
     doc = res.to_dict()
+    unusable = [n for n, v in zip(res.names, res.values, strict=True) if v <= 0]
     doc.update({"run": str(run.path), "thrust_table": "built-in Table 2" if builtin
-                else args.thrust_table, "out": str(out.main)})
-    with out.writing_main() as (main, d):  # d: None for --out FILE.toml
-        new.save(main)
-        if d is not None:
-            (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+                else args.thrust_table, "out": None if unusable else str(out.main)})
+    if not unusable:
+        new = res.new_table(table, run=str(run.path))
+        with out.writing_main() as (main, d):  # d: None for --out FILE.toml
+            new.save(main)
+            if d is not None:
+                (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     warnings = list(res.warnings)
-    if args.mass_sigma == 0 or args.izz_sigma == 0:
+    if args.mass_sigma == 0 or (args.izz is not None and args.izz_sigma == 0):
         warnings.append("--mass-sigma/--izz-sigma not given: the factors' sigma leaves out the "
                         "known values' uncertainty")
     for w in warnings:
         print(f"tpods: warning: {w}", file=sys.stderr)
     if args.json:
         _print_json(doc)
+    if unusable:
+        raise UserError(f"{run.path}: {', '.join(unusable)} not positive (a dead or reversed "
+                        "thruster, see the warnings): a table cannot hold it; no table written")
+    if args.json:
         return 0
     print(f"thrust calibration on {run.path} ({len(res.t)} poses, t = {res.t[0]:.3f}.."
           f"{res.t[-1]:.3f} s; --per {res.per}, --model {res.model})")
-    print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg, "
-          f"Izz = {args.izz:.6g} +/- {args.izz_sigma:.2g} kg m^2")
+    if res.izz is None:
+        print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg, "
+              f"Izz = {args.izz:.6g} +/- {args.izz_sigma:.2g} kg m^2")
+    else:
+        iz = res.izz
+        print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg; Izz estimated: "
+              f"{iz['izz_kgm2']:.6g} +/- {iz['izz_sigma_kgm2']:.2g} kg m^2 (noise "
+              f"{iz['izz_sigma_noise_kgm2']:.2g}, mass {iz['izz_sigma_mass_kgm2']:.2g}, table "
+              f"{iz['izz_sigma_table_kgm2']:.2g})")
     print(f"  converged; {res.iterations} iterations, horizons "
           f"{', '.join(f'{h:.1f}' for h in res.stages)} s")
     b = res.budget()
