@@ -70,6 +70,8 @@ from common.thrust_uncertainty import thrust_sensitivity
 from estimator.batch.consider import output_sensitivity, segment_jacobian
 from estimator.batch.crlb import DEFAULT_MAX_STEP_S, PARAM_SCALE, marginal_information, safe_inverse
 from estimator.batch.ls_problem import first_horizon
+from estimator.batch.misfit import misfit_warnings
+from estimator.batch.misfit import summary as misfit_summary
 from estimator.batch.plausibility import residual_warnings
 from estimator.batch.thrust_calibration_fit import (  # noqa: F401  (re-exported)
     MAX_COMBINATION_SIGMA,
@@ -279,6 +281,8 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         result.izz = izz_estimate(float(z[i_izz]), {k: v[P:, :] for k, v in parts.items()},
                                   names, result.sigma)
     result.warnings = residual_warnings(result.rms_residuals(), sigma_pos_m, sigma_yaw_rad)
+    result.warnings += misfit_warnings(res, sigma_pos_m, sigma_yaw_rad, what="the calibration fit")
+    result.misfit = misfit_summary(res, sigma_pos_m, sigma_yaw_rad)
     if not converged:
         result.warnings.append(f"not converged after {stats['iterations']} iterations")
     for n, s in zip(names, result.sigma, strict=True):
