@@ -172,6 +172,16 @@ def check_finite_time(t: float | None, what: str) -> None:
 
 # ------------------------------------------------------------------ thrust calibration
 
+MISFIT_CAUSES = (
+    "likely causes: a valve dead time (the thrust starts and stops later than the command), "
+    "a shared supply (thrust dropping with the number of valves open), damping (air-bearing "
+    "drag, a tilted table), a dead or reversed thruster. Tell them apart: 'tpods estimate "
+    "batch --delay-scan' (likelihood-ratio test of a dead time), '--model friction' or "
+    "'--model auto' (damping, tilt), 'tpods calibrate thrust --per thruster' with the mass "
+    "known (a dead, weak or reversed thruster) and '--per nozzles' (a shared-supply drop)")
+"""What a model misfit (residuals, a factor far from 1) may mean, and the checks that tell
+the causes apart (issue 24, item 7)."""
+
 FACTOR_RANGE = (0.5, 1.5)
 """A thrust calibration factor (efficiency, nozzle scale): a thruster giving less than half
 or more than 1.5x its table's thrust is broken, or the run is not of the stated body."""
@@ -186,7 +196,8 @@ def factor_warnings(names: Sequence[str], values: Sequence[float]) -> list[str]:
         return []
     return [f"{', '.join(bad)}: outside {100 * lo:.0f}-{100 * hi:.0f} % of the table's thrust; "
             "is the run of the body of --mass and --izz, and the table's unit right? "
-            "Do not use this table before checking"]
+            f"Do not use this table before checking. If they are: the model misses an "
+            f"effect; {MISFIT_CAUSES}"]
 
 
 DEAD_FACTOR = 0.3

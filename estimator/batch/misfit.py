@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from common.plausible import MISFIT_CAUSES
 from estimator.batch.plausibility import RESIDUAL_RATIO
 
 MISFIT_RATIO = 2.0
@@ -35,13 +36,7 @@ RUNS_Z = 4.0
 
 AXES = ("x", "y", "yaw")
 
-CAUSES = ("likely causes: a valve dead time (the thrust starts and stops later than the "
-          "command), a shared supply (thrust dropping with the number of valves open), "
-          "damping (air-bearing drag, a tilted table), a dead or reversed thruster. Tell them "
-          "apart: 'tpods estimate batch --delay-scan' (likelihood-ratio test of a dead time), "
-          "'--model friction' or '--model auto' (damping, tilt), 'tpods calibrate thrust "
-          "--per thruster' with the mass known (a dead, weak or reversed thruster) and "
-          "'--per nozzles' (a shared-supply drop)")
+CAUSES = MISFIT_CAUSES
 
 
 def runs_z(x: np.ndarray) -> float:
