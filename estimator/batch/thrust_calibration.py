@@ -60,6 +60,7 @@ from here).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -91,6 +92,12 @@ from estimator.batch.thrust_calibration_result import (  # noqa: F401  (re-expor
     izz_estimate,
     kept_covariance,
 )
+from estimator.batch.thrust_calibration_vehicle import (
+    VehicleThrust,
+    absorbed_on_rows,
+    check_per,
+    is_vehicle,
+)
 from estimator.batch.thrust_factors import (  # noqa: F401  (re-exported)
     ABSORB_TOL,
     N_CHANNELS,
@@ -108,7 +115,7 @@ from estimator.batch.thrust_factors import (  # noqa: F401  (re-exported)
 from estimator.plant.model import ARM_M
 
 
-def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_kg: float,
+def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *, mass_kg: float,
                      izz_kgm2: float | None, mass_sigma_kg: float = 0.0, izz_sigma_kgm2: float = 0.0,
                      per: str = "thruster", model: str = "ideal", arm_m: float = ARM_M,
                      sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0),
@@ -122,7 +129,11 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         pose_t: (N,) pose times, s (t0 = pose_t[0]); pose: (N, 3) x, y (m), yaw (rad).
         cmd_t, duty_pct: (Nc,), (Nc, 4) commands (duty percent, 0 = closed), held.
         table: the thrust table (its coefficients are kept; factors it already has are
-            the start, and those not estimated are kept with their covariance).
+            the start, and those not estimated are kept with their covariance); or a
+            vehicle or structure (thrusters as data:
+            :mod:`estimator.batch.thrust_calibration_vehicle`; ``per`` thruster or common,
+            the factors relative to its thrusts; no new table: ``new_table`` is the
+            table's).
         mass_kg, izz_kgm2: the known body; ``*_sigma_*``: their standard uncertainties.
             ``izz_kgm2=None``: Izz is estimated with the factors (only the mass known;
             :mod:`estimator.batch.thrust_calibration_izz`), from ``izz0_kgm2`` (default
@@ -150,6 +161,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
     duty = np.asarray(duty_pct, float)
     if len(pose_t) < 10:
         raise UserError(f"{len(pose_t)} poses are too few to calibrate thrust")
+    vehicle = is_vehicle(table)
+    if vehicle:
+        check_per(per)
     names, ref = factor_names(per, duty, cmd_t, float(pose_t[-1]))
     extras = MODEL_EXTRAS[model] + (("izz",) if estimate_izz else ())
     fixed = {"mass": float(mass_kg), "arm": float(arm_m)}
@@ -157,21 +171,27 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         fixed["izz"] = float(izz_kgm2)
     fixed.update({k: 0.0 for k in ("ct", "cr", "kb", "ax", "ay") if k not in extras})
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
-    f0 = np.array([1.0 if n == "scale" else
-                   table.channel_factors(duty.shape[-1])[int(n.split(".")[1]) - 1]
-                   if n.startswith("efficiency.") else table.nozzle_factor(int(n.split(".")[1]))
-                   for n in names])
+    if vehicle:  # its thrusts as they are; the factors relative to them
+        base = VehicleThrust(table, duty, arm_m, clamp)
+        f0 = np.ones(len(names))
+        kept: tuple[str, ...] = ()
+    else:
+        base = with_factors(table, (), ())  # factor values as the table has them, no covariance
+        f0 = np.array([1.0 if n == "scale" else
+                       table.channel_factors(duty.shape[-1])[int(n.split(".")[1]) - 1]
+                       if n.startswith("efficiency.") else table.nozzle_factor(int(n.split(".")[1]))
+                       for n in names])
+        cal = table.calibration
+        kept = tuple(p for p in (cal.parameters if cal is not None else ()) if p not in names)
     i_izz = 5 + len(extras) if estimate_izz else None  # Izz: the last extra
     izz0 = None
     if estimate_izz:  # start from the linear solution (no damping): a dead thruster is far from 1
-        _, fjac = factor_thrust(with_factors(table, (), ()), duty, names, np.ones(len(names)), clamp)
+        _, fjac = (base.factor_thrust(names, np.ones(len(names))) if vehicle else
+                   factor_thrust(base, duty, names, np.ones(len(names)), clamp))
         f_lin, izz_lin = linear_start(pose_t, pose, cmd_t, fjac, mass_kg, arm_m)
         if f_lin is not None and not izz0_kgm2:
             f0 = np.clip(f_lin, -2.0, 3.0)
         izz0 = izz_start(mass_kg, izz0_kgm2, izz_lin)
-    cal = table.calibration
-    kept = tuple(p for p in (cal.parameters if cal is not None else ()) if p not in names)
-    base = with_factors(table, (), ())  # factor values as the table has them, no covariance
     ex0 = np.array([izz0 if e == "izz" else 0.0 for e in extras])
     z = np.concatenate([pose[0], np.zeros(3), ex0, f0])
     scale = np.concatenate([np.ones(6), [izz0 if e == "izz" else PARAM_SCALE[e] for e in extras],
@@ -237,11 +257,15 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable, *, mass_
         Si = S_mi[sl, 1:2]
         cov_izz = Si @ Si.T * izz_sigma_kgm2**2
     # the table's own uncertainty, without the terms the factors absorb
-    absorbed = absorbed_terms(table, names)
-    work = with_factors(table, names, z[ne:],
-                        parameters=kept,
-                        covariance=kept_covariance(table, kept) if kept else None)
-    sens = thrust_sensitivity(work, duty, clamp=clamp)
+    if vehicle:  # its stated uncertainty on the virtual thrusts
+        sens = table.virtual_sensitivity(duty, clamp=clamp)
+        absorbed = absorbed_on_rows(sens, base.factor_thrust(names, z[ne:])[1])
+    else:
+        absorbed = absorbed_terms(table, names)
+        work = with_factors(table, names, z[ne:],
+                            parameters=kept,
+                            covariance=kept_covariance(table, kept) if kept else None)
+        sens = thrust_sensitivity(work, duty, clamp=clamp)
     keepc = [i for i, n in enumerate(sens.names) if n not in absorbed]
     table_terms = tuple(sens.names[i] for i in keepc)
     cov_table = np.zeros((len(sl), len(sl)))

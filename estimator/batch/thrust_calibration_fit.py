@@ -92,7 +92,10 @@ class CalibrationFit:
 
     def setup(self, z):
         s0, ex, f = self.split(z)
-        thrust, fjac = factor_thrust(self.table, self.duty, self.names, f, self.clamp)
+        if hasattr(self.table, "factor_thrust"):  # a vehicle's (thrust_calibration_vehicle)
+            thrust, fjac = self.table.factor_thrust(self.names, f)
+        else:
+            thrust, fjac = factor_thrust(self.table, self.duty, self.names, f, self.clamp)
         params = dict(self.fixed)
         params.update({n: float(v) for n, v in zip(self.extras, ex, strict=True)})
         grid = make_grid(self.cmd_t, thrust, self.pose_t, self.max_step)
