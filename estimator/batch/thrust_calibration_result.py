@@ -69,7 +69,7 @@ class ThrustCalibrationResult:
     kept_names: tuple[str, ...] = ()
     warnings: list[str] = field(default_factory=list)
     izz: dict[str, Any] | None = None
-    misfit: dict[str, Any] | None = None
+    misfit: dict[str, Any] | None = None  # misfit statistics (its warnings are in warnings)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -163,7 +163,6 @@ class ThrustCalibrationResult:
             "iterations": self.iterations, "converged": self.converged,
             "stages_s": list(self.stages), "min_eigenvalue": self.min_eigenvalue,
             **(self.izz if self.izz is not None else {}),
-            **({"misfit": self.misfit} if self.misfit is not None else {}),
             **({"warnings": list(self.warnings)} if self.warnings else {}),
         }
 

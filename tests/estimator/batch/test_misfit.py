@@ -101,4 +101,4 @@ def test_calibration_flags_the_delayed_run():
     r = calibrate_thrust(pose_t, pose, cmd_t, duty, ThrustTable.default(), mass_kg=PLANT.mass_kg,
                          izz_kgm2=None, per="common")
     assert any("structured residuals" in w for w in r.warnings), r.warnings
-    assert r.to_dict()["misfit"]["axes"]["yaw"]["runs_z"] < -RUNS_Z
+    assert r.misfit["axes"]["yaw"]["runs_z"] < -RUNS_Z

@@ -14,7 +14,7 @@ from common.thrust_table import ThrustTable
 from estimator.plant.inputs import translate_rotate
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run
-from tpods.cli import main
+from tests.support.cli import main_rc
 
 
 def _run(path, gains=(1.0, 0.96, 1.0, 1.0), keep_s=None, seed=1):
@@ -27,13 +27,7 @@ def _run(path, gains=(1.0, 0.96, 1.0, 1.0), keep_s=None, seed=1):
     return write_sim_run(res, path)
 
 
-def _rc(argv, capsys):
-    try:
-        rc = main(argv)
-    except SystemExit as exc:
-        rc = exc.code
-    out = capsys.readouterr()
-    return rc, out.out, [ln for ln in out.err.splitlines() if ln.strip()]
+_rc = main_rc
 
 
 @pytest.mark.parametrize("per", ["thruster", "common"])

@@ -11,7 +11,7 @@ from estimator.batch.delay_scan import shift_commands
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run
-from tpods.cli import main
+from tests.support.cli import main_rc
 
 
 def _delayed_run(path, delay_s=0.030):
@@ -25,13 +25,7 @@ def _delayed_run(path, delay_s=0.030):
     return write_sim_run(s, path)
 
 
-def _rc(argv, capsys):
-    try:
-        rc = main(argv)
-    except SystemExit as exc:
-        rc = exc.code
-    out = capsys.readouterr()
-    return rc, out.out, [ln for ln in out.err.splitlines() if ln.strip()]
+_rc = main_rc
 
 
 def test_delay_scan_finds_the_valve_delay(tmp_path, capsys):
