@@ -124,9 +124,12 @@ def check_identifiable(Lam: np.ndarray, i_izz: int, ne: int, names: Sequence[str
     why = (f"smallest eigenvalue of the equilibrated information {lam_min:.2g} < {MIN_EIGENVALUE:g}"
            if sigma is None else
            f"their least determined combination has sigma {sigma:.2g} > {MAX_COMBINATION_SIGMA:g}")
-    what = f"Izz and {', '.join(others)}" if others else "Izz"
-    raise UserError(f"{what} are not identifiable together from this run: its rotation shows "
-                    f"only torque / Izz and its net force does not fix the thrust ({why}); {FIX}")
+    if not others:
+        raise UserError(f"Izz is hardly identifiable from this run: it turns the body too little "
+                        f"({why}); {FIX}")
+    raise UserError(f"Izz and {', '.join(others)} are not identifiable together from this run: "
+                    f"its rotation shows only torque / Izz and its net force does not fix the "
+                    f"thrust ({why}); {FIX}")
 
 
 def _no_torque(M: np.ndarray) -> bool:
