@@ -13,6 +13,8 @@ can be estimated. Unknowns: the initial state ``s0`` (6), the model's extra para
 dimensionless):
 
 - ``per="thruster"``: ``efficiency.1..4`` (their common level included);
+- ``per="common"``: one ``scale`` of every thrust (written into the table as equal
+  efficiencies, fully correlated);
 - ``per="nozzles"``: ``nozzle_scale.k`` for every count k the run uses;
 - ``per="both"``: both. Thrust only sees the products ``eff_j * nozzle_scale_k``, so
   raising every efficiency by a factor and lowering every nozzle scale by it changes
@@ -49,6 +51,14 @@ Refusals (:class:`common.errors.UserError` naming the reason): a thruster never 
 whose information on the factors is singular or nearly so: the smallest eigenvalue of
 the equilibrated (unit-diagonal) factor information below :data:`MIN_EIGENVALUE`; the
 factors named are those with a large share of its eigenvector.
+
+With ``izz_kgm2=None`` only the mass is known: Izz is estimated with the factors (an extra
+column of the transition matrix, started from a linear solution), refused when the run does
+not inform both (:mod:`estimator.batch.thrust_calibration_izz`). A vehicle or structure in
+place of the table calibrates its thrusters' factors
+(:mod:`estimator.batch.thrust_calibration_vehicle`). Factors near 0 or negative name a dead
+or reversed thruster; residuals far above the noise or structured are reported
+(:mod:`estimator.batch.misfit`).
 
 This module holds the calibration itself (:func:`calibrate_thrust`, :func:`calibrate_run`);
 the factors and the table are in :mod:`estimator.batch.thrust_factors`, the problem, its
