@@ -113,7 +113,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--delay-scan", action="store_true",
                    help="--method ls: test for a valve dead time: re-fit with the commands "
                         "shifted by 0..--delay-max-ms, profile likelihood, best delay with its "
-                        "68 %% interval and the likelihood-ratio test against none")
+                        "95 %% interval and the likelihood-ratio test against none")
     p.add_argument("--delay-max-ms", type=positive_float, default=100.0, metavar="MS",
                    help="largest delay of --delay-scan, ms (default 100; 11 steps)")
     add_json_flag(p)
