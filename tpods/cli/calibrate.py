@@ -15,6 +15,7 @@ from common.errors import DeviceError, UserError
 from common.outputs import result_output
 from tpods.cli.calibrate_thrust import (
     design_calibration,  # noqa: F401  (re-exported)
+    print_json_indented,
     register_thrust,
 )
 from tpods.cli.options import add_result_out
@@ -31,9 +32,7 @@ def register(sub) -> None:
     register_thrust(cal)
 
 
-def _print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=2, default=float)
-    sys.stdout.write("\n")
+_print_json = print_json_indented
 
 
 # ------------------------------------------------------------------------------ mass

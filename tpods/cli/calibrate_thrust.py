@@ -15,9 +15,13 @@ from common.outputs import add_force, result_output
 from tpods.cli.options import add_noise_sigmas
 
 
-def _print_json(obj) -> None:
+def print_json_indented(obj) -> None:
+    """``obj`` as one indented JSON object on stdout (the calibrate commands' form)."""
     json.dump(obj, sys.stdout, indent=2, default=float)
     sys.stdout.write("\n")
+
+
+_print_json = print_json_indented
 
 
 def register_thrust(cal) -> None:
