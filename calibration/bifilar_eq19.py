@@ -57,25 +57,37 @@ def geometry_warnings(mass_kg: float, spacing_m: float, length_m: float, izz_kgm
     """One line per implausible bifilar input: spacing D or length h out of a lab's range
     (typed in cm or mm?), a mass in grams, or a period that does not fit the geometry
     (the radius of gyration sqrt(Izz/m) far from D/2)."""
+    return plausibility_warnings(
+        mass_kg, length_m, "h", izz_kgm2,
+        arm=("string spacing D", "--spacing", spacing_m, SPACING_RANGE_M),
+        reference=("the half spacing D/2", spacing_m / 2.0))
+
+
+def plausibility_warnings(mass_kg: float, length_m: float, length_symbol: str, izz_kgm2: float, *,
+                          arm: tuple[str, str, float, tuple[float, float]],
+                          reference: tuple[str, float]) -> list[str]:
+    """The checks of :func:`geometry_warnings` for any suspension: ``arm`` = (its name, its
+    option, its value in m, its plausible range), ``reference`` = (the name and length in m
+    that the radius of gyration is compared with)."""
+    arm_name, arm_opt, arm_m, arm_range = arm
     out = []
-    lo, hi = SPACING_RANGE_M
-    if not lo <= spacing_m <= hi:
-        out.append(f"string spacing D = {spacing_m:g} m is outside {lo:g}-{hi:g} m (--spacing is in "
-                   f"metres: typed in {'cm or mm' if spacing_m > hi else 'another unit'}?)")
-    lo, hi = LENGTH_RANGE_M
-    if not lo <= length_m <= hi:
-        out.append(f"string length h = {length_m:g} m is outside {lo:g}-{hi:g} m (--length is in "
-                   f"metres: typed in {'cm or mm' if length_m > hi else 'another unit'}?)")
+    for name, opt, v, (lo, hi) in ((arm_name, arm_opt, arm_m, arm_range),
+                                   (f"string length {length_symbol}", "--length", length_m,
+                                    LENGTH_RANGE_M)):
+        if not lo <= v <= hi:
+            out.append(f"{name} = {v:g} m is outside {lo:g}-{hi:g} m ({opt} is in metres: "
+                       f"typed in {'cm or mm' if v > hi else 'another unit'}?)")
     if mass_kg > MASS_MAX_KG:
         out.append(f"mass {mass_kg:g} kg is above {MASS_MAX_KG:g} kg (--mass is in kg: typed in g?)")
-    if izz_kgm2 > 0 and mass_kg > 0 and spacing_m > 0:
-        ratio = math.sqrt(izz_kgm2 / mass_kg) / (spacing_m / 2.0)
+    ref_name, ref_m = reference
+    if izz_kgm2 > 0 and mass_kg > 0 and ref_m > 0:
+        ratio = math.sqrt(izz_kgm2 / mass_kg) / ref_m
         lo, hi = GYRATION_RANGE
         if not lo <= ratio <= hi:
             out.append(f"the period does not fit the geometry: radius of gyration sqrt(Izz/m) = "
-                       f"{math.sqrt(izz_kgm2 / mass_kg):.3g} m is {ratio:.3g}x the half spacing "
-                       f"D/2 = {spacing_m / 2:g} m (expected {lo:g}-{hi:g}x): check --spacing, "
-                       "--length (metres), --mass (kg) and the timed oscillation count")
+                       f"{math.sqrt(izz_kgm2 / mass_kg):.3g} m is {ratio:.3g}x {ref_name} = "
+                       f"{ref_m:g} m (expected {lo:g}-{hi:g}x): check {arm_opt}, --length "
+                       "(metres), --mass (kg) and the timed oscillation count")
     return out
 
 

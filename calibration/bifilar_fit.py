@@ -116,25 +116,34 @@ def check_trace(t: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     Refuses (UserError) fewer than 20 samples, non-increasing time and a trace that
     does not show at least MIN_OSCILLATIONS full oscillations above the noise.
     """
+    return check_signal(t, psi)
+
+
+def check_signal(t: np.ndarray, y: np.ndarray, *, angle: bool = True, unit: str = "deg"
+                 ) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """:func:`check_trace` for any swing signal: a yaw in rad (``angle``: unwrapped, noise
+    quoted in degrees) or a rate, pixel or count trace (kept as is, noise in ``unit``)."""
     t = np.asarray(t, float)
-    psi = np.asarray(psi, float)
+    psi = np.asarray(y, float)
     if t.shape != psi.shape or t.ndim != 1:
-        raise UserError("time and yaw must be 1-D arrays of equal length")
+        raise UserError(f"time and {'yaw' if angle else 'signal'} must be 1-D arrays of equal length")
     if t.size < 20:
         raise UserError(f"the trace has {t.size} samples; need at least 20")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(psi))):
         raise UserError("the trace holds non-finite values")
     if np.any(np.diff(t) <= 0):
         raise UserError("trace time does not strictly increase")
-    psi = np.unwrap(psi)
+    if angle:
+        psi = np.unwrap(psi)
     sig = noise_sigma(psi)
-    y = psi - np.median(psi)
-    band = max(3.0 * sig, 0.05 * float(np.percentile(np.abs(y), 95)), 1e-9)
-    half = count_half_swings(y, band)
+    y0 = psi - np.median(psi)
+    band = max(3.0 * sig, 0.05 * float(np.percentile(np.abs(y0), 95)), 1e-9)
+    half = count_half_swings(y0, band)
     if half < 2 * MIN_OSCILLATIONS:
+        shown = f"{math.degrees(sig):.2g} deg" if angle else f"{sig:.2g} {unit}"
         raise UserError(
             f"the trace does not oscillate: {half / 2:g} full oscillation(s) above the noise "
-            f"(sigma {math.degrees(sig):.2g} deg); need at least {MIN_OSCILLATIONS}")
+            f"(sigma {shown}); need at least {MIN_OSCILLATIONS}")
     return t, psi, sig, half
 
 
@@ -267,6 +276,7 @@ def fit_swing_trace(t_s, psi_rad, mass_kg: float, spacing_m: float, length_m: fl
     details = dict(
         omega0_rad_s=math.sqrt(w2), period0_s=2 * math.pi / math.sqrt(w2),
         c1_per_s=float(beta[1]), c2_per_rad=float(beta[2]),
+        c1_sigma_per_s=math.sqrt(max(cov[1, 1], 0.0)), c2_sigma_per_rad=math.sqrt(max(cov[2, 2], 0.0)),
         k1_nms=float(beta[1]) * izz, k2_nms2=float(beta[2]) * izz,
         yaw_offset_rad=float(beta[3]), theta_start_rad=float(beta[4]),
         amplitude_start_deg=math.degrees(float(amp[:n_first].max())),

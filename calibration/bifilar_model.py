@@ -13,7 +13,8 @@ and mu = w0^2 D^2 / (4 g h) = m D^4 / (16 h^2 Izz),
 ``vertical_ke=False`` drops the mu terms (Jardin & Mueller's form). The small-angle
 limit is th'' = -w0^2 th - c1 th', i.e. Equation 19 with T = 2 pi / w0.
 :func:`simulate_swing` integrates it tightly (for emulated swings),
-:func:`model_theta` fast (fixed-step RK4, for the fit in :mod:`calibration.bifilar_fit`).
+:func:`model_theta` fast (fixed-step RK4, for the fit in :mod:`calibration.bifilar_fit`),
+:func:`model_state` the same with the rate th' (for gyro traces, :mod:`calibration.swing_fit`).
 """
 
 from __future__ import annotations
@@ -172,14 +173,35 @@ def _hermite(t: np.ndarray, t0: float, dt: float, y: np.ndarray, dy: np.ndarray)
             + (-2 * s3 + 3 * s2) * y[i + 1] + (s3 - s2) * dt * dy[i + 1])
 
 
-def model_theta(t: np.ndarray, theta0: float, omega_init: float, omega0_sq: float, c1: float,
-                c2: float, spacing_m: float, length_m: float, g: float = G_STANDARD,
-                vertical_ke: bool = True, steps_per_period: int = 48) -> np.ndarray:
-    """Model theta (rad) at times t (s, increasing, from t[0]) by RK4 + Hermite interpolation."""
+def _grid(t: np.ndarray, theta0: float, omega_init: float, omega0_sq: float, c1: float,
+          c2: float, spacing_m: float, length_m: float, g: float, vertical_ke: bool,
+          steps_per_period: int) -> tuple[float, list[float], list[float], list[float]]:
+    """The RK4 grid over t[0]..t[-1]: (step, theta, th', th'') at its nodes."""
     r2, mu = _coeffs(omega0_sq, spacing_m, length_m, g, vertical_ke)
     span = float(t[-1] - t[0])
     dt_max = 2.0 * math.pi / math.sqrt(max(omega0_sq, 1e-12)) / steps_per_period
     n = max(1, int(math.ceil(span / dt_max)))
     dt = span / n if span > 0 else 1.0
-    ths, oms, _ = _rk4_grid(theta0, omega_init, dt, n, omega0_sq, c1, c2, r2, mu)
+    return (dt, *_rk4_grid(theta0, omega_init, dt, n, omega0_sq, c1, c2, r2, mu))
+
+
+def model_theta(t: np.ndarray, theta0: float, omega_init: float, omega0_sq: float, c1: float,
+                c2: float, spacing_m: float, length_m: float, g: float = G_STANDARD,
+                vertical_ke: bool = True, steps_per_period: int = 48) -> np.ndarray:
+    """Model theta (rad) at times t (s, increasing, from t[0]) by RK4 + Hermite interpolation."""
+    dt, ths, oms, _ = _grid(t, theta0, omega_init, omega0_sq, c1, c2, spacing_m, length_m, g,
+                            vertical_ke, steps_per_period)
     return _hermite(np.asarray(t) - t[0], 0.0, dt, np.asarray(ths), np.asarray(oms))
+
+
+def model_state(t: np.ndarray, theta0: float, omega_init: float, omega0_sq: float, c1: float,
+                c2: float, spacing_m: float, length_m: float, g: float = G_STANDARD,
+                vertical_ke: bool = True, steps_per_period: int = 48
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Model theta (rad) and its rate th' (rad/s) at times t (s, increasing, from t[0]):
+    RK4 on a uniform grid, Hermite interpolation of theta (slopes th') and of th' (slopes th'')."""
+    dt, ths, oms, acs = _grid(t, theta0, omega_init, omega0_sq, c1, c2, spacing_m, length_m, g,
+                              vertical_ke, steps_per_period)
+    tt = np.asarray(t) - t[0]
+    om = np.asarray(oms)
+    return (_hermite(tt, 0.0, dt, np.asarray(ths), om), _hermite(tt, 0.0, dt, om, np.asarray(acs)))

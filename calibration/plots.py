@@ -52,6 +52,39 @@ def plot_trace_fit(fit, path: str | Path) -> Path:
     return path
 
 
+def plot_signal_fit(fit, path: str | Path) -> Path:
+    """Any swing trace (yaw, gyro rate, pixels) with the reported model and the damped-sine
+    (period) fit, and their residuals (:class:`calibration.swing_fit.SwingFit`)."""
+    path = Path(path)
+    d = fit.details
+    t = fit.t - fit.t[0]
+    unit = {"rad": "rad", "rad/s": "rad/s", "units": "signal units"}[d["unit"]]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True,
+                                   gridspec_kw={"height_ratios": [2, 1]})
+    ax1.plot(t, fit.y, ".", ms=2, color="0.6", label=f"{d['signal']} trace")
+    ax1.plot(t, fit.y_fit, "-", lw=1, color="C0",
+             label=f"{fit.method}: Izz = {fit.izz_kgm2:.5g} +- {fit.izz_sigma_kgm2:.2g} kg m$^2$")
+    ax1.plot(t, fit.y_period, "--", lw=0.8, color="C3",
+             label=f"damped sine: period method {d['izz_period_kgm2']:.5g} kg m$^2$")
+    lo, hi = ax1.get_ylim()
+    ax1.set_ylim(lo, hi + 0.45 * (hi - lo))
+    ax1.set_ylabel(unit)
+    ax1.legend(loc="upper right", fontsize=8)
+    ax1.set_title(f"{fit.inputs.get('suspension', 'pendulum').capitalize()} pendulum: "
+                  f"{'model describes the trace' if d['model_describes_trace'] else 'model does NOT describe the trace'}")
+    ax2.plot(t, fit.y - fit.y_fit, ".", ms=2, color="C0", label="reported model")
+    ax2.plot(t, fit.y - fit.y_period, ".", ms=1, color="C3", alpha=0.4, label="damped sine")
+    ax2.axhline(0, color="k", lw=0.5)
+    ax2.set_ylabel(f"residual ({unit})")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(loc="upper right", fontsize=8,
+               title=f"rms {d['residual_rms']:.3g} = {d['residual_to_noise']:.2g} x noise")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_budget(result, path: str | Path) -> Path:
     """Bar chart of the per-input contributions to u(Izz)."""
     path = Path(path)

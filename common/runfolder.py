@@ -24,19 +24,16 @@ Writers (:func:`write_run` here, the recorders) write through
 
 from __future__ import annotations
 
-import io
 import json
 import math
-import re
 import sys
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
+from common.csvtable import read_table, read_table_lines  # noqa: F401  (re-exported)
 from common.errors import UserError
 from common.plausible import check_duty_rows, check_pose_rows
 from common.runwriter import CsvLog, command_columns, write_json_atomic
@@ -153,80 +150,6 @@ class Run:
             raise UserError(f"{self.path}: window {t0}:{t1} holds fewer than 2 poses")
         return Run(self.path, self.cmd_t, self.duty_pct, self.pose_t[keep], self.pose[keep],
                    self.thrust_t, self.thrust_n, self.meta, self.structure)
-
-
-_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
-_LINE_END = re.compile(r"\r\n|\r|\n")
-
-
-def read_table(path: Path, columns: tuple[str, ...]) -> np.ndarray:
-    """Read a numeric CSV with exactly-named columns; refuse bad content by row (see read_table_lines)."""
-    return read_table_lines(path, columns)[0]
-
-
-def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Read a numeric CSV with exactly-named columns; the values and each row's file line.
-
-    Reads what spreadsheets and editors write: a UTF-8 byte order mark, CRLF or CR line
-    ends, blank lines and lines of empty cells (skipped), spaces around values, quoted
-    headers, columns in any order, extra columns (ignored, whatever their encoding) and
-    a trailing comma on data rows. Error messages name the file line (header = line 1
-    unless blank lines precede it).
-    """
-    if not path.is_file():
-        raise UserError(f"{path}: file not found")
-    data = path.read_bytes()
-    if data.startswith(_UTF16_BOMS):
-        raise UserError(f"{path}: UTF-16 text (Excel's 'Unicode Text'); save it as 'CSV UTF-8' or plain CSV")
-    # Bytes that are not UTF-8 (Excel's plain 'CSV' is in the Windows code page) can only
-    # matter in extra columns: a replaced character in a required cell is refused below.
-    text = data.decode("utf-8-sig", errors="replace")
-    lines = _LINE_END.split(text)
-    blank = [not ln.replace(",", "").replace('"', "").strip() for ln in lines]
-    if all(blank):
-        raise UserError(f"{path}: file is empty")
-    header_idx = blank.index(False)
-    try:
-        # One DataFrame row per physical line after the header (blank lines kept, dropped
-        # below), so row i is file line header_idx + 2 + i. index_col=False: pandas would
-        # otherwise take the first column as the index when rows end with a comma.
-        with warnings.catch_warnings():  # values beyond the header's columns: ignored like extra columns
-            warnings.simplefilter("ignore", pd.errors.ParserWarning)
-            df = pd.read_csv(io.StringIO(text), skipinitialspace=True, skip_blank_lines=False,
-                             header=header_idx, index_col=False, keep_default_na=False, na_values=[""])
-    except pd.errors.EmptyDataError:
-        raise UserError(f"{path}: file is empty") from None
-    except pd.errors.ParserError as exc:
-        raise UserError(f"{path}: not a readable CSV ({str(exc).splitlines()[0]})") from None
-    df.columns = [str(c).strip() for c in df.columns]
-    missing = [c for c in columns if c not in df.columns]
-    if missing:
-        hint = ""
-        head = lines[header_idx]
-        for sep, name in ((";", "semicolons"), ("\t", "tabs")):
-            if sep in head and "," not in head:
-                hint = f"; the header is separated by {name}, the format uses commas"
-        raise UserError(f"{path}: missing column(s) {', '.join(missing)} "
-                        f"(header must hold {','.join(columns)}{hint})")
-    line_no = np.arange(len(df)) + header_idx + 2
-    keep = ~df.isna().all(axis=1).to_numpy()
-    df, line_no = df[keep], line_no[keep]
-    if len(df) == 0:
-        raise UserError(f"{path}: no data rows")
-    sub = df[list(columns)]
-    values = sub.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        raw = sub.iloc[row, col]
-        shown = "empty cell" if isinstance(raw, float) and math.isnan(raw) else repr(raw)
-        raise UserError(f"{path}: line {line_no[row]}: column {columns[col]} is not a finite number ({shown})")
-    t = values[:, 0]
-    nonincr = np.nonzero(np.diff(t) <= 0)[0]
-    if nonincr.size:
-        i = nonincr[0] + 1
-        raise UserError(f"{path}: line {line_no[i]}: time {t[i]:g} does not increase (previous {t[i - 1]:g})")
-    return values, line_no
 
 
 def read_run(path: str | Path, structure: Structure | str | Path | None = None) -> Run:

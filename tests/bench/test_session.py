@@ -24,8 +24,8 @@ def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp
     try:
         v, s = b.paths
         r = subprocess.run([tpods_exe, "bench", "characterize", "--valves", v, "--scale", s,
-                            "--dwell", "0.4", "--settle", "0.12", "--zero-settle", "0.15",
-                            "--zero-dwell", "0.2", "--out", str(out)],
+                            "--dwell", "0.2", "--settle", "0.12", "--zero-settle", "0.1",
+                            "--zero-dwell", "0.1", "--out", str(out)],
                            capture_output=True, text=True, timeout=120)
     finally:
         b.stop()

@@ -1,24 +1,23 @@
-"""``tpods calibrate mass|bifilar|combine|thrust``: ground-truth mass and Izz (thin shell); the
-in-situ thrust calibration is in :mod:`tpods.cli.calibrate_thrust`."""
+"""``tpods calibrate mass|bifilar|trifilar|combine|thrust``: ground-truth mass and Izz (thin
+shell; the pendulums' commands are in :mod:`tpods.cli.calibrate_swing`, the in-situ thrust
+calibration in :mod:`tpods.cli.calibrate_thrust`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
-from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
-from common.constants import G_STANDARD_MPS2
+from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
 from common.errors import DeviceError, UserError
-from common.outputs import result_output
+from tpods.cli.calibrate_swing import cmd_pendulum as cmd_bifilar  # noqa: F401 - re-exported
+from tpods.cli.calibrate_swing import register_bifilar, register_trifilar
 from tpods.cli.calibrate_thrust import (
     design_calibration,  # noqa: F401  (re-exported)
     print_json_indented,
     register_thrust,
 )
-from tpods.cli.options import add_result_out
 from tpods.cli.parser import group
 
 
@@ -27,7 +26,8 @@ def register(sub) -> None:
     cal = group(sub, "calibrate", "ground-truth mass (balance) and Izz (bifilar pendulum, parts); in-situ thrust "
                  "calibration from a known body")
     _register_mass(cal)
-    _register_bifilar(cal)
+    register_bifilar(cal)
+    register_trifilar(cal)
     _register_combine(cal)
     register_thrust(cal)
 
@@ -155,133 +155,6 @@ def cmd_mass(args: argparse.Namespace) -> int:
     print(f"  Type A (repeatability s/sqrt(N)) {res.u_typeA_kg * 1e3:.3g} g; Type B (+-{args.accuracy_g:g}"
           f" g rectangular, a/sqrt(3)) {res.u_typeB_kg * 1e3:.3g} g"
           + (f"; resolution {res.u_resolution_kg * 1e3:.3g} g" if res.u_resolution_kg else ""))
-    return 0
-
-
-# --------------------------------------------------------------------------- bifilar
-
-
-def _register_bifilar(cal) -> None:
-    p = cal.add_parser(
-        "bifilar", help="Izz from a bifilar pendulum: stopwatch timings (Eq. 19) or a mocap trace",
-        description="Izz of a body hung from two parallel strings. --times: the paper's Eq. 19, "
-                    "Izz = m g D^2 T^2 / (16 pi^2 h), on the mean period, with an uncertainty "
-                    "budget per input. --poses: fit the nonlinear large-angle model with viscous "
-                    "and quadratic damping to the recorded yaw; Eq. 19 on the trace's period and "
-                    "the amplitude correction are reported beside it.")
-    p.add_argument("--mass", type=positive_float, required=True, metavar="KG", help="body mass, kg")
-    p.add_argument("--spacing", type=positive_float, required=True, metavar="D_M",
-                   help="horizontal separation D of the strings, m")
-    p.add_argument("--length", type=positive_float, required=True, metavar="H_M",
-                   help="unsupported vertical length h of the strings, m")
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--times", type=float_list(), metavar="T1,T2,...",
-                     help="stopwatch time of --cycles full oscillations per trial, s")
-    src.add_argument("--poses", metavar="PATH",
-                     help="poses.csv (t,x,y,psi) recorded while the body swings, or its run folder")
-    p.add_argument("--cycles", type=int_at_least(1), default=10,
-                   help="full oscillations per timing (default 10)")
-    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
-                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
-    p.add_argument("--u-spacing", type=nonneg_float, default=1e-3, metavar="M",
-                   help="standard uncertainty of D, m (default 0.001)")
-    p.add_argument("--u-length", type=nonneg_float, default=2e-3, metavar="M",
-                   help="standard uncertainty of h, m (default 0.002)")
-    p.add_argument("--u-timing", type=nonneg_float, default=0.0, metavar="S",
-                   help="extra per-timing stopwatch error, s (default 0: the spread covers it)")
-    p.add_argument("--tare-izz", type=nonneg_float, default=0.0, metavar="KGM2",
-                   help="inertia of a fixture to subtract, kg m^2")
-    p.add_argument("--u-tare", type=nonneg_float, default=0.0, metavar="KGM2",
-                   help="standard uncertainty of --tare-izz")
-    p.add_argument("--g", type=positive_float, default=G_STANDARD_MPS2,
-                   help=f"m/s^2 (default {G_STANDARD_MPS2})")
-    p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
-    p.add_argument("--window", type=time_window, default=None, metavar="T0:T1",
-                   help="use only poses with T0 <= t <= T1, s (--poses); T0,T1 is read too")
-    p.add_argument("--no-rise-ke", action="store_true",
-                   help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    add_result_out(p, "result.json and plots", "result")
-    p.set_defaults(func=cmd_bifilar)
-
-
-def _read_poses(path_text: str) -> tuple:
-    import numpy as np
-
-    from common.runfolder import POSE_COLUMNS, read_table
-
-    path = Path(path_text)
-    if path.is_dir():
-        path = path / "poses.csv"
-    v = read_table(path, POSE_COLUMNS)
-    return np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 3]), path
-
-
-def cmd_bifilar(args: argparse.Namespace) -> int:
-    from calibration import bifilar
-
-    out_folder = result_output(args.out, "result.json", force=args.force,
-                               command="tpods calibrate bifilar")
-    common = dict(u_mass_kg=args.u_mass, u_spacing_m=args.u_spacing, u_length_m=args.u_length,
-                  tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare, g=args.g, u_g=args.u_g)
-    if args.times is not None:
-        res = bifilar.izz_from_times(args.times, args.cycles, args.mass, args.spacing, args.length,
-                                     u_timing_s=args.u_timing, **common)
-        source = f"{len(args.times)} timings of {args.cycles} oscillations"
-    else:
-        t, psi, path = _read_poses(args.poses)
-        if args.window:
-            t0, t1 = args.window
-            keep = (t >= (-math.inf if t0 is None else t0)) & (t <= (math.inf if t1 is None else t1))
-            t, psi = t[keep], psi[keep]
-        try:
-            res = bifilar.fit_swing_trace(t, psi, args.mass, args.spacing, args.length,
-                                          vertical_ke=not args.no_rise_ke, **common)
-        except UserError as exc:
-            raise UserError(f"{path}: {exc}") from None
-        source = str(path)
-    out_files = []
-    if out_folder is not None:
-        from calibration import plots
-
-        with out_folder.writing_main() as (main, out):  # out: None for --out FILE.json
-            main.write_text(json.dumps(res.to_dict(), indent=2, default=float) + "\n")
-            out_files.append(main)
-            if out is not None:
-                out_files.append(plots.plot_budget(res, out / "budget.png"))
-                if args.poses:
-                    out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
-            out_files = [out_folder.final(p) for p in out_files]
-    for w in getattr(res, "warnings", ()):
-        print(f"tpods: warning: {w}", file=sys.stderr)
-    if args.json:
-        _print_json(res.to_dict())
-        return 0
-    rel = res.izz_sigma_kgm2 / res.izz_kgm2
-    print(f"Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} kg m^2 ({100 * rel:.2g} %, k=1)"
-          f"  [{res.method}: {source}]")
-    d = res.details
-    if res.method == "eq19-times":
-        print(f"  period T = {d['period_s']:.5g} +- {d['u_period_s']:.2g} s "
-              f"(trial std {d['period_std_s']:.2g} s)")
-        if d["worst_trial_dev"] > 0.05:
-            print(f"  warning: a timing differs by {100 * d['worst_trial_dev']:.0f} % from the "
-                  "median: a miscounted oscillation?", file=sys.stderr)
-    else:
-        print(f"  small-angle period {d['period0_s']:.5g} s; swing {d['amplitude_start_deg']:.1f} -> "
-              f"{d['amplitude_end_deg']:.1f} deg over {d['n_oscillations']:g} oscillations; "
-              f"residual rms {d['residual_rms_deg']:.2g} deg")
-        print(f"  Eq. 19 on the trace's period {d['trace_period_s']:.5g} s: "
-              f"{d['izz_small_angle_kgm2']:.6g} kg m^2 (amplitude correction "
-              f"{100 * d['amplitude_correction']:+.2f} %)")
-        print(f"  damping: viscous K1 = {d['k1_nms']:.3g} N m s, quadratic K2 = {d['k2_nms2']:.3g} N m s^2")
-    var = res.izz_sigma_kgm2**2 or 1.0
-    print("  contributions to u(Izz):")
-    for k, v in sorted(res.contributions_kgm2.items(), key=lambda kv: -kv[1]):
-        if v > 0:
-            print(f"    {k:8s} {v:.2g} kg m^2 ({100 * v * v / var:.0f} % of the variance)")
-    for f in out_files:
-        print(f"wrote {f}")
     return 0
 
 

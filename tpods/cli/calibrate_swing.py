@@ -1,0 +1,251 @@
+"""``tpods calibrate bifilar|trifilar``: Izz from a pendulum's swing (thin shell).
+
+Sources: stopwatch timings (--times), a mocap yaw trace (--poses), a gyro's yaw rate
+(--rates) or any signal proportional to the angle (--trace: pixels, a laser spot,
+encoder counts). The fits are in :mod:`calibration.swing_fit`, the readers in
+:mod:`calibration.swing_io`; the printing of a result is :mod:`tpods.cli.calibrate_swing_print`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
+from common.constants import G_STANDARD_MPS2
+from common.errors import UserError
+from common.outputs import result_output
+from tpods.cli.options import add_result_out
+
+NEW_INPUTS = (
+    "--rates: a gyro's yaw-rate log (CSV: time, rate; --columns, --time-unit, --rate-unit); "
+    "the derivative of the large-angle model is fitted with the gyro's bias and drift. "
+    "--trace: any signal proportional to the swing angle (pixels, a laser spot, encoder counts; "
+    "CSV: time, value, or --sample-rate for a video track); the period is scale-free, the "
+    "amplitude correction needs --trace-scale, else its possible size is in the sigma. Every "
+    "trace fit bounds the damping at zero, models a second mode (the sway at sqrt(g/L)) when it "
+    "is there, and falls back to the period method with a wider sigma when its residual is "
+    "more than 3 times the sensor noise (docs/calibration.md).")
+
+
+def register_bifilar(cal) -> None:
+    """``tpods calibrate bifilar`` (its help text as before, the new inputs added)."""
+    p = cal.add_parser(
+        "bifilar", help="Izz from a bifilar pendulum: stopwatch timings (Eq. 19) or a mocap trace",
+        description="Izz of a body hung from two parallel strings. --times: the paper's Eq. 19, "
+                    "Izz = m g D^2 T^2 / (16 pi^2 h), on the mean period, with an uncertainty "
+                    "budget per input. --poses: fit the nonlinear large-angle model with viscous "
+                    "and quadratic damping to the recorded yaw; Eq. 19 on the trace's period and "
+                    "the amplitude correction are reported beside it.", epilog=NEW_INPUTS)
+    p.add_argument("--mass", type=positive_float, required=True, metavar="KG", help="body mass, kg")
+    p.add_argument("--spacing", type=positive_float, required=True, metavar="D_M",
+                   help="horizontal separation D of the strings, m")
+    p.add_argument("--length", type=positive_float, required=True, metavar="H_M",
+                   help="unsupported vertical length h of the strings, m")
+    src = _sources(p)
+    p.add_argument("--u-spacing", type=nonneg_float, default=1e-3, metavar="M",
+                   help="standard uncertainty of D, m (default 0.001)")
+    _rest(p, src, "kind_bifilar")
+
+
+def register_trifilar(cal) -> None:
+    """``tpods calibrate trifilar``: three strings at radius R, the same inputs and output."""
+    p = cal.add_parser(
+        "trifilar", help="Izz from a trifilar pendulum: timings, a mocap, gyro or camera trace",
+        description="Izz of a body on a platform hung from three parallel strings of length L "
+                    "at radius R from its centre (the centre of mass on the axis). --times: "
+                    "I = m g R^2 T^2 / (4 pi^2 L) on the mean period, with an uncertainty budget "
+                    "per input (R, L, m, T, g). --poses, --rates, --trace: the large-angle model "
+                    "(the trifilar lifts its body as a bifilar of spacing 2R does) fitted as for "
+                    "'tpods calibrate bifilar'.", epilog=NEW_INPUTS)
+    p.add_argument("--mass", type=positive_float, required=True, metavar="KG",
+                   help="mass of everything that swings (platform and body), kg")
+    p.add_argument("--radius", type=positive_float, required=True, metavar="R_M",
+                   help="radius R of the string attachments from the centre, m")
+    p.add_argument("--length", type=positive_float, required=True, metavar="L_M",
+                   help="vertical length L of the strings, m")
+    src = _sources(p)
+    p.add_argument("--u-radius", type=nonneg_float, default=1e-3, metavar="M",
+                   help="standard uncertainty of R, m (default 0.001)")
+    _rest(p, src, "kind_trifilar")
+
+
+def _sources(p):
+    """The four sources (one required), then --cycles and --u-mass."""
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--times", type=float_list(), metavar="T1,T2,...",
+                     help="stopwatch time of --cycles full oscillations per trial, s")
+    src.add_argument("--poses", metavar="PATH",
+                     help="poses.csv (t,x,y,psi) recorded while the body swings, or its run folder")
+    src.add_argument("--rates", metavar="FILE",
+                     help="a gyro's yaw-rate log: CSV time and rate (rad/s, s by default)")
+    src.add_argument("--trace", metavar="FILE",
+                     help="CSV time and any value proportional to the swing angle (pixels, counts)")
+    p.add_argument("--cycles", type=int_at_least(1), default=10,
+                   help="full oscillations per timing (default 10)")
+    p.add_argument("--u-mass", type=nonneg_float, default=2.5e-3 / math.sqrt(3), metavar="KG",
+                   help="standard uncertainty of m, kg (default 1.44e-3: +-2.5 g rectangular)")
+    return src
+
+
+def _rest(p, src, kind: str) -> None:
+    p.add_argument("--u-length", type=nonneg_float, default=2e-3, metavar="M",
+                   help=f"standard uncertainty of {'h' if kind == 'kind_bifilar' else 'L'}, m "
+                        "(default 0.002)")
+    p.add_argument("--u-timing", type=nonneg_float, default=0.0, metavar="S",
+                   help="extra per-timing stopwatch error, s (default 0: the spread covers it)")
+    p.add_argument("--tare-izz", type=nonneg_float, default=0.0, metavar="KGM2",
+                   help="inertia of a fixture to subtract, kg m^2")
+    p.add_argument("--u-tare", type=nonneg_float, default=0.0, metavar="KGM2",
+                   help="standard uncertainty of --tare-izz")
+    p.add_argument("--g", type=positive_float, default=G_STANDARD_MPS2,
+                   help=f"m/s^2 (default {G_STANDARD_MPS2})")
+    p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
+    p.add_argument("--window", type=time_window, default=None, metavar="T0:T1",
+                   help="use only poses with T0 <= t <= T1, s (--poses); T0,T1 is read too")
+    p.add_argument("--no-rise-ke", action="store_true",
+                   help="omit the kinetic energy of the body's rise (Jardin & Mueller's form)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_result_out(p, "result.json and plots", "result")
+    log = p.add_argument_group("--rates and --trace logs")
+    log.add_argument("--columns", default=None, metavar="SPEC",
+                     help="t=COL,rate=COL (--rates) or t=COL,value=COL (--trace): the columns by "
+                          "header name or 1-based number (default: the t/time column or the "
+                          "first; the rate/value column or the next)")
+    log.add_argument("--time-unit", choices=("s", "ms", "us"), default="s", metavar="UNIT",
+                     help="unit of the time column: s (default), ms or us")
+    log.add_argument("--rate-unit", choices=("rad/s", "deg/s", "rpm"), default="rad/s", metavar="UNIT",
+                     help="unit of the --rates column: rad/s (default), deg/s or rpm")
+    log.add_argument("--sample-rate", type=positive_float, default=None, metavar="HZ",
+                     help="the log has no time column: sample n is at n/HZ s (a video track)")
+    log.add_argument("--trace-scale", type=float, default=None, metavar="K",
+                     help="--trace: the angle per unit of the signal, RAD_PER_UNIT; fits the "
+                          "large-angle model (else the period only, the amplitude correction in "
+                          "the sigma)")
+    log.add_argument("--amplitude-max", type=positive_float, default=15.0, metavar="DEG",
+                     help="--trace without --trace-scale: the largest swing the sigma allows for "
+                          "(default 15 deg)")
+    p.set_defaults(func=cmd_pendulum, suspension=kind.split("_")[1])
+
+
+def _read_poses(path_text: str) -> tuple:
+    import numpy as np
+
+    from common.runfolder import POSE_COLUMNS, read_table
+
+    path = Path(path_text)
+    if path.is_dir():
+        path = path / "poses.csv"
+    v = read_table(path, POSE_COLUMNS)
+    return np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 3]), path
+
+
+def _window(args, t, y):
+    if not args.window:
+        return t, y
+    t0, t1 = args.window
+    keep = (t >= (-math.inf if t0 is None else t0)) & (t <= (math.inf if t1 is None else t1))
+    return t[keep], y[keep]
+
+
+def _suspension(args):
+    from calibration.suspension import Suspension
+
+    tri = args.suspension == "trifilar"
+    return Suspension(args.suspension, args.mass, args.radius if tri else args.spacing,
+                      args.length, u_mass_kg=args.u_mass,
+                      u_arm_m=args.u_radius if tri else args.u_spacing, u_length_m=args.u_length,
+                      g=args.g, u_g=args.u_g, tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare)
+
+
+def _check_log_options(args) -> None:
+    log_only = [o for o, v, d in (("--columns", args.columns, None), ("--time-unit", args.time_unit, "s"),
+                                  ("--sample-rate", args.sample_rate, None)) if v != d]
+    if log_only and not (args.rates or args.trace):
+        raise UserError(f"{', '.join(log_only)}: only for --rates or --trace logs")
+    if args.rate_unit != "rad/s" and not args.rates:
+        raise UserError("--rate-unit is for --rates logs")
+    if (args.trace_scale is not None or args.amplitude_max != 15.0) and not args.trace:
+        raise UserError("--trace-scale and --amplitude-max are for --trace logs")
+    if args.trace_scale is not None and not (math.isfinite(args.trace_scale) and args.trace_scale):
+        raise UserError(f"--trace-scale must be a non-zero finite number, got {args.trace_scale}")
+
+
+def _estimate(args):
+    """The result and a one-line description of its source."""
+    from calibration import bifilar
+    from calibration.suspension import izz_trifilar_from_times
+    from calibration.swing_fit import fit_pose_trace, fit_swing
+    from calibration.swing_io import RATE_UNITS_RAD_S, read_swing_csv
+
+    s = _suspension(args)
+    if args.times is not None:
+        if s.kind == "trifilar":
+            res = izz_trifilar_from_times(args.times, args.cycles, s, u_timing_s=args.u_timing)
+        else:
+            res = bifilar.izz_from_times(args.times, args.cycles, args.mass, args.spacing,
+                                         args.length, u_timing_s=args.u_timing, u_mass_kg=args.u_mass,
+                                         u_spacing_m=args.u_spacing, u_length_m=args.u_length,
+                                         tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare,
+                                         g=args.g, u_g=args.u_g)
+        return res, f"{len(args.times)} timings of {args.cycles} oscillations"
+    if args.poses:
+        t, y, path = _read_poses(args.poses)
+        signal = "angle"
+    else:
+        path = Path(args.rates or args.trace)
+        key = "rate" if args.rates else "value"
+        scale = (RATE_UNITS_RAD_S[args.rate_unit] if args.rates else (args.trace_scale or 1.0))
+        t, y, skipped = read_swing_csv(path, key, args.columns, time_unit=args.time_unit,
+                                       value_scale=scale, sample_rate_hz=args.sample_rate)
+        if skipped:
+            print(f"tpods: warning: {path}: {skipped} rows with an empty cell skipped", file=sys.stderr)
+        signal = "rate" if args.rates else ("angle" if args.trace_scale else "signal")
+    t, y = _window(args, t, y)
+    try:
+        if signal == "angle" and args.poses:
+            res = fit_pose_trace(t, y, s, vertical_ke=not args.no_rise_ke)
+        else:
+            res = fit_swing(t, y, signal, s, vertical_ke=not args.no_rise_ke,
+                            amplitude_max_deg=args.amplitude_max)
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    return res, str(path)
+
+
+def cmd_pendulum(args: argparse.Namespace) -> int:
+    from tpods.cli.calibrate_swing_print import print_result
+
+    _check_log_options(args)
+    out_folder = result_output(args.out, "result.json", force=args.force,
+                               command=f"tpods calibrate {args.suspension}")
+    res, source = _estimate(args)
+    doc = res.to_dict()
+    doc.setdefault("warnings", [])
+    out_files = []
+    if out_folder is not None:
+        from calibration import plots
+
+        with out_folder.writing_main() as (main, out):  # out: None for --out FILE.json
+            main.write_text(json.dumps(doc, indent=2, default=float) + "\n")
+            out_files.append(main)
+            if out is not None:
+                out_files.append(plots.plot_budget(res, out / "budget.png"))
+                if hasattr(res, "psi_fit"):
+                    out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
+                elif hasattr(res, "y_fit"):
+                    out_files.append(plots.plot_signal_fit(res, out / "fit.png"))
+            out_files = [out_folder.final(p) for p in out_files]
+    for w in getattr(res, "warnings", ()):
+        print(f"tpods: warning: {w}", file=sys.stderr)
+    if args.json:
+        json.dump(doc, sys.stdout, indent=2, default=float)
+        sys.stdout.write("\n")
+        return 0
+    print_result(res, source)
+    for f in out_files:
+        print(f"wrote {f}")
+    return 0
