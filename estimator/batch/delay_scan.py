@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.chi2 import sf as chi2_sf
 from common.errors import UserError
 
 DEFAULT_DELAYS_S = tuple(np.round(np.arange(0.0, 0.1001, 0.01), 4))
@@ -103,8 +104,6 @@ def profile(cost_at: Callable[[float], float], delays_s: Sequence[float], n_obs:
     the grid ``delays_s`` (sorted, starting at 0), the best refined by up to
     :data:`REFINE_STEPS` parabolas through ``best +- h`` (``h`` from :data:`REFINE_S`,
     shrinking with the steps): the profile is not quadratic over a grid spacing."""
-    from scipy.stats import chi2
-
     d = np.asarray(sorted(float(x) for x in delays_s))
     if len(d) < 3 or d[0] != 0.0:
         raise UserError("a delay scan needs at least 3 delays, the first 0")
@@ -147,7 +146,7 @@ def profile(cost_at: Callable[[float], float], delays_s: Sequence[float], n_obs:
     half = Z95 * sigma
     lo, hi = max(best - half, 0.0), min(best + half, float(d[-1]))
     lr = max(float(c[0]) - c_best, 0.0) / scale
-    return DelayScan(grid, cost, best, sigma, (lo, hi), lr, float(chi2.sf(lr, 1)), scale, n_obs,
+    return DelayScan(grid, cost, best, sigma, (lo, hi), lr, float(chi2_sf(lr, 1)), scale, n_obs,
                      n_params)
 
 
