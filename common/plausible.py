@@ -20,7 +20,9 @@ The quantities and their ranges:
   millimetres stays below it and is flagged by the estimators' residual check);
 - a duty, 0..100 % (refused by row), and a duty range LOW..HIGH given reversed
   (:func:`check_duty_range`, refused saying so);
-- a thrust calibration factor (efficiency, nozzle scale), :data:`FACTOR_RANGE` (warn);
+- a thrust calibration factor (efficiency, nozzle scale), :data:`FACTOR_RANGE` (warn); one
+  near zero (:data:`DEAD_FACTOR`, or within 3 sigma of 0) names a dead or blocked thruster,
+  a negative one a reversed or mis-wired thruster (:func:`thruster_factor_warnings`, warn);
 - a time stamp: finite (:func:`check_finite_time`, refused);
 - the modules of a structure: no two closer than :data:`MODULE_MIN_SPACING_M` (refused:
   they would overlap).
@@ -170,6 +172,16 @@ def check_finite_time(t: float | None, what: str) -> None:
 
 # ------------------------------------------------------------------ thrust calibration
 
+MISFIT_CAUSES = (
+    "likely causes: a valve dead time (the thrust starts and stops later than the command), "
+    "a shared supply (thrust dropping with the number of valves open), damping (air-bearing "
+    "drag, a tilted table), a dead or reversed thruster. Tell them apart: 'tpods estimate "
+    "batch --delay-scan' (likelihood-ratio test of a dead time), '--model friction' or "
+    "'--model auto' (damping, tilt), 'tpods calibrate thrust --per thruster' with the mass "
+    "known (a dead, weak or reversed thruster) and '--per nozzles' (a shared-supply drop)")
+"""What a model misfit (residuals, a factor far from 1) may mean, and the checks that tell
+the causes apart (issue 24, item 7)."""
+
 FACTOR_RANGE = (0.5, 1.5)
 """A thrust calibration factor (efficiency, nozzle scale): a thruster giving less than half
 or more than 1.5x its table's thrust is broken, or the run is not of the stated body."""
@@ -184,7 +196,48 @@ def factor_warnings(names: Sequence[str], values: Sequence[float]) -> list[str]:
         return []
     return [f"{', '.join(bad)}: outside {100 * lo:.0f}-{100 * hi:.0f} % of the table's thrust; "
             "is the run of the body of --mass and --izz, and the table's unit right? "
-            "Do not use this table before checking"]
+            f"Do not use this table before checking. If they are: the model misses an "
+            f"effect; {MISFIT_CAUSES}"]
+
+
+DEAD_FACTOR = 0.3
+"""A calibration factor below this (or within :data:`ZERO_SIGMAS` sigma of 0) is a thruster
+that gives almost no thrust: dead or blocked."""
+ZERO_SIGMAS = 3.0
+
+
+def _factor_subject(name: str) -> str:
+    kind, _, idx = name.partition(".")
+    if kind == "efficiency":
+        return f"thruster {idx} (column d{idx})"
+    if kind == "nozzle_scale":
+        return f"every thruster when {idx} are open"
+    return "every thruster"
+
+
+def thruster_factor_warnings(names: Sequence[str], values: Sequence[float],
+                             sigma: Sequence[float]) -> list[str]:
+    """One line per factor that names a dead or blocked thruster (near zero: below
+    :data:`DEAD_FACTOR` or within :data:`ZERO_SIGMAS` sigma of 0) or a reversed or
+    mis-wired one (negative beyond that), with the check that tells; then
+    :func:`factor_warnings` on the others."""
+    out, rest = [], []
+    for n, v, s in zip(names, values, sigma, strict=True):
+        v, s = float(v), float(s)
+        said = f"{_factor_subject(n)}: {n} = {v:.3g} +- {s:.2g}"
+        if v < 0 and abs(v) > ZERO_SIGMAS * s:
+            out.append(f"{said} is negative: it pushes the wrong way. Reversed or mis-wired: its "
+                       "valve is driven by another command column, or the nozzle points the "
+                       "other way; check the valve wiring against the command column order "
+                       "(open that valve alone and watch which way the body moves)")
+        elif v < DEAD_FACTOR or abs(v) <= ZERO_SIGMAS * s:
+            out.append(f"{said} is near zero: it gives almost no thrust. Dead or blocked: a valve "
+                       "that does not open, a pinched or blocked tube, a broken wire, the "
+                       "supply closed; check by opening that valve alone (listen for the jet, "
+                       "watch the body move)")
+        else:
+            rest.append((n, v))
+    return out + factor_warnings([n for n, _ in rest], [v for _, v in rest])
 
 
 # ------------------------------------------------------------------ structures

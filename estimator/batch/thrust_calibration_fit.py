@@ -14,7 +14,7 @@ import numpy as np
 from common.errors import UserError
 from estimator.batch.consider import output_sensitivity, segment_jacobian
 from estimator.batch.crlb import make_grid, reference_states, safe_inverse, trajectory_stm
-from estimator.batch.thrust_factors import factor_jacobian, with_factors
+from estimator.batch.thrust_factors import factor_thrust
 from estimator.plant.model import wrap_angle
 
 MODEL_EXTRAS = {"ideal": (), "friction": ("ct", "cr", "kb"),
@@ -84,22 +84,30 @@ class CalibrationFit:
         self.table, self.names, self.extras, self.fixed = table, names, extras, fixed
         self.w, self.clamp, self.max_step = w, clamp, max_step
         self.ne = 6 + len(extras)
+        # the known values carried as consider parameters (Izz too unless it is estimated)
+        self.consider = tuple(c for c in ("mass", "izz") if c not in extras)
 
     def split(self, z):
         return z[:6], z[6:self.ne], z[self.ne:]
 
     def setup(self, z):
         s0, ex, f = self.split(z)
-        table = with_factors(self.table, self.names, f)
-        thrust, fjac = factor_jacobian(table, self.duty, self.names, self.clamp)
+        if hasattr(self.table, "factor_thrust"):  # a vehicle's (thrust_calibration_vehicle)
+            thrust, fjac = self.table.factor_thrust(self.names, f)
+        else:
+            thrust, fjac = factor_thrust(self.table, self.duty, self.names, f, self.clamp)
         params = dict(self.fixed)
         params.update({n: float(v) for n, v in zip(self.extras, ex, strict=True)})
         grid = make_grid(self.cmd_t, thrust, self.pose_t, self.max_step)
         return params, grid, fjac
 
     def evaluate(self, z):
-        """``(cost, residuals (N, 3), cache)``; cost inf for a non-finite trajectory."""
-        if not np.all(np.isfinite(z)) or np.any(self.split(z)[2] <= 0):
+        """``(cost, residuals (N, 3), cache)``; cost inf for a non-finite trajectory or a
+        non-positive estimated Izz (a factor may be 0 or negative: a dead or reversed
+        thruster)."""
+        if not np.all(np.isfinite(z)):
+            return math.inf, None, None
+        if "izz" in self.extras and z[6 + self.extras.index("izz")] <= 0:
             return math.inf, None, None
         params, grid, fjac = self.setup(z)
         with np.errstate(all="ignore"):
@@ -114,11 +122,12 @@ class CalibrationFit:
         return float(np.sum(res**2 * self.w)), res, (params, grid, fjac, states)
 
     def jacobian(self, z, cache):
-        """``(H (N, 3, 6+e+P), Jmi (N, 3, 2))``: d pose / d z and d pose / d (mass, izz)."""
+        """``(H (N, 3, 6+e+P), Jmi (N, 3, c))``: d pose / d z and d pose / d (the consider
+        parameters :attr:`consider`: mass, and izz when it is known)."""
         params, grid, fjac, states = cache
         with np.errstate(all="ignore"):
             _, phi = trajectory_stm(z[:6], None, None, self.pose_t, params,
-                                    self.extras + ("mass", "izz"), grid=grid, states=states)
+                                    self.extras + self.consider, grid=grid, states=states)
             Jf = output_sensitivity(states, grid, params, segment_jacobian(grid, fjac))
         H = np.concatenate([phi[:, :3, :self.ne], Jf], axis=-1)
         return H, phi[:, :3, self.ne:]
@@ -160,6 +169,10 @@ def gauss_newton(fit: CalibrationFit, z, scale, *, reg: float, tol: float, tol_s
         fstep = np.max(np.abs(step[fit.ne:]), initial=0.0)
         if fstep > 0.2:  # no factor moves by more than 0.2 per step
             step *= 0.2 / fstep
+        if "izz" in fit.extras:  # nor an estimated Izz by more than half its value
+            i = 6 + fit.extras.index("izz")
+            if abs(step[i]) > 0.5 * z[i]:
+                step *= 0.5 * z[i] / abs(step[i])
         small = bool(np.max(np.abs(step / scale)) < tol)
         if tol_sigma is not None and mu == 0.0:
             sig = np.sqrt(np.maximum(np.diag(safe_inverse(L)), 1e-300))

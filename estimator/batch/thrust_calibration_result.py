@@ -12,7 +12,12 @@ from typing import Any
 import numpy as np
 
 from common.thrust_table import ThrustTable
-from estimator.batch.thrust_factors import remaining_uncertainty, with_factors
+from estimator.batch.thrust_factors import (
+    N_CHANNELS,
+    channel_name,
+    remaining_uncertainty,
+    with_factors,
+)
 
 
 @dataclass
@@ -33,6 +38,8 @@ class ThrustCalibrationResult:
         residuals: (N, 3) pose minus prediction (m, m, rad).
         min_eigenvalue: of the unit-diagonal factor information (1 = uncorrelated factors).
         correlation: (P, P) of the total covariance.
+        izz: Izz estimated with the factors (only the mass known; :func:`izz_estimate`),
+            else None.
     """
 
     names: tuple[str, ...]
@@ -61,6 +68,8 @@ class ThrustCalibrationResult:
     kept_cross: np.ndarray | None = None
     kept_names: tuple[str, ...] = ()
     warnings: list[str] = field(default_factory=list)
+    izz: dict[str, Any] | None = None
+    misfit: dict[str, Any] | None = None  # misfit statistics (its warnings are in warnings)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -114,8 +123,15 @@ class ThrustCalibrationResult:
                          "are relative to it")
         if self.absorbed:
             notes.append("calibrated away: " + ", ".join(self.absorbed))
+        if "scale" in self.names:  # a common scale: written as equal efficiencies
+            names, cov = scale_as_efficiencies(table, names, self.values, cov)
+            notes.append("--per common: one scale of every thrust, written as the "
+                         "efficiencies (fully correlated)")
         info = {"source": source, **({"run": run} if run else {}),
-                "known": {**self.known, "per": self.per, "model": self.model},
+                "known": {**self.known, "per": self.per, "model": self.model,
+                          **({"izz_estimated_kgm2": self.izz["izz_kgm2"],
+                              "izz_estimated_sigma_kgm2": self.izz["izz_sigma_kgm2"]}
+                             if self.izz is not None else {})},
                 **({"notes": "; ".join(notes)} if notes else {})}
         new = with_factors(table, self.names, self.values, parameters=names, covariance=cov,
                            info=info)
@@ -146,8 +162,49 @@ class ThrustCalibrationResult:
             "rms_residual_yaw_rad": float(rms[2]),
             "iterations": self.iterations, "converged": self.converged,
             "stages_s": list(self.stages), "min_eigenvalue": self.min_eigenvalue,
+            **(self.izz if self.izz is not None else {}),
             **({"warnings": list(self.warnings)} if self.warnings else {}),
         }
+
+
+def scale_as_efficiencies(table: ThrustTable, names: Sequence[str], values: np.ndarray,
+                          cov: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """Parameters and covariance of a table calibrated with a common ``scale`` (first of
+    ``names``; the others kept from the table): ``efficiency.J = scale * e_J`` for every
+    channel, ``e_J`` the table's efficiency (or the kept one), the rest unchanged."""
+    eff = table.channel_factors(N_CHANNELS)
+    s = float(values[0])
+    kept = list(names[1:])
+    out = [channel_name(j) for j in range(len(eff))] + [n for n in kept if n not in
+                                                        {channel_name(j) for j in range(len(eff))}]
+    J = np.zeros((len(out), len(names)))
+    for r, n in enumerate(out):
+        if r < len(eff):
+            J[r, 0] = eff[r]
+            if n in kept:
+                J[r, 1 + kept.index(n)] = s
+        else:
+            J[r, 1 + kept.index(n)] = 1.0
+    C = J @ cov @ J.T
+    return out, 0.5 * (C + C.T)
+
+
+def izz_estimate(izz_kgm2: float, rows: dict[str, np.ndarray], names: Sequence[str],
+                 factor_sigma: np.ndarray) -> dict[str, Any]:
+    """The JSON keys of an Izz estimated with the factors ``names``: ``izz_kgm2``,
+    ``izz_sigma_kgm2`` (total), its parts (``izz_sigma_noise_kgm2``, ``izz_sigma_mass_kgm2``,
+    ``izz_sigma_table_kgm2``) and ``izz_correlation`` with each factor (total covariance).
+    ``rows``: ``{part: (1, P+1) row of Izz in that part's covariance over (factors, Izz)}``;
+    ``factor_sigma``: (P,) the factors' total sigma."""
+    P = len(names)
+    total = sum(r[0] for r in rows.values())
+    sig = math.sqrt(max(float(total[P]), 0.0))
+    den = sig * np.asarray(factor_sigma, float)
+    corr = np.divide(total[:P], den, out=np.zeros(P), where=den > 0)
+    return {"izz_kgm2": izz_kgm2, "izz_sigma_kgm2": sig,
+            **{f"izz_sigma_{k}_kgm2": math.sqrt(max(float(r[0, P]), 0.0))
+               for k, r in rows.items() if k != "izz"},
+            "izz_correlation": {n: float(c) for n, c in zip(names, corr, strict=True)}}
 
 
 def kept_covariance(table: ThrustTable, kept: Sequence[str]) -> np.ndarray:

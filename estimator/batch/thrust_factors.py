@@ -24,7 +24,9 @@ from common.thrust_uncertainty import (
     thrust_sensitivity,
 )
 
-PER_CHOICES = ("thruster", "nozzles", "both")
+PER_CHOICES = ("thruster", "nozzles", "both", "common")
+"""``common``: one factor ``scale`` multiplying every thrust (written into the table as equal
+efficiencies with a fully correlated covariance)."""
 MODEL_EXTRAS = {"ideal": (), "friction": ("ct", "cr", "kb"),
                 "friction+tilt": ("ct", "cr", "kb", "ax", "ay")}
 """Nuisance parameters estimated beside the factors, per ``--model``."""
@@ -49,11 +51,16 @@ def with_factors(table: ThrustTable, names: Sequence[str], values: Sequence[floa
     eff = list(table.channel_factors(N_CHANNELS))
     ns = dict(cal.nozzle_scale) if cal is not None else {}
     for n, v in zip(names, values, strict=True):
+        if n == "scale":
+            continue
         kind, idx = n.split(".")
         if kind == "efficiency":
             eff[int(idx) - 1] = float(v)
         else:
             ns[int(idx)] = float(v)
+    if "scale" in names:
+        s = float(values[list(names).index("scale")])
+        eff = [s * e for e in eff]
     cov = np.zeros((0, 0)) if covariance is None else np.asarray(covariance, float)
     new = ThrustCalibration(tuple(float(e) for e in eff), ns, tuple(parameters), cov,
                             dict(info) if info is not None else {})
@@ -64,12 +71,45 @@ def factor_jacobian(table: ThrustTable, duty_pct: np.ndarray, names: Sequence[st
                     clamp: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Thrusts ``(..., 4)`` N and their derivatives ``(..., 4, P)`` with respect to the
     factors ``names`` (N per unit factor): ``T_j/eff_j`` in channel j, ``T/nozzle_scale_k``
-    on rows with k open."""
+    on rows with k open; ``T`` for ``scale`` (at scale 1: the table's factors as they are)."""
     thrust = table.thrust_n(duty_pct, clamp=clamp)
     k = (np.asarray(duty_pct) > 0).sum(axis=-1)
     eff = table.channel_factors(thrust.shape[-1])
-    cols = [factor_derivative(table, thrust, k, eff, n) for n in names]
+    cols = [thrust if n == "scale" else factor_derivative(table, thrust, k, eff, n) for n in names]
     jac = np.stack(cols, axis=-1) if cols else np.zeros(thrust.shape + (0,))
+    return thrust, jac
+
+
+def factor_thrust(table: ThrustTable, duty_pct: np.ndarray, names: Sequence[str],
+                  values: Sequence[float], clamp: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Thrusts ``(..., C)`` N with the factors ``names`` at ``values`` and their derivatives
+    ``(..., C, P)``, the factors applied outside the table: a factor may be 0 or negative
+    (a dead or reversed thruster), which the table itself (thrusts >= 0) cannot express.
+    ``table`` holds the other factors; the estimated ones are taken as 1 in it."""
+    unit = with_factors(table, names, np.ones(len(names))).thrust_n(duty_pct, clamp=clamp)
+    d = np.asarray(duty_pct, float)
+    k = (d > 0).sum(axis=-1)
+    col = np.ones(unit.shape[-1])
+    row = np.ones(unit.shape[:-1])
+    scale = 1.0
+    for n, v in zip(names, values, strict=True):
+        if n == "scale":
+            scale = float(v)
+        elif n.startswith("efficiency."):
+            col[int(n.split(".")[1]) - 1] = float(v)
+        else:
+            row = np.where(k == int(n.split(".")[1]), float(v), row)
+    thrust = unit * col * row[..., None] * scale
+    jac = np.zeros(unit.shape + (len(names),))
+    for i, n in enumerate(names):
+        if n == "scale":
+            jac[..., i] = unit * col * row[..., None]
+        elif n.startswith("efficiency."):
+            j = int(n.split(".")[1]) - 1
+            jac[..., j, i] = unit[..., j] * row * scale
+        else:
+            on = (k == int(n.split(".")[1]))[..., None]
+            jac[..., i] = np.where(on, unit * col * scale, 0.0)
     return thrust, jac
 
 
@@ -162,8 +202,11 @@ def factor_names(per: str, duty_pct: np.ndarray, cmd_t: np.ndarray, t_end: float
     t = np.asarray(cmd_t, float)
     live = t < t_end
     names: list[str] = []
+    if per == "common":
+        return ("scale",), None
+    n_channels = d.shape[-1]
     if per in ("thruster", "both"):
-        never = [j + 1 for j in range(N_CHANNELS) if not np.any(d[live, j] > 0)]
+        never = [j + 1 for j in range(n_channels) if not np.any(d[live, j] > 0)]
         if never:
             which = ", ".join(str(j) for j in never)
             raise UserError(
@@ -171,7 +214,7 @@ def factor_names(per: str, duty_pct: np.ndarray, cmd_t: np.ndarray, t_end: float
                 f"never opened in this run: {'its efficiency' if len(never) == 1 else 'their efficiencies'} "
                 "cannot be estimated (record a run that opens every thruster, e.g. "
                 "translate-rotate or 'tpods design --for thrust-calibration', or use --per nozzles)")
-        names += [channel_name(j) for j in range(N_CHANNELS)]
+        names += [channel_name(j) for j in range(n_channels)]
     ref = None
     if per in ("nozzles", "both"):
         ks = sorted(used)

@@ -13,6 +13,8 @@ import numpy as np
 from common.errors import UserError
 from estimator.batch.crlb import crlb
 from estimator.batch.least_squares import estimate_run as least_squares_run
+from estimator.batch.misfit import misfit_warnings
+from estimator.batch.misfit import summary as misfit_summary
 from estimator.batch.model_select import ModelSelection
 from estimator.batch.structure_degenerate import refuse_undetermined
 from estimator.estimate.knowledge import BodyKnowledge
@@ -56,6 +58,10 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
         refuse_undetermined(res, _windowed(run, window).thrust_profile(table, clamp=clamp)[1],
                             str(run.path), fixed=tuple(fixed), structure=run.structure)
         _structure_consider(res, _windowed(run, window), table, clamp, sigma_pos_m, sigma_yaw_rad)
+    if not (not res.converged and "no information" in res.message):
+        # the model's misfit: residuals far above the noise, or structured (issue 24, item 7)
+        res.warnings += misfit_warnings(res.residuals, sigma_pos_m, sigma_yaw_rad,
+                                        what="the batch fit")
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
@@ -63,6 +69,7 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
             log(f"tpods: warning: {res.thrust_note}")
     out: dict[str, Any] = {"method": "ls", "run": str(run.path)}
     out.update(res.to_dict())
+    out["misfit"] = misfit_summary(res.residuals, sigma_pos_m, sigma_yaw_rad)
     out["model"] = model
     if run.structure is not None:
         out.update(structure_keys(res, run))

@@ -1,21 +1,23 @@
-"""``tpods calibrate mass|bifilar|trifilar|combine|thrust``: ground-truth mass and Izz, and the
-in-situ thrust calibration from a body of known mass and Izz (thin shell; the pendulums'
-commands are in :mod:`tpods.cli.calibrate_swing`)."""
+"""``tpods calibrate mass|bifilar|trifilar|combine|thrust``: ground-truth mass and Izz (thin
+shell; the pendulums' commands are in :mod:`tpods.cli.calibrate_swing`, the in-situ thrust
+calibration in :mod:`tpods.cli.calibrate_thrust`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
-from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
+from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
 from common.errors import DeviceError, UserError
-from common.outputs import add_force, result_output
 from tpods.cli.calibrate_swing import cmd_pendulum as cmd_bifilar  # noqa: F401 - re-exported
 from tpods.cli.calibrate_swing import register_bifilar, register_trifilar
-from tpods.cli.options import add_noise_sigmas
+from tpods.cli.calibrate_thrust import (
+    design_calibration,  # noqa: F401  (re-exported)
+    print_json_indented,
+    register_thrust,
+)
 from tpods.cli.parser import group
 
 
@@ -27,15 +29,13 @@ def register(sub) -> None:
     register_bifilar(cal)
     register_trifilar(cal)
     _register_combine(cal)
-    _register_thrust(cal)
+    register_thrust(cal)
     from tpods.cli.calibrate_pendulum import register_pendulum_check
 
     register_pendulum_check(cal)
 
 
-def _print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=2, default=float)
-    sys.stdout.write("\n")
+_print_json = print_json_indented
 
 
 # ------------------------------------------------------------------------------ mass
@@ -225,176 +225,3 @@ def _compare_rows(res, path: str) -> list[dict]:
     if not isinstance(est, dict):
         raise UserError(f"--compare {path}: not an estimate's JSON object")
     return compare(res, est)
-
-
-# ---------------------------------------------------------------------------- thrust
-
-
-def _register_thrust(cal) -> None:
-    p = cal.add_parser(
-        "thrust", help="in-situ thrust calibration from a run of a body of known mass and Izz",
-        description="Estimate per-thruster efficiencies and/or per-nozzle-count scale factors of "
-                    "a thrust table from a run of a body whose mass and Izz are known (balance "
-                    "and bifilar pendulum), with the initial state (and friction/tilt with "
-                    "--model), and write a new table: the original coefficients, plus "
-                    "[calibration] with the factors and their covariance (measurement noise, "
-                    "the known values' uncertainty and the table's own, propagated). Every "
-                    "estimator reads it and carries its uncertainty. A run that cannot separate "
-                    "the factors (a thruster never opened; --per both on a run with one nozzle "
-                    "count, such as the phase-shifted sine) is refused; 'tpods design --for "
-                    "thrust-calibration' designs one that can.")
-    p.add_argument("run_dir", metavar="RUN_DIR", help="run folder of the known body")
-    p.add_argument("--mass", type=positive_float, required=True, metavar="KG",
-                   help="known mass of the body, kg")
-    p.add_argument("--mass-sigma", type=nonneg_float, default=0.0, metavar="KG",
-                   help="its standard uncertainty, kg (default 0; tpods calibrate mass gives it)")
-    p.add_argument("--izz", type=positive_float, required=True, metavar="KGM2",
-                   help="known Izz of the body, kg m^2")
-    p.add_argument("--izz-sigma", type=nonneg_float, default=0.0, metavar="KGM2",
-                   help="its standard uncertainty, kg m^2 (default 0; tpods calibrate bifilar "
-                        "gives it)")
-    p.add_argument("--thrust-table", required=True, metavar="T.toml",
-                   help="the table to calibrate ('table2': the built-in Table 2)")
-    p.add_argument("--per", choices=("thruster", "nozzles", "both"), default="thruster",
-                   help="thruster: efficiency of each thruster (default); nozzles: scale of each "
-                        "nozzle count the run uses; both: efficiencies and the scales of the "
-                        "other counts relative to the count the run holds longest")
-    p.add_argument("--model", choices=("ideal", "friction", "friction+tilt"), default="ideal",
-                   help="nuisance parameters estimated beside the factors: ideal (none, "
-                        "default), friction (ct, cr, kb), friction+tilt (also ax, ay)")
-    p.add_argument("--window", type=time_window, default=None, metavar="T0:T1",
-                   help="use only poses with T0 <= t <= T1, s; T0,T1 is read too")
-    p.add_argument("--clamp", action="store_true",
-                   help="clamp duties outside the table's valid range instead of refusing them")
-    add_noise_sigmas(p)
-    p.add_argument("--out", required=True, metavar="NEW.toml|DIR",
-                   help="the calibrated table (NEW.toml), or a folder that receives "
-                        "thrust_table.toml and calibration.json")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    add_force(p)
-    p.set_defaults(func=cmd_thrust)
-
-
-def cmd_thrust(args: argparse.Namespace) -> int:
-    from common.outputs import not_an_input
-    from common.plausible import body_problems
-    from common.runfolder import read_run
-    from common.thrust_table import ThrustTable
-    from estimator.batch.thrust_calibration import calibrate_run
-
-    out = result_output(args.out, "thrust_table.toml", force=args.force,
-                        command="tpods calibrate thrust")
-    builtin = args.thrust_table.lower() == "table2"
-    not_an_input(out, args.run_dir, None if builtin else args.thrust_table)
-    table = ThrustTable.default() if builtin else ThrustTable.load(args.thrust_table)
-    run = read_run(args.run_dir)
-    for p in body_problems(args.mass, args.izz):  # before the fit, which may then fail
-        print(f"tpods: warning: the known body (--mass, --izz): {p}: implausible for an "
-              "air-table body (kg and kg m^2?)", file=sys.stderr)
-    if args.window:
-        run = run.window(*args.window)
-    res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,
-                        mass_sigma_kg=args.mass_sigma, izz_sigma_kgm2=args.izz_sigma,
-                        per=args.per, model=args.model, sigma_pos_m=args.sigma_pos,
-                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp)
-    if not res.converged:
-        raise UserError(f"{run.path}: the calibration did not converge "
-                        f"({res.iterations} iterations); no table written")
-    new = res.new_table(table, run=str(run.path))
-    doc = res.to_dict()
-    doc.update({"run": str(run.path), "thrust_table": "built-in Table 2" if builtin
-                else args.thrust_table, "out": str(out.main)})
-    with out.writing_main() as (main, d):  # d: None for --out FILE.toml
-        new.save(main)
-        if d is not None:
-            (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    warnings = list(res.warnings)
-    if args.mass_sigma == 0 or args.izz_sigma == 0:
-        warnings.append("--mass-sigma/--izz-sigma not given: the factors' sigma leaves out the "
-                        "known values' uncertainty")
-    for w in warnings:
-        print(f"tpods: warning: {w}", file=sys.stderr)
-    if args.json:
-        _print_json(doc)
-        return 0
-    print(f"thrust calibration on {run.path} ({len(res.t)} poses, t = {res.t[0]:.3f}.."
-          f"{res.t[-1]:.3f} s; --per {res.per}, --model {res.model})")
-    print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg, "
-          f"Izz = {args.izz:.6g} +/- {args.izz_sigma:.2g} kg m^2")
-    print(f"  converged; {res.iterations} iterations, horizons "
-          f"{', '.join(f'{h:.1f}' for h in res.stages)} s")
-    b = res.budget()
-    lim = res.limited_by()
-    print(f"  {'factor':<16} {'value':>8} {'sigma':>8}   {'noise':>8} {'mass':>8} {'Izz':>8} "
-          f"{'table':>8}   limited by")
-    for n, v in zip(res.names, res.values, strict=True):
-        p = b[n]
-        print(f"  {n:<16} {v:8.4f} {p['total']:8.2g}   {p['noise']:8.2g} {p['mass']:8.2g} "
-              f"{p['izz']:8.2g} {p['table']:8.2g}   {lim[n]}")
-    if res.reference_count is not None:
-        print(f"  nozzle_scale.{res.reference_count} held at "
-              f"{table.nozzle_factor(res.reference_count):g} (reference count: the efficiencies "
-              "carry the common level)")
-    if res.absorbed:
-        print(f"  calibrated away (removed from the table's [uncertainty]): {', '.join(res.absorbed)}")
-    for e, v in res.extras.items():
-        print(f"  {e:<5} = {v:.4g} +/- {res.extras_sigma[e]:.2g}")
-    rms = res.rms_residuals()
-    print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
-          f"yaw {math.degrees(rms[2]):.3f} deg")
-    print(f"  wrote {out.main}" + (", calibration.json" if out.is_folder else ""))
-    return 0
-
-
-def design_calibration(args: argparse.Namespace, table, settings, out_folder) -> int:
-    """``tpods design --for thrust-calibration``: the D-optimal gated sine for the factors
-    ``--per`` (m and Izz known: ``--mass``, ``--izz``), written as commands.csv and
-    design.json into ``out_folder`` (a checked :class:`common.outputs.ResultFolder`)."""
-    import numpy as np
-    from tqdm import tqdm
-
-    from estimator.batch.calibration_design import evaluate_calibration, search_calibration
-    from estimator.plant.inputs import make_input
-
-    compared = []
-    for spec in ["phase-sine", "translate-rotate", *args.compare]:
-        cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
-        try:
-            compared.append(evaluate_calibration(cmd_t, duty, table, settings, args.per, label=spec))
-        except UserError as exc:
-            raise UserError(f"{spec}: {exc}") from None
-    total = args.candidates + args.refine * args.refine_evals
-    with tqdm(total=total, desc="design", unit="eval", file=sys.stderr, leave=False,
-              disable=None) as bar:
-        res = search_calibration(table, settings, per=args.per, n_random=args.candidates,
-                                 n_refine=args.refine, refine_evals=args.refine_evals,
-                                 omega_range=tuple(args.omega_range), seed=args.seed,
-                                 progress=bar.update)
-    best = res.best
-    doc = {"for": "thrust-calibration", "per": args.per, "best": best.to_dict(),
-           "compared": [e.to_dict() for e in compared], "evaluated": res.evaluated,
-           "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
-                        "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
-                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
-                        "mass_kg": args.mass, "izz_kgm2": args.izz},
-           "commands_csv": str(out_folder.path / "commands.csv")}
-    with out_folder.writing() as d:
-        np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
-                   header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
-        (d / "design.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    if args.json:
-        _print_json(doc)
-        return 0
-    print(f"D-optimal thrust-calibration input over {args.duration:g} s (--per {args.per}, "
-          f"m = {args.mass:g} kg and Izz = {args.izz:g} kg m^2 known; {res.evaluated} sequences)")
-    print(f"  {'input':<44} {'log det':>9} {'max sd':>8} {'counts open':>12} {'excursion x,y m':>16}  fits")
-    for e in [*compared, best]:
-        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
-        sd = f"{e.sigma.max():8.2g}" if e.sigma.size and np.all(np.isfinite(e.sigma)) else f"{'-':>8}"
-        counts = ",".join(str(k) for k in sorted(e.counts_s))
-        print(f"  {lab:<44} {e.logdet:9.3f} {sd} {counts:>12} {e.excursion_m[0]:7.2f},"
-              f"{e.excursion_m[1]:7.2f}  {'yes' if e.feasible else 'NO: ' + e.reason}")
-    print(f"  best: {best.spec.describe()}")
-    print(f"  wrote {out_folder.path / 'commands.csv'} (play it or simulate it with tpods sim "
-          "--input), design.json")
-    return 0

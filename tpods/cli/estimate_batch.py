@@ -22,6 +22,7 @@ from common.argtypes import (
     MASS_KG,
     positive_float,
 )
+from common.errors import UserError
 from common.outputs import ResultFolder, not_an_input, result_output
 from tpods.cli import estimate_ekf as cli_ekf
 from tpods.cli import estimate_realism as cli_realism
@@ -109,6 +110,12 @@ def register(sub, est, rep) -> None:
     p.add_argument("--tol", type=positive_float, default=1e-8,
                    help="largest scaled correction at convergence (default 1e-8)")
     p.add_argument("--max-iter", type=int, default=50, help="iteration cap per stage (default 50)")
+    p.add_argument("--delay-scan", action="store_true",
+                   help="--method ls: test for a valve dead time: re-fit with the commands "
+                        "shifted by 0..--delay-max-ms, profile likelihood, best delay with its "
+                        "95 %% interval and the likelihood-ratio test against none")
+    p.add_argument("--delay-max-ms", type=positive_float, default=100.0, metavar="MS",
+                   help="largest delay of --delay-scan, ms (default 100; 11 steps)")
     add_json_flag(p)
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
@@ -163,6 +170,9 @@ def _common_model_options(p) -> None:
 def cmd_batch(args: argparse.Namespace) -> int:
     from estimator.estimate import estimate_run
 
+    if args.delay_scan and args.method != "ls":
+        raise UserError(f"--delay-scan re-fits the batch least squares: it needs --method ls, "
+                        f"not {args.method}")
     args.out_folder = result_output(args.out, "estimate.json", force=args.force,
                                     command="tpods estimate batch")
     not_an_input(args.out_folder, args.run_dir, args.thrust_table)
@@ -188,6 +198,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     out = est.to_dict()
     if body_lines:
         out["warnings"] = [*out.get("warnings", []), *body_lines]
+    scan = _delay_scan(est, args, out) if args.delay_scan else None
     if args.out_folder is not None:
         from estimator.reports.plots_batch import plot_residuals
 
@@ -231,10 +242,30 @@ def cmd_batch(args: argparse.Namespace) -> int:
     if "crlb_mass_sigma_kg" in out:
         print(f"  CRLB at truth: mass {out['crlb_mass_sigma_kg']:.3g} kg, "
               f"Izz {out['crlb_izz_sigma_kgm2']:.3g} kg m^2")
+    if scan is not None:
+        print(f"  delay scan: {scan.describe()}")
     if args.out_folder is not None:
         print(f"  wrote {args.out_folder.main}"
               + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
     return 0
+
+
+def _delay_scan(est, args: argparse.Namespace, out: dict):
+    """``--delay-scan``: the profile likelihood of a valve dead time on the fitted run,
+    into ``out["delay_scan"]`` (and a warning when one is found)."""
+    from common.thrust_table import load_thrust_table
+    from estimator.batch.delay_scan import delay_warning, run_delay_scan
+
+    grid = np.linspace(0.0, args.delay_max_ms * 1e-3, 11)
+    scan = run_delay_scan(est.run, load_thrust_table(args.thrust_table), est.batch,
+                          clamp=args.clamp, sigma_pos_m=args.sigma_pos,
+                          sigma_yaw_rad=math.radians(args.sigma_yaw_deg), delays_s=grid)
+    out["delay_scan"] = scan.to_dict()
+    w = delay_warning(scan)
+    if w:
+        print(f"tpods: warning: {w}", file=sys.stderr)
+        out["warnings"] = [*out.get("warnings", []), w]
+    return scan
 
 
 def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
