@@ -37,7 +37,6 @@ with yaw 0 gives exactly its table's thrusts.
 
 from __future__ import annotations
 
-import difflib
 import math
 import re
 from collections.abc import Mapping
@@ -48,54 +47,21 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from common.body import BODY_KEYS as BODY_KEYS  # re-exported: structure.toml's [body] keys
+from common.body import Body, parse_body
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
+from common.layout import ThrusterLayout, block_diagonal, module_wrench_1
+from common.layout import pinv_w1 as _pinv_w1
 from common.plausible import check_module_spacing
 from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
-from common.tomlfile import read_toml
+from common.tomlfile import check_keys, read_toml, toml_pair
 from common.tomlfile import toml_number as _num
 
 TOP_KEYS = ("name", "modules", "body")
 MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "mass_kg", "izz_kgm2")
-BODY_KEYS = ("mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "com_m", "com_sigma_m")
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
-
-_S = math.sqrt(0.5)
-
-
-def module_wrench_1(arm_m: float = ARM_M) -> np.ndarray:
-    """(3, 4) wrench matrix of one module in its own frame: rows Fx (N), Fy (N), Mz (N m
-    about the module centre) per thruster newton (docs/run-format.md, "Thruster geometry")."""
-    return np.array([[-_S, _S, _S, -_S],
-                     [_S, _S, -_S, -_S],
-                     [arm_m, -arm_m, arm_m, -arm_m]])
-
-
-def _pinv_w1(arm_m: float = ARM_M) -> np.ndarray:
-    """(4, 3) pseudo-inverse of :func:`module_wrench_1`: its rows are orthogonal, so
-    ``pinv = W1^T diag(1/|row|^2)`` (exact; no SVD)."""
-    w1 = module_wrench_1(arm_m)
-    return w1.T / np.sum(w1 * w1, axis=1)
-
-
-def _nearest(key: str, valid: tuple[str, ...]) -> str:
-    near = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
-    return f" (did you mean {near[0]!r}?)" if near else ""
-
-
-def _check_keys(data: Mapping[str, Any], valid: tuple[str, ...], where: str) -> None:
-    for key in data:
-        if key not in valid:
-            raise UserError(f"{where}unknown key {key!r}{_nearest(key, valid)}; valid: "
-                            f"{', '.join(valid)}")
-
-
-def _pair(x: Any, what: str) -> tuple[float, float]:
-    if not isinstance(x, list | tuple) or len(x) != 2:
-        raise UserError(f"{what} must be two numbers [x, y], got {x!r}")
-    return _num(x[0], what), _num(x[1], what)
-
 
 @dataclass(frozen=True)
 class Module:
@@ -133,55 +99,7 @@ class Module:
 
 
 @dataclass(frozen=True)
-class Body:
-    """``[body]``: known values or priors of the whole structure (None: unknown).
-
-    A value without a sigma (or with sigma 0) is known; with a sigma it is a prior.
-    Units: kg, kg m^2 (about the centre of mass), m (centre of mass in the tracked frame).
-    """
-
-    mass_kg: float | None = None
-    mass_sigma_kg: float | None = None
-    izz_kgm2: float | None = None
-    izz_sigma_kgm2: float | None = None
-    com_m: tuple[float, float] | None = None
-    com_sigma_m: tuple[float, float] | None = None
-
-    def _entries(self) -> list[tuple[str, float, float | None]]:
-        """``(parameter, value, sigma or None)`` of every given value, in the estimators'
-        names (mass, izz, cx, cy)."""
-        out = []
-        if self.mass_kg is not None:
-            out.append(("mass", float(self.mass_kg), self.mass_sigma_kg))
-        if self.izz_kgm2 is not None:
-            out.append(("izz", float(self.izz_kgm2), self.izz_sigma_kgm2))
-        if self.com_m is not None:
-            s = self.com_sigma_m or (None, None)
-            out += [("cx", float(self.com_m[0]), s[0]), ("cy", float(self.com_m[1]), s[1])]
-        return out
-
-    def known(self) -> dict[str, float]:
-        """The known values (no sigma, or sigma 0) by parameter name: ``mass`` (kg), ``izz``
-        (kg m^2 about the centre of mass), ``cx``, ``cy`` (m, tracked frame). The estimators
-        fix them unless told to estimate them."""
-        return {n: v for n, v, s in self._entries() if not s}
-
-    def priors(self) -> dict[str, tuple[float, float]]:
-        """The Gaussian priors ``name -> (mean, sigma)`` (a value with a sigma > 0), in the
-        units of :meth:`known`."""
-        return {n: (v, float(s)) for n, v, s in self._entries() if s}
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for k in BODY_KEYS:
-            v = getattr(self, k)
-            if v is not None:
-                out[k] = list(v) if isinstance(v, tuple) else v
-        return out
-
-
-@dataclass(frozen=True)
-class Structure:
+class Structure(ThrusterLayout):
     """A rigid structure and its modules (see the module doc).
 
     Attributes:
@@ -230,7 +148,7 @@ class Structure:
 
     @classmethod
     def _from_dict(cls, data: Mapping[str, Any], source: str, base_dir: Path | None) -> Structure:
-        _check_keys(data, TOP_KEYS, "")
+        check_keys(data, TOP_KEYS, "")
         name = data.get("name")
         if not isinstance(name, str) or not name.strip():
             raise UserError('no name: add name = "..." (the structure\'s name)')
@@ -243,14 +161,14 @@ class Structure:
             where = f"[[modules]] #{i}: "
             if not isinstance(m, Mapping):
                 raise UserError(f"{where}must be a table")
-            _check_keys(m, MODULE_KEYS, where)
+            check_keys(m, MODULE_KEYS, where)
             mname = m.get("name")
             if not isinstance(mname, str) or not _NAME.match(mname):
                 raise UserError(f"{where}name must be letters, digits, '_' or '-', got {mname!r}")
             where = f"[[modules]] {mname!r}: "
             if "position_m" not in m:
                 raise UserError(f"{where}no position_m: add position_m = [x, y] (m)")
-            pos = _pair(m["position_m"], f"{where}position_m")
+            pos = toml_pair(m["position_m"], f"{where}position_m")
             yaw = _num(m.get("yaw_deg", 0.0), f"{where}yaw_deg")
             tpath = None
             table = None
@@ -272,31 +190,7 @@ class Structure:
             izz = None if izz is None else _num(izz, f"{where}izz_kgm2", positive=True)
             modules.append(Module(mname, pos, yaw, table if table is not None else
                                   load_thrust_table(None), tpath, mass, izz))
-        body = Body()
-        if "body" in data:
-            b = data["body"]
-            if not isinstance(b, Mapping):
-                raise UserError("[body] must be a table")
-            _check_keys(b, BODY_KEYS, "[body]: ")
-            kw: dict[str, Any] = {}
-            for k in ("mass_kg", "izz_kgm2"):
-                if k in b:
-                    kw[k] = _num(b[k], f"[body] {k}", positive=True)
-            for k in ("mass_sigma_kg", "izz_sigma_kgm2"):
-                if k in b:
-                    kw[k] = _num(b[k], f"[body] {k}", nonneg=True)
-            if "com_m" in b:
-                kw["com_m"] = _pair(b["com_m"], "[body] com_m")
-            if "com_sigma_m" in b:
-                s = b["com_sigma_m"]
-                sx, sy = (s, s) if not isinstance(s, list | tuple) else _pair(s, "[body] com_sigma_m")
-                kw["com_sigma_m"] = (_num(sx, "[body] com_sigma_m", nonneg=True),
-                                     _num(sy, "[body] com_sigma_m", nonneg=True))
-            for v, s in (("mass_kg", "mass_sigma_kg"), ("izz_kgm2", "izz_sigma_kgm2"),
-                         ("com_m", "com_sigma_m")):
-                if s in kw and v not in kw:
-                    raise UserError(f"[body] {s} given without {v}")
-            body = Body(**kw)
+        body = parse_body(data["body"]) if "body" in data else Body()
         return cls(name.strip(), tuple(modules), body, source)
 
     @classmethod
@@ -383,31 +277,22 @@ class Structure:
         m = self.modules[0]
         return len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
 
-    def command_columns(self) -> tuple[str, ...]:
-        """Header of a structure's commands.csv: ``t, d1 .. d{4N}``."""
-        return ("t",) + tuple(f"d{i}" for i in range(1, self.n_channels + 1))
-
-    def thrust_columns(self) -> tuple[str, ...]:
-        """Header of a structure's thrusts.csv: ``t, T1 .. T{4N}``."""
-        return ("t",) + tuple(f"T{i}" for i in range(1, self.n_channels + 1))
-
     def module_wrench_matrix(self) -> np.ndarray:
         """(3, 4N): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton
         of every thruster, module 1's four columns first."""
         return np.hstack([m.wrench_matrix(self.arm_m) for m in self.modules])
 
-    def virtual_matrix(self) -> np.ndarray:
-        """(4, 4N) ``pinv(W1) @ module_wrench_matrix()``: physical thrusts to the virtual
-        thrusts of one module at the tracked origin with the same wrench."""
-        return _pinv_w1(self.arm_m) @ self.module_wrench_matrix()
+    def _duty_error(self, n_given: int) -> str:
+        return (f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
+                f"columns (d1..d{self.n_channels}), got {n_given}")
 
-    def _check_duty(self, duty_pct: np.ndarray) -> np.ndarray:
-        d = np.asarray(duty_pct, dtype=float)
-        if d.ndim == 0 or d.shape[-1] != self.n_channels:
-            raise UserError(f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
-                            f"columns (d1..d{self.n_channels}), got "
-                            f"{d.shape[-1] if d.ndim else 0}")
-        return d
+    def single_table(self) -> ThrustTable:
+        """The table of module 1 (the one table of a single module at the origin)."""
+        return self.modules[0].table
+
+    def tables(self) -> tuple[ThrustTable, ...]:
+        """Every module's table, in module order."""
+        return tuple(m.table for m in self.modules)
 
     # ---------------------------------------------------------------- thrust
     def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
@@ -421,25 +306,6 @@ class Structure:
             except UserError as exc:
                 raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
         return out
-
-    def virtual_from_thrust(self, thrust_n: np.ndarray) -> np.ndarray:
-        """(..., 4) virtual thrusts, N, of physical thrusts (..., 4N) (min-norm, may be
-        negative). Exactly ``thrust_n`` for a single module at the origin."""
-        t = np.asarray(thrust_n, dtype=float)
-        if t.shape[-1] != self.n_channels:
-            raise UserError(f"{self.source}: need {self.n_channels} thrust columns, got {t.shape[-1]}")
-        if self.is_single_at_origin:
-            return t
-        return t @ self.virtual_matrix().T
-
-    def virtual_thrust(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
-        """(..., 4) virtual thrusts, N, for duty rows (..., 4N) in percent: what the plant
-        takes as ``thrust_n`` (its wrench about the tracked origin is the structure's).
-        A single module at the origin gives exactly ``table.thrust_n(duty)``."""
-        if self.is_single_at_origin:
-            d = self._check_duty(duty_pct)
-            return self.modules[0].table.thrust_n(d, clamp=clamp)
-        return self.virtual_from_thrust(self.thrust_n(duty_pct, clamp=clamp))
 
     def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
         """The thrust-table uncertainty of every module mapped to the virtual thrusts:
@@ -463,12 +329,7 @@ class Structure:
             jacs.append(np.einsum("ij,...jp->...ip", p, s.jacobian))
             names.extend(f"{m.name}:{n}" for n in s.names)
             blocks.append(s.covariance)
-        n = len(names)
-        cov = np.zeros((n, n))
-        j = 0
-        for b in blocks:
-            cov[j:j + len(b), j:j + len(b)] = b
-            j += len(b)
+        cov = block_diagonal(blocks)
         jac = np.concatenate(jacs, axis=-1) if jacs else np.zeros(thrust.shape + (0,))
         return ThrustSensitivity(thrust, jac, tuple(names), cov)
 
