@@ -20,6 +20,7 @@ import numpy as np
 from common.constants import ARM_M
 from common.errors import UserError
 from common.thrust_table import ThrustTable
+from common.thrust_uncertainty import ThrustSensitivity
 
 _S = math.sqrt(0.5)
 
@@ -134,6 +135,16 @@ class ThrusterLayout:
         and virtual thrusts as a zero-order hold (the last row ends the span). Here the
         commands' own times; a vehicle with valve dead time or rise overrides it."""
         return np.asarray(cmd_t, dtype=float), self.virtual_thrust(duty_pct, clamp=clamp)
+
+    def input_sensitivity(self, cmd_t: np.ndarray, duty_pct: np.ndarray, clamp: bool = False
+                          ) -> tuple[np.ndarray, ThrustSensitivity]:
+        """:meth:`virtual_sensitivity` on the rows of :meth:`input_profile`: its times and
+        the sensitivity (here the commands' own rows)."""
+        return np.asarray(cmd_t, dtype=float), self.virtual_sensitivity(duty_pct, clamp=clamp)
+
+    def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False
+                            ) -> ThrustSensitivity:  # pragma: no cover
+        raise NotImplementedError
 
     def tables(self) -> tuple[ThrustTable, ...]:  # pragma: no cover
         """Every thrust table the layout uses (for duty-range checks)."""

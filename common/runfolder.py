@@ -11,6 +11,9 @@ A run is a folder holding (see docs/run-format.md):
 - ``structure.toml`` optional: the run is a structure run (:mod:`common.structure`):
   commands.csv holds ``t,d1..d{4N}`` (module 1's four duties, then module 2's, ...),
   thrusts.csv ``t,T1..T{4N}``, and poses.csv is the tracked structure frame.
+- ``vehicle.toml`` optional: the run is a vehicle run (:mod:`common.vehicle`), read as a
+  structure run is: commands.csv ``t,d1..dN`` in the vehicle's thruster order. Every reader
+  below takes a Vehicle wherever it takes a Structure (``Run.structure``).
 
 Readers validate and refuse bad input with one :class:`UserError` line naming the
 file and the row. A run whose ``run.json`` (or, for a body folder of ``tpods mocap
@@ -43,6 +46,7 @@ from common.runwriter import CsvLog, command_columns, write_json_atomic
 from common.structure import Structure
 from common.thrust_table import load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
+from common.vehicle import Vehicle, as_layout, folder_layout
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -87,7 +91,7 @@ class Run:
     thrust_t: np.ndarray | None = None
     thrust_n: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
-    structure: Structure | None = None
+    structure: Structure | Vehicle | None = None
 
     @property
     def truth(self) -> dict[str, Any] | None:
@@ -109,7 +113,7 @@ class Run:
             if self.thrust_n is not None:
                 return self.thrust_t, s.virtual_from_thrust(self.thrust_n)
             try:
-                return self.cmd_t, s.virtual_thrust(self.duty_pct, clamp=clamp)
+                return s.input_profile(self.cmd_t, self.duty_pct, clamp=clamp)
             except UserError as exc:
                 raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
         if self.thrust_n is not None:
@@ -130,17 +134,27 @@ class Run:
     def thrust_sensitivity(self, table=None, clamp: bool = False) -> ThrustSensitivity | None:
         """The thrust table's uncertainty at this run's commands (the consider input):
         :func:`common.thrust_uncertainty.thrust_sensitivity` of ``table`` (default Table 2),
-        or for a structure run every module's, mapped to the virtual thrusts
-        (:meth:`common.structure.Structure.virtual_sensitivity`). None when thrusts.csv
-        gives the thrusts or no table states an uncertainty."""
+        or for a structure or vehicle run every table's (and valve force's), mapped to the
+        virtual thrusts (:meth:`common.structure.Structure.virtual_sensitivity`) on the rows
+        of :meth:`thrust_profile`. None when thrusts.csv gives the thrusts or no table
+        states an uncertainty."""
+        return self.input_sensitivity(table, clamp)[1]
+
+    def input_sensitivity(self, table=None, clamp: bool = False
+                          ) -> tuple[np.ndarray, ThrustSensitivity | None]:
+        """``(times, sensitivity)``: :meth:`thrust_sensitivity` with the times of its rows
+        (the command times, or a vehicle's valve-timed rows of :meth:`thrust_profile`)."""
         if self.thrust_n is not None:
-            return None
+            return self.thrust_t, None
         try:
             if self.structure is not None:
                 s = self.structure_for(table)
-                return s.virtual_sensitivity(self.duty_pct, clamp=clamp) if s.states_uncertainty else None
+                if not s.states_uncertainty:
+                    return self.cmd_t, None
+                return s.input_sensitivity(self.cmd_t, self.duty_pct, clamp=clamp)
             table = table if table is not None else load_thrust_table(None)
-            return thrust_sensitivity(table, self.duty_pct, clamp=clamp) if table.states_uncertainty else None
+            return self.cmd_t, (thrust_sensitivity(table, self.duty_pct, clamp=clamp)
+                                if table.states_uncertainty else None)
         except UserError as exc:
             raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
 
@@ -229,21 +243,21 @@ def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, 
     return values, line_no
 
 
-def read_run(path: str | Path, structure: Structure | str | Path | None = None) -> Run:
+def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | None = None) -> Run:
     """Load and validate a run folder.
 
-    ``structure`` (a :class:`common.structure.Structure` or its TOML file) makes it a
-    structure run; without it, a ``structure.toml`` in the folder does. A structure run's
+    ``structure`` (a :class:`common.structure.Structure`, a :class:`common.vehicle.Vehicle`
+    or its TOML file) makes it a structure (vehicle) run; without it, a ``structure.toml``
+    (``vehicle.toml``) in the folder does. A structure run's
     commands.csv needs ``t,d1..d{4N}`` (thrusts.csv ``t,T1..T{4N}``); an explicit
     ``structure`` wins over the folder's file.
     """
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: run folder not found")
-    if structure is None and (path / "structure.toml").is_file():
-        structure = path / "structure.toml"
-    if structure is not None and not isinstance(structure, Structure):
-        structure = Structure.load(structure)
+    if structure is None:
+        structure = folder_layout(path)
+    structure = as_layout(structure)
     cmd_cols = COMMAND_COLUMNS if structure is None else structure.command_columns()
     thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
     thrust_file = path / "thrusts.csv"
@@ -357,12 +371,13 @@ def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.n
 
 def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thrust_t=None,
               thrust_n=None, meta: dict[str, Any] | None = None,
-              structure: Structure | None = None) -> Path:
+              structure: Structure | Vehicle | None = None) -> Path:
     """Write a run folder (creating it): CSVs with 12 significant digits, run.json
     atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder.
     commands.csv/thrusts.csv get one column per channel of ``duty_pct``/``thrust_n``
     (``d1..d{4N}`` for a structure's 4N channels). With ``structure`` the folder also
-    gets its ``structure.toml`` (and the modules' own tables)."""
+    gets its ``structure.toml`` (and the modules' own tables), or a vehicle's
+    ``vehicle.toml``."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     n_cmd = 4 if duty_pct is None else np.shape(duty_pct)[-1]

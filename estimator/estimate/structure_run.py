@@ -16,6 +16,7 @@ import numpy as np
 from common.errors import UserError
 from common.runfolder import Run
 from common.thrust_table import ThrustTable
+from common.vehicle import as_layout, folder_layout
 from estimator.batch.least_squares import BatchResult
 
 
@@ -26,27 +27,21 @@ def _is_structure_run(run: Run | str | Path, structure) -> bool:
         return True
     if isinstance(run, Run):
         return run.structure is not None
-    return (Path(run) / "structure.toml").is_file()
+    return folder_layout(run) is not None
 
 
 def _structure_of(run: Run | str | Path, structure):
     """The Structure of a structure run (``structure`` given, the Run's or its folder's)."""
-    from common.structure import Structure
-
-    if isinstance(structure, Structure):
-        return structure
     if structure is not None:
-        return Structure.load(structure)
+        return as_layout(structure)
     if isinstance(run, Run):
         return run.structure
-    return Structure.load(Path(run) / "structure.toml")
+    return as_layout(folder_layout(run))
 
 
 def _with_structure(run: Run, structure) -> Run:
     """``run`` read as a structure run of ``structure`` (a Structure or its TOML file)."""
-    from common.structure import Structure
-
-    s = structure if isinstance(structure, Structure) else Structure.load(structure)
+    s = as_layout(structure)
     if run.duty_pct is not None and run.duty_pct.shape[-1] != s.n_channels:
         raise UserError(f"{run.path / 'commands.csv'}: {run.duty_pct.shape[-1]} duty columns; "
                         f"structure {s.name!r} has {s.n_channels} channels")
@@ -65,11 +60,11 @@ def _structure_consider(res: BatchResult, run: Run, table: ThrustTable, clamp: b
     if run.thrust_n is not None:
         res.thrust_note = THRUSTS_GIVEN
         return
-    sens = run.thrust_sensitivity(table, clamp=clamp)
+    sens_t, sens = run.input_sensitivity(table, clamp=clamp)
     if sens is None or sens.empty:
         res.thrust_note = NO_UNCERTAINTY
         return
-    c = batch_consider(res, run.cmd_t, sens, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+    c = batch_consider(res, sens_t, sens, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     res.add_thrust_covariance(c.cov_thrust, c.names)
     res.thrust_note = ("sigma = measurement noise + the modules' thrust table uncertainty "
                        f"({', '.join(c.names)})")

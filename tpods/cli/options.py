@@ -114,9 +114,10 @@ def add_json_flag(p: argparse.ArgumentParser) -> None:
 
 
 def add_input_choice(p: argparse.ArgumentParser) -> None:
-    """``--input``: phase-sine, translate-rotate or a commands.csv."""
+    """``--input``: phase-sine, translate-rotate, pulses or a commands.csv."""
     p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+                   help="phase-sine, translate-rotate, pulses (each valve fully open in turn, "
+                        "for on/off valves) or PATH/commands.csv (default phase-sine)")
 
 
 def add_sine_amplitude(p: argparse.ArgumentParser) -> None:
