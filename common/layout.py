@@ -146,6 +146,16 @@ class ThrusterLayout:
                             ) -> ThrustSensitivity:  # pragma: no cover
         raise NotImplementedError
 
+    def duty_range(self) -> tuple[float, float]:
+        """The open duties every thruster accepts, %: the tables' common range (0..100 for
+        a layout of on/off valves only)."""
+        ranges = [t.duty_range for t in self.tables()] or [(0.0, 100.0)]
+        return max(r[0] for r in ranges), min(r[1] for r in ranges)
+
+    def extent_m(self) -> float:  # pragma: no cover
+        """The farthest thruster from the tracked origin, m."""
+        raise NotImplementedError
+
     def tables(self) -> tuple[ThrustTable, ...]:  # pragma: no cover
         """Every thrust table the layout uses (for duty-range checks)."""
         raise NotImplementedError

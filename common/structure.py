@@ -290,6 +290,11 @@ class Structure(ThrusterLayout):
         """The table of module 1 (the one table of a single module at the origin)."""
         return self.modules[0].table
 
+    def extent_m(self) -> float:
+        """The farthest thruster from the tracked origin, m (a module's centre distance
+        plus its thrusters' arm)."""
+        return max(math.hypot(*m.position_m) for m in self.modules) + self.arm_m
+
     def tables(self) -> tuple[ThrustTable, ...]:
         """Every module's table, in module order."""
         return tuple(m.table for m in self.modules)

@@ -167,11 +167,6 @@ class Vehicle(ThrusterLayout):
         """The table of every supply that holds one."""
         return tuple(g[1] for g in self._supplies())
 
-    def duty_range(self) -> tuple[float, float]:
-        """The open duties every thruster accepts, %: the tables' ranges, 0..100 for on/off."""
-        ranges = [t.duty_range for t in self.tables()] or [(0.0, 100.0)]
-        return max(r[0] for r in ranges), min(r[1] for r in ranges)
-
     def extent_m(self) -> float:
         """The farthest thruster from the tracked origin, m."""
         return max(math.hypot(*t.position_m) for t in self.thrusters)

@@ -104,9 +104,7 @@ class DesignSettings:
         """The duties every module's table accepts."""
         if self.structure is None:
             return table.duty_range
-        lo = max(m.table.duty_range[0] for m in self.structure.modules)
-        hi = min(m.table.duty_range[1] for m in self.structure.modules)
-        return lo, hi
+        return self.structure.duty_range()
 
 
 def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSettings,

@@ -27,6 +27,7 @@ from tpods.cli.options import (
     add_pose_rate,
     add_random_seed,
     add_sim_duration,
+    add_structure_or_vehicle,
     add_thrust_table,
 )
 
@@ -75,8 +76,7 @@ def register(sub) -> None:
     d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
                    help="--for thrust-calibration: the factors to design for (default both)")
     add_json_flag(d)
-    d.add_argument("--structure", default=None, metavar="F",
-                   help="design for a structure (structure.toml): every module's duties "
+    add_structure_or_vehicle(d, "design for a structure (structure.toml): every module's duties "
                         "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "
                         "mass default to the file's [body] values or its geometry")
     d.set_defaults(func=cmd_design)

@@ -29,6 +29,7 @@ from tpods.cli.options import (
     add_report_out,
     add_result_out,
     add_sim_duration,
+    add_structure_or_vehicle,
 )
 
 
@@ -205,7 +206,7 @@ def register(sub, est, rep) -> None:
         "std against the mean reported sigma, NEES (4 dof) with its 95 %% bounds and the "
         "fractions within 2 and 3 sigma; --out DIR writes montecarlo.json and runs.csv. The "
         "filter options do not apply")
-    g.add_argument("--structure", default=None, metavar="F", help="structure.toml")
+    add_structure_or_vehicle(g, "structure.toml")
     g.add_argument("--com-spread", type=nonneg_float, default=0.02, metavar="M",
                    help="half-width of the uniform cx, cy draw, m (default 0.02)")
     g.add_argument("--noise-pos", type=positive_float, default=None, metavar="M",

@@ -21,6 +21,7 @@ from tpods.cli.options import (
     add_noise_seed,
     add_pose_rate,
     add_sine_amplitude,
+    add_structure_or_vehicle,
     add_watchdog_ms,
 )
 from tpods.cli.parser import group
@@ -40,8 +41,7 @@ def register(sub) -> None:
     p.add_argument("--valves", required=True, metavar="URL",
                    help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...); "
                         "with --structure one per module: NAME=URL,NAME=URL")
-    p.add_argument("--structure", default=None, metavar="F",
-                   help="play on a structure (structure.toml): every module's controller from "
+    add_structure_or_vehicle(p, "play on a structure (structure.toml): every module's controller from "
                         "--valves NAME=URL,..., each module's commands on tpods/<module>/cmd, one "
                         "commands.csv with 4 columns per module; any controller's lost link "
                         "closes them all")
@@ -90,8 +90,7 @@ def register(sub) -> None:
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
     add_noise_seed(s)
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
-    s.add_argument("--structure", default=None, metavar="F",
-                   help="simulate a structure (structure.toml): one emulated controller per module "
+    add_structure_or_vehicle(s, "simulate a structure (structure.toml): one emulated controller per module "
                         "(their paths printed as 'valves NAME: PATH'), the truth from its [body] "
                         "(centre of mass included), poses of its tracked frame")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
