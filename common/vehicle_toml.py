@@ -90,9 +90,9 @@ def _thruster(t: Any, i: int, base_dir: Path | None,
     where = f"[[thrusters]] #{i}: "
     if not isinstance(t, Mapping):
         raise UserError(f"{where}must be a table")
-    check_keys(t, THRUSTER_KEYS, where)
     name = _name(t.get("name"), f"{where}name")
     where = f"[[thrusters]] {name!r}: "
+    check_keys(t, THRUSTER_KEYS, where)
     for key, what in (("position_m", "[x, y] (m, body frame)"), ("direction", "[dx, dy] (unit)")):
         if key not in t:
             raise UserError(f"{where}no {key}: add {key} = {what}")
