@@ -87,6 +87,13 @@ class ThrusterLayout:
         """The one table of a layout that :attr:`is_single_at_origin`."""
         raise NotImplementedError
 
+    kind = "layout"
+    """What it is in messages: ``structure`` or ``vehicle``."""
+
+    def parts_text(self) -> str:  # pragma: no cover
+        """What it is made of, for summaries: ``2 modules``, ``8 thrusters``."""
+        raise NotImplementedError
+
     def _duty_error(self, n_given: int) -> str:
         return (f"{self.source}: need {self.n_channels} duty columns (d1..d{self.n_channels}), "
                 f"got {n_given}")

@@ -286,6 +286,11 @@ class Structure(ThrusterLayout):
         return (f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
                 f"columns (d1..d{self.n_channels}), got {n_given}")
 
+    kind = "structure"
+
+    def parts_text(self) -> str:
+        return f"{self.n_modules} modules"
+
     def single_table(self) -> ThrustTable:
         """The table of module 1 (the one table of a single module at the origin)."""
         return self.modules[0].table

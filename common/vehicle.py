@@ -160,6 +160,11 @@ class Vehicle(ThrusterLayout):
                 and bool(np.all(np.abs(self.module_wrench_matrix() - module_wrench_1(self.arm_m))
                                 <= SINGLE_MODULE_TOL)))
 
+    kind = "vehicle"
+
+    def parts_text(self) -> str:
+        return f"{self.n_channels} thrusters"
+
     def single_table(self) -> ThrustTable:
         return self._supplies()[0][1]
 
@@ -311,3 +316,12 @@ def folder_layout(folder: str | Path) -> Path | None:
         raise UserError(f"{folder}: holds both structure.toml and vehicle.toml; a run is a "
                         "structure run or a vehicle run: remove one")
     return found[0] if found else None
+
+
+def load_structure_only(path: str | Path, command: str, why: str) -> Structure:
+    """The structure at ``path`` for a command that does not take a vehicle yet: a vehicle
+    file is refused in one line naming ``command`` and ``why``."""
+    layout = load_layout(path)
+    if isinstance(layout, Vehicle):
+        raise UserError(f"{command} does not take a vehicle yet ({why})")
+    return layout

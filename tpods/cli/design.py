@@ -125,9 +125,9 @@ def cmd_design(args: argparse.Namespace) -> int:
     if min(args.table_size) <= 2 * args.margin:
         raise UserError("--table-size must exceed twice the --margin")
     if getattr(args, "structure", None):
-        from common.structure import Structure
+        from common.vehicle import load_layout
 
-        known = Structure.load(args.structure).body.known()
+        known = load_layout(args.structure).body.known()
         if all(n in known for n in ("mass", "izz", "cx", "cy")):
             raise UserError(f"{args.structure}: [body] gives mass, Izz and the centre of mass as "
                             "known: nothing left to design for (give a value a sigma, or drop it)")
@@ -136,14 +136,14 @@ def cmd_design(args: argparse.Namespace) -> int:
     structure = None
     plant = PlantParams(args.mass, args.izz)
     if getattr(args, "structure", None):
-        from common.structure import Structure
+        from common.vehicle import load_layout
 
         if args.design_for == "thrust-calibration":
             raise UserError("--for thrust-calibration is not built for structures yet")
         if args.compare:
             raise UserError("--compare takes single-module inputs; a structure design "
                             "compares with the phase-shifted sine over all its channels")
-        structure = Structure.load(args.structure)
+        structure = load_layout(args.structure)
         g = structure.initial_guess()
         given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
         plant = PlantParams(args.mass if "mass" in given else g["mass"],

@@ -80,7 +80,6 @@ def register_sim(sub) -> None:
 
 def cmd_sim(args: argparse.Namespace) -> int:
     from common.thrust_table import load_thrust_table
-    from common.vehicle import Vehicle
     from estimator.plant.inputs import DEFAULT_DURATION_S, INPUT_NAMES, make_input
     from estimator.plant.model import PlantParams
     from estimator.plant.sim import SimConfig, simulate, summary_lines, write_sim_run
@@ -125,10 +124,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     for line in summary_lines(res):
         print("  " + line)
     if structure is not None:
-        kind = "vehicle " if isinstance(structure, Vehicle) else "structure"
-        parts = (f"{structure.n_channels} thrusters" if isinstance(structure, Vehicle)
-                 else f"{structure.n_modules} modules")
-        print(f"  {kind}       {structure.name}: {parts}, centre of mass "
+        print(f"  {structure.kind:<9}       {structure.name}: {structure.parts_text()}, centre of mass "
               f"({cx:+.4g}, {cy:+.4g}) m in the tracked frame")
         for line in body_note(structure):
             print("  " + line)

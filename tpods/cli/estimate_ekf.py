@@ -351,7 +351,7 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
     (:mod:`estimator.montecarlo_structure`)."""
     import math
 
-    from common.structure import Structure
+    from common.vehicle import load_layout
     from estimator.montecarlo_structure import (
         StructureMcConfig,
         run_structure_montecarlo,
@@ -363,7 +363,7 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
     out_folder = result_output(args.out, "montecarlo.json", force=args.force,
                                command="tpods estimate montecarlo")
     cfg = StructureMcConfig(
-        Structure.load(args.structure), runs=args.runs, spread=args.spread,
+        load_layout(args.structure), runs=args.runs, spread=args.spread,
         com_spread_m=args.com_spread, duration_s=args.duration, input=args.input,
         seed=args.seed, pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
         noise_pos_m=args.noise_pos if args.noise_pos is not None else 0.01,

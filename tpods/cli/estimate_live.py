@@ -80,9 +80,12 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     structure = None
     if args.structure is not None:
-        from common.structure import Structure
+        from common.vehicle import load_structure_only
 
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods estimate live",
+            "the live filter merges 4-valve modules' command streams and knows no valve timing; "
+            "record the run and estimate it with tpods estimate batch RUN")
         if args.method == "ekf":
             raise UserError("--structure is estimated with --method ls-ekf only: from a structure's "
                             "geometric start the EKF alone diverges (docs/estimators.md)")

@@ -166,12 +166,15 @@ def cmd_play(args: argparse.Namespace) -> int:
     clock = _clock(args)
     structure = None
     if args.structure:
-        from common.structure import Structure
+        from common.vehicle import load_structure_only
 
         if args.capture is not None:
             raise UserError("--capture is not built for --structure yet (one transcript per "
                             "controller)")
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods run play",
+            "the valve protocol drives one 4-channel controller per module; simulate it with "
+            "tpods sim --vehicle")
         urls = _module_urls(args.valves, [m.name for m in structure.modules])
         cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
                                  args.omega, n_channels=structure.n_channels)
@@ -319,10 +322,12 @@ def cmd_plant(args: argparse.Namespace) -> int:
     stop = threading.Event()
     structure = None
     if args.structure:
-        from common.structure import Structure
+        from common.vehicle import load_structure_only
         from tpods.plant_loop import StructureThrust, StructureValves
 
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods run plant",
+            "its emulated controllers are 4-channel modules; simulate it with tpods sim --vehicle")
         g = structure.initial_guess()  # [body] values where given, else the geometry
         given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
         params = PlantParams(args.mass if "mass" in given else g["mass"],
