@@ -6,6 +6,9 @@ A run is a folder holding (see docs/run-format.md):
   the last row marks the end of the commanded span.
 - ``thrusts.csv``   optional ``t,T1,T2,T3,T4`` in newtons, same hold rule; used
   instead of commands.csv + thrust table when present.
+- ``wrench.csv``    optional ``t,fx,fy,mz`` (N, N, N m about the tracked origin), same
+  hold rule, frame in run.json ``wrench_frame`` (``body`` default, or ``lab``): the
+  realised wrench replaces commands and thrust model (:mod:`common.wrench_input`).
 - ``poses.csv``     ``t,x,y,psi``: metres and radians, lab frame; psi may be wrapped.
 - ``run.json``      optional metadata (truth for simulated runs; a recorder's ``status``).
 - ``structure.toml`` optional: the run is a structure run (:mod:`common.structure`):
@@ -47,6 +50,7 @@ from common.structure import Structure
 from common.thrust_table import load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 from common.vehicle import Vehicle, as_layout, folder_layout
+from common.wrench_input import WRENCH_COLUMNS, wrench_frame, wrench_thrusts
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -80,7 +84,11 @@ class Run:
         meta: run.json contents ({} when absent).
         structure: the structure of a structure run (``structure.toml`` in the folder or
             given to :func:`read_run`), else None. Then duty_pct is (Nc, 4N) and
-            thrust_n (Nc', 4N), module 1's four channels first.
+            thrust_n (Nc', 4N), module 1's four channels first. A vehicle run's
+            :class:`common.vehicle.Vehicle` goes here too (duty_pct (Nc, N)).
+        wrench_frame: ``body`` or ``lab`` for a wrench run (wrench.csv), else None: then
+            thrust_t, thrust_n are the VIRTUAL thrusts of its body-frame wrench
+            (:func:`common.wrench_input.wrench_thrusts`), whatever the structure.
     """
 
     path: Path
@@ -92,6 +100,7 @@ class Run:
     thrust_n: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
     structure: Structure | Vehicle | None = None
+    wrench_frame: str | None = None
 
     @property
     def truth(self) -> dict[str, Any] | None:
@@ -108,6 +117,8 @@ class Run:
         and ``table``, when given, replaces the default Table 2 for the modules whose
         entry names no ``thrust_table`` (modules with their own table keep it).
         """
+        if self.wrench_frame is not None:
+            return self.thrust_t, self.thrust_n
         if self.structure is not None:
             s = self.structure_for(table)
             if self.thrust_n is not None:
@@ -166,7 +177,7 @@ class Run:
         if keep.sum() < 2:
             raise UserError(f"{self.path}: window {t0}:{t1} holds fewer than 2 poses")
         return Run(self.path, self.cmd_t, self.duty_pct, self.pose_t[keep], self.pose[keep],
-                   self.thrust_t, self.thrust_n, self.meta, self.structure)
+                   self.thrust_t, self.thrust_n, self.meta, self.structure, self.wrench_frame)
 
 
 _UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
@@ -262,15 +273,23 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
     thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
     thrust_file = path / "thrusts.csv"
     cmd_file = path / "commands.csv"
+    wrench_file = path / "wrench.csv"
     thrust_t = thrust_n = None
     duty = None
-    if thrust_file.exists():
+    wrench = None
+    if wrench_file.exists():
+        if thrust_file.exists():
+            raise UserError(f"{path}: holds both wrench.csv and thrusts.csv; a run's input is one "
+                            "of them: remove one")
+        wrench = read_table(wrench_file, WRENCH_COLUMNS)
+        thrust_t = wrench[:, 0]
+    elif thrust_file.exists():
         tv, tlines = read_table_lines(thrust_file, thrust_cols)
         thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
         if np.any(thrust_n < 0):
             row = int(np.argwhere(thrust_n < 0)[0][0])
             raise UserError(f"{thrust_file}: line {tlines[row]}: negative thrust")
-    if cmd_file.exists() or thrust_t is None:
+    if (cmd_file.exists() and wrench is None) or thrust_t is None:
         cv, clines = read_table_lines(cmd_file, cmd_cols)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         check_duty_rows(duty, clines, cmd_file)
@@ -280,7 +299,8 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
     pose_t, pose = pv[:, 0], pv[:, 1:]
     check_pose_rows(pose, plines, path / "poses.csv")
     span_t = thrust_t if thrust_t is not None else cmd_t
-    span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"
+    span_name = ("commands.csv" if thrust_t is None else
+                 "wrench.csv" if wrench is not None else "thrusts.csv")
     outside = (pose_t < span_t[0]) | (pose_t > span_t[-1])
     if outside.any():
         i = int(np.nonzero(outside)[0][0])
@@ -302,7 +322,12 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
         warn_if_partial(path, meta)
     else:
         warn_if_partial(path)  # a body folder of a mocap recording
-    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure)
+    frame = None
+    if wrench is not None:
+        frame = wrench_frame(meta, str(meta_file))
+        thrust_t, thrust_n = wrench_thrusts(wrench[:, 0], wrench[:, 1:], frame, pose_t, pose[:, 2])
+        cmd_t = thrust_t
+    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure, frame)
 
 
 def _check_truth(meta_file: Path, truth: Any) -> None:
