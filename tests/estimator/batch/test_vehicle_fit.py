@@ -6,7 +6,6 @@ sigma and sigma within 10 % of the CRLB over seeds (a few here; the many-seed ru
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,6 @@ from estimator.estimate import bound_sequence, estimate_run, load_sequence
 from estimator.plant.inputs import make_input
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate
-from tests.support.cli import run as run_cli
 
 EIGHT = Path(__file__).resolve().parents[3] / "vehicles" / "example-8-onoff.toml"
 TRUTH = {"mass": 23.09, "izz": 0.31, "cx": 0.012, "cy": -0.008}
@@ -76,23 +74,3 @@ def test_eight_on_off_thrusters_over_many_seeds(tmp_path):
     assert np.all(np.abs(z) < 3.5) and np.all(np.abs(rel) < 0.10)
     # the errors over seeds are standard normal: their spread within a generous band
     assert 0.5 < float(np.std(z)) < 1.6
-
-
-def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
-    out = tmp_path / "run"
-    r = run_cli(tpods_exe, "sim", "--vehicle", str(EIGHT), "--input", "pulses", "--mass", "23.09",
-                "--izz", "0.31", "--duration", "40", "--seed", "3", "--out", str(out))
-    assert r.returncode == 0, r.stderr
-    assert (out / "vehicle.toml").is_file()
-    assert (out / "commands.csv").read_text().splitlines()[0] == "t,d1,d2,d3,d4,d5,d6,d7,d8"
-    assert json.loads((out / "run.json").read_text())["settings"]["vehicle"]["name"] == "example-8-onoff"
-    r = run_cli(tpods_exe, "estimate", "batch", str(out), "--initial", "m=15,izz=0.2", "--json")
-    assert r.returncode == 0, r.stderr
-    est = json.loads(r.stdout)
-    assert est["converged"] and est["structure"] == "example-8-onoff"
-    assert abs(est["mass_kg"] - 23.09) < 3.5 * est["mass_sigma_kg"]
-    # the valves' bench-force sigmas are the thrust part of sigma, each named
-    assert "T1:force" in json.dumps(est)
-    r = run_cli(tpods_exe, "estimate", "batch", str(out), "--structure", str(EIGHT), "--vehicle",
-                str(EIGHT))
-    assert r.returncode == 2 and "not allowed with argument" in r.stderr
