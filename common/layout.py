@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from common.constants import ARM_M
 from common.errors import UserError
-from common.thrust_table import ThrustTable
+from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity
 
 _S = math.sqrt(0.5)
@@ -44,6 +46,40 @@ def virtual_from_wrench(wrench: np.ndarray, arm_m: float = ARM_M) -> np.ndarray:
     """(..., 4) virtual thrusts, N, whose wrench is ``wrench`` (..., 3): body-frame fx, fy
     (N) and mz about the tracked origin (N m). Exact: ``W1 @ pinv(W1) = I``."""
     return np.asarray(wrench, dtype=float) @ pinv_w1(arm_m).T
+
+
+def check_parts(names: Sequence[str], source: str, kind: str, entry: str, what: str) -> None:
+    """UserError when a ``kind`` (structure, vehicle) has no ``[[entry]]`` or two parts
+    (``what``: module, thruster) share a name."""
+    if not names:
+        raise UserError(f"{source}: a {kind} needs at least one [[{entry}]] entry")
+    seen: set[str] = set()
+    for n in names:
+        if n in seen:
+            raise UserError(f"{source}: {what} name {n!r} appears twice")
+        seen.add(n)
+
+
+def table_entry(raw: Any, where: str, base_dir: Path | None,
+                cache: dict[Path | None, ThrustTable], default: str | None = None
+                ) -> tuple[ThrustTable, Path | None]:
+    """``(table, path)`` of a ``thrust_table = "..."`` entry: a file relative to
+    ``base_dir`` (each file read once through ``cache``), or the built-in Table 2 with path
+    None when ``raw`` is ``default`` (a vehicle's ``"default"``)."""
+    if not isinstance(raw, str) or not raw:
+        alt = f" or \"{default}\"" if default else ""
+        raise UserError(f"{where}thrust_table must be a file name{alt}")
+    path = None
+    if raw != default:
+        path = Path(raw)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+    if path not in cache:
+        try:
+            cache[path] = load_thrust_table(path)
+        except UserError as exc:
+            raise UserError(f"{where}thrust_table: {exc}") from None
+    return cache[path], path
 
 
 def block_diagonal(blocks: Sequence[np.ndarray]) -> np.ndarray:

@@ -51,7 +51,7 @@ from common.body import BODY_KEYS as BODY_KEYS  # re-exported: structure.toml's 
 from common.body import Body, parse_body
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
-from common.layout import ThrusterLayout, block_diagonal, module_wrench_1
+from common.layout import ThrusterLayout, block_diagonal, check_parts, module_wrench_1, table_entry
 from common.layout import pinv_w1 as _pinv_w1
 from common.plausible import check_module_spacing
 from common.thrust_table import ThrustTable, load_thrust_table
@@ -117,13 +117,7 @@ class Structure(ThrusterLayout):
     arm_m: float = ARM_M
 
     def __post_init__(self) -> None:
-        if not self.modules:
-            raise UserError(f"{self.source}: a structure needs at least one [[modules]] entry")
-        seen = set()
-        for m in self.modules:
-            if m.name in seen:
-                raise UserError(f"{self.source}: module name {m.name!r} appears twice")
-            seen.add(m.name)
+        check_parts([m.name for m in self.modules], self.source, "structure", "modules", "module")
         check_module_spacing([m.name for m in self.modules], [m.position_m for m in self.modules],
                              self.source, 2 * self.arm_m)
 
@@ -173,17 +167,7 @@ class Structure(ThrusterLayout):
             tpath = None
             table = None
             if "thrust_table" in m:
-                if not isinstance(m["thrust_table"], str) or not m["thrust_table"]:
-                    raise UserError(f"{where}thrust_table must be a file name")
-                tpath = Path(m["thrust_table"])
-                if not tpath.is_absolute() and base_dir is not None:
-                    tpath = base_dir / tpath
-                if tpath not in cache:
-                    try:
-                        cache[tpath] = load_thrust_table(tpath)
-                    except UserError as exc:
-                        raise UserError(f"{where}thrust_table: {exc}") from None
-                table = cache[tpath]
+                table, tpath = table_entry(m["thrust_table"], where, base_dir, cache)
             mass = m.get("mass_kg")
             izz = m.get("izz_kgm2")
             mass = None if mass is None else _num(mass, f"{where}mass_kg", positive=True)

@@ -45,7 +45,7 @@ from common.argtypes import VehicleFile
 from common.body import Body
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
-from common.layout import ThrusterLayout, block_diagonal, module_wrench_1
+from common.layout import ThrusterLayout, block_diagonal, check_parts, module_wrench_1
 from common.structure import Structure
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
@@ -71,13 +71,8 @@ class Vehicle(ThrusterLayout):
     arm_m: float = ARM_M
 
     def __post_init__(self) -> None:
-        if not self.thrusters:
-            raise UserError(f"{self.source}: a vehicle needs at least one [[thrusters]] entry")
-        seen: set[str] = set()
-        for t in self.thrusters:
-            if t.name in seen:
-                raise UserError(f"{self.source}: thruster name {t.name!r} appears twice")
-            seen.add(t.name)
+        check_parts([t.name for t in self.thrusters], self.source, "vehicle", "thrusters",
+                    "thruster")
         for supply in dict.fromkeys(t.supply for t in self.thrusters):
             on = [t for t in self.thrusters if t.supply == supply]
             tabled = [t for t in on if t.table is not None]

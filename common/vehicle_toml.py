@@ -17,7 +17,8 @@ import numpy as np
 
 from common.body import Body, parse_body
 from common.errors import UserError
-from common.thrust_table import ThrustTable, load_thrust_table
+from common.layout import table_entry
+from common.thrust_table import ThrustTable
 from common.tomlfile import check_keys, toml_number, toml_pair
 
 TOP_KEYS = ("vehicle", "thrusters", "valves", "body")
@@ -68,23 +69,6 @@ def _name(x: Any, what: str) -> str:
     return x
 
 
-def _table(raw: Any, where: str, base_dir: Path | None,
-           cache: dict[Path | None, ThrustTable]) -> tuple[ThrustTable, Path | None]:
-    if not isinstance(raw, str) or not raw:
-        raise UserError(f"{where}thrust_table must be a file name or \"{DEFAULT_TABLE}\"")
-    path = None
-    if raw != DEFAULT_TABLE:
-        path = Path(raw)
-        if not path.is_absolute() and base_dir is not None:
-            path = base_dir / path
-    if path not in cache:
-        try:
-            cache[path] = load_thrust_table(path)
-        except UserError as exc:
-            raise UserError(f"{where}thrust_table: {exc}") from None
-    return cache[path], path
-
-
 def _thruster(t: Any, i: int, base_dir: Path | None,
               cache: dict[Path | None, ThrustTable]) -> Thruster:
     where = f"[[thrusters]] #{i}: "
@@ -116,7 +100,7 @@ def _thruster(t: Any, i: int, base_dir: Path | None,
         return Thruster(name, pos, (dx, dy), force, sigma, supply=supply)
     if "force_sigma_n" in t:
         raise UserError(f"{where}force_sigma_n is for force_n; a table states its own uncertainty")
-    table, path = _table(t["thrust_table"], where, base_dir, cache)
+    table, path = table_entry(t["thrust_table"], where, base_dir, cache, DEFAULT_TABLE)
     return Thruster(name, pos, (dx, dy), table=table, table_path=path, supply=supply)
 
 
