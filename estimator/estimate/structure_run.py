@@ -80,7 +80,8 @@ def structure_keys(res: BatchResult, run: Run) -> dict[str, Any]:
 
 def com_keys(values: Mapping[str, float], names: Sequence[str], cov: np.ndarray,
              run: Run) -> dict[str, Any]:
-    """The keys of :func:`structure_keys` from any estimate: ``values`` every parameter's
+    """The keys of :func:`structure_keys` from any estimate (a vehicle run's also
+    ``vehicle``: its name, beside ``structure``): ``values`` every parameter's
     value (mass, izz, cx, cy; estimated or fixed), ``names`` the estimated ones and ``cov``
     the covariance of the state ``(x, y, psi, u, v, r, *names)`` (a batch fit's, or a
     filter's final P). Sigma 0 for a fixed value."""
@@ -96,6 +97,7 @@ def com_keys(values: Mapping[str, float], names: Sequence[str], cov: np.ndarray,
             g[idx[n]] = v
     out: dict[str, Any] = {
         "structure": run.structure.name,
+        **({"vehicle": run.structure.name} if run.structure.kind == "vehicle" else {}),
         "com_x_m": cx, "com_x_sigma_m": sig["cx"], "com_y_m": cy, "com_y_sigma_m": sig["cy"],
         "izz_origin_kgm2": izz + m * (cx * cx + cy * cy),
         "izz_origin_sigma_kgm2": float(math.sqrt(max(float(g @ cov @ g), 0.0)))}

@@ -23,7 +23,7 @@ def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
     r = run_cli(tpods_exe, "estimate", "batch", str(out), "--initial", "m=15,izz=0.2", "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
-    assert est["converged"] and est["structure"] == "example-8-onoff"
+    assert est["converged"] and est["structure"] == est["vehicle"] == "example-8-onoff"
     assert abs(est["mass_kg"] - 23.09) < 3.5 * est["mass_sigma_kg"]
     # the valves' bench-force sigmas are the thrust part of sigma, each named
     assert "T1:force" in json.dumps(est)
