@@ -44,12 +44,13 @@ import numpy as np
 import pandas as pd
 
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.plausible import check_duty_rows, check_pose_rows
 from common.runwriter import CsvLog, command_columns, write_json_atomic
 from common.structure import Structure
 from common.thrust_table import load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
-from common.vehicle import Vehicle, as_layout, folder_layout
+from common.vehicle import Vehicle
 from common.wrench_input import WRENCH_COLUMNS, wrench_frame, wrench_thrusts
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")

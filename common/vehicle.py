@@ -41,12 +41,10 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from common.argtypes import VehicleFile
 from common.body import Body
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
 from common.layout import ThrusterLayout, block_diagonal, check_parts, module_wrench_1
-from common.structure import Structure
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 from common.tomlfile import read_toml
@@ -188,15 +186,13 @@ class Vehicle(ThrusterLayout):
                                 f"{exc}") from None
         return out
 
-    def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
-        """The thrust uncertainty mapped to the virtual thrusts: every table's parameters
-        (prefixed ``<supply>:`` when more than one supply holds a table) and every on/off
-        valve's ``force_sigma_n`` as the parameter ``<thruster>:force`` (N), independent.
-        A parameter whose valve never opens is left out. The TPODS module gives
-        :func:`thrust_sensitivity` of its table."""
+    def thruster_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
+        """The thrust uncertainty per thruster: ``thrust_n`` (..., N), ``jacobian``
+        (..., N, P) with every table's parameters (prefixed ``<supply>:`` when more than
+        one supply holds a table) and every on/off valve's ``force_sigma_n`` as the
+        parameter ``<thruster>:force`` (N), independent. A parameter whose valve never
+        opens is left out."""
         d = self._check_duty(duty_pct)
-        if self.is_single_at_origin:
-            return thrust_sensitivity(self.single_table(), d, clamp=clamp)
         phys = self.thrust_n(d, clamp=clamp)
         jacs, names, blocks = [], [], []
         groups = self._supplies()
@@ -215,10 +211,19 @@ class Vehicle(ThrusterLayout):
                 jacs.append(jac)
                 names.append(f"{t.name}:force")
                 blocks.append(np.array([[t.force_sigma_n ** 2]]))
+        jac = np.concatenate(jacs, axis=-1) if jacs else np.zeros(d.shape + (0,))
+        return ThrustSensitivity(phys, jac, tuple(names), block_diagonal(blocks))
+
+    def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
+        """:meth:`thruster_sensitivity` mapped to the virtual thrusts (``pinv(W1) W``).
+        The TPODS module gives :func:`thrust_sensitivity` of its table."""
+        d = self._check_duty(duty_pct)
+        if self.is_single_at_origin:
+            return thrust_sensitivity(self.single_table(), d, clamp=clamp)
+        s = self.thruster_sensitivity(d, clamp=clamp)
         v = self.virtual_matrix()
-        jac = (np.einsum("ij,...jp->...ip", v, np.concatenate(jacs, axis=-1)) if jacs
-               else np.zeros(d.shape[:-1] + (4, 0)))
-        return ThrustSensitivity(phys @ v.T, jac, tuple(names), block_diagonal(blocks))
+        return ThrustSensitivity(s.thrust_n @ v.T, np.einsum("ij,...jp->...ip", v, s.jacobian),
+                                 s.names, s.covariance)
 
     @property
     def states_uncertainty(self) -> bool:
@@ -278,45 +283,3 @@ class Vehicle(ThrusterLayout):
             lines.append(f"valves: delay {self.valves.delay_s:g} s, rise {self.valves.rise_s:g} s")
         return lines
 
-
-LAYOUT_FILES = ("structure.toml", "vehicle.toml")
-
-
-def load_layout(path: str | Path) -> Structure | Vehicle:
-    """A structure.toml or a vehicle.toml: a :class:`VehicleFile` (``--vehicle``) or a
-    file with a ``[vehicle]`` table is read as a :class:`Vehicle`, any other as a
-    :class:`common.structure.Structure`. UserError naming the file on any problem."""
-    if isinstance(path, VehicleFile):
-        return Vehicle.load(path)
-    path = Path(path)
-    data = read_toml(path, "vehicle file" if path.name == "vehicle.toml" else "structure file")
-    if "vehicle" in data or "thrusters" in data:
-        return Vehicle.from_dict(data, str(path), path.parent)
-    return Structure.from_dict(data, str(path), path.parent)
-
-
-def as_layout(layout: Any) -> Structure | Vehicle | None:
-    """``layout`` as a structure or vehicle: one already (returned as is), its file
-    (:func:`load_layout`), or None."""
-    if layout is None or isinstance(layout, ThrusterLayout):
-        return layout
-    return load_layout(layout)
-
-
-def folder_layout(folder: str | Path) -> Path | None:
-    """The structure.toml or vehicle.toml of a run folder, None without; UserError when
-    it holds both (a run is either)."""
-    found = [Path(folder) / f for f in LAYOUT_FILES if (Path(folder) / f).is_file()]
-    if len(found) > 1:
-        raise UserError(f"{folder}: holds both structure.toml and vehicle.toml; a run is a "
-                        "structure run or a vehicle run: remove one")
-    return found[0] if found else None
-
-
-def load_structure_only(path: str | Path, command: str, why: str) -> Structure:
-    """The structure at ``path`` for a command that does not take a vehicle yet: a vehicle
-    file is refused in one line naming ``command`` and ``why``."""
-    layout = load_layout(path)
-    if isinstance(layout, Vehicle):
-        raise UserError(f"{command} does not take a vehicle yet ({why})")
-    return layout

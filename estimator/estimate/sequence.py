@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.runfolder import Run, read_run
 from common.thrust_table import ThrustTable
-from common.vehicle import as_layout, folder_layout
 from estimator.plant.inputs import from_commands_csv
 from estimator.plant.sim import pose_times
 

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.runfolder import Run
 from common.thrust_table import ThrustTable
-from common.vehicle import as_layout, folder_layout
 from estimator.batch.least_squares import BatchResult
 
 

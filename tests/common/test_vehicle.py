@@ -13,12 +13,13 @@ import pytest
 from common.argtypes import VehicleFile
 from common.errors import UserError
 from common.layout import module_wrench_1, virtual_from_wrench
+from common.layout_files import folder_layout, load_layout
 from common.runfolder import read_run, write_run
 from common.structure import Structure
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustUncertainty
 from common.valve_timing import first_order_rise
-from common.vehicle import Vehicle, folder_layout, load_layout
+from common.vehicle import Vehicle
 
 ROOT = Path(__file__).resolve().parents[2]
 TPODS = ROOT / "vehicles" / "tpods.toml"

@@ -125,7 +125,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     if min(args.table_size) <= 2 * args.margin:
         raise UserError("--table-size must exceed twice the --margin")
     if getattr(args, "structure", None):
-        from common.vehicle import load_layout
+        from common.layout_files import load_layout
 
         known = load_layout(args.structure).body.known()
         if all(n in known for n in ("mass", "izz", "cx", "cy")):
@@ -136,7 +136,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     structure = None
     plant = PlantParams(args.mass, args.izz)
     if getattr(args, "structure", None):
-        from common.vehicle import load_layout
+        from common.layout_files import load_layout
 
         if args.design_for == "thrust-calibration":
             raise UserError("--for thrust-calibration is not built for structures yet")

@@ -134,7 +134,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def sim_structure(args: argparse.Namespace, table):
     """The ``--structure`` of ``tpods sim`` with ``--thrust-table`` applied to the modules
     without their own table, or None."""
-    from common.vehicle import load_layout
+    from common.layout_files import load_layout
 
     if args.structure is None:
         return None

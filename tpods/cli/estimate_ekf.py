@@ -351,7 +351,7 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
     (:mod:`estimator.montecarlo_structure`)."""
     import math
 
-    from common.vehicle import load_layout
+    from common.layout_files import load_layout
     from estimator.montecarlo_structure import (
         StructureMcConfig,
         run_structure_montecarlo,

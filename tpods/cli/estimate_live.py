@@ -80,7 +80,7 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     structure = None
     if args.structure is not None:
-        from common.vehicle import load_structure_only
+        from common.layout_files import load_structure_only
 
         structure = load_structure_only(
             args.structure, "tpods estimate live",

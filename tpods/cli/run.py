@@ -166,7 +166,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     clock = _clock(args)
     structure = None
     if args.structure:
-        from common.vehicle import load_structure_only
+        from common.layout_files import load_structure_only
 
         if args.capture is not None:
             raise UserError("--capture is not built for --structure yet (one transcript per "
@@ -322,7 +322,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
     stop = threading.Event()
     structure = None
     if args.structure:
-        from common.vehicle import load_structure_only
+        from common.layout_files import load_structure_only
         from tpods.plant_loop import StructureThrust, StructureValves
 
         structure = load_structure_only(
