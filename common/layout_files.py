@@ -51,8 +51,9 @@ def folder_layout(folder: str | Path) -> Path | None:
 
 def load_structure_only(path: str | Path, command: str, why: str) -> Structure:
     """The structure at ``path`` for a command that does not take a vehicle yet: a vehicle
-    file is refused in one line naming ``command`` and ``why``."""
+    file, or a structure with a vehicle module, is refused in one line naming ``command``
+    and ``why``."""
     layout = load_layout(path)
-    if isinstance(layout, Vehicle):
+    if isinstance(layout, Vehicle) or any(m.vehicle is not None for m in layout.modules):
         raise UserError(f"{command} does not take a vehicle yet ({why})")
     return layout

@@ -19,6 +19,10 @@ The file (docs/run-format.md, "Structure runs")::
     mass_kg = 0.72                       # optional, known module mass
     izz_kgm2 = 1.2e-3                    # optional, known module Izz (about its centre)
     [[modules]]
+    name = "sat"
+    position_m = [0.4, 0.0]
+    vehicle = "sat.toml"                 # optional (issue 24): a vehicle.toml whose
+                                         # thrusters this module carries (its own tables)
     ...
     [body]                               # optional: known values or priors of the whole
     mass_kg = 1.9                        # body; a value with a sigma is a prior
@@ -32,7 +36,11 @@ The plant (:mod:`estimator.plant.model`) takes the thrusts of ONE module at the 
 origin with yaw 0; a structure passes *virtual* thrusts (:meth:`Structure.virtual_thrust`):
 the four numbers whose wrench about the tracked origin equals the sum of every module's
 wrench (the minimum-norm solution; they may be negative). A single module at the origin
-with yaw 0 gives exactly its table's thrusts.
+with yaw 0 gives exactly its table's thrusts. A module naming a ``vehicle`` carries that
+vehicle's N thrusters (its valve channels, in its thruster order) placed with the vehicle's
+tracked origin at ``position_m``, turned ``yaw_deg``; its thrust is the vehicle's
+(:class:`common.vehicle.Vehicle`). Such a structure is not played, run as a plant or
+estimated live yet (4-channel controllers per module).
 """
 
 from __future__ import annotations
@@ -58,10 +66,36 @@ from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 from common.tomlfile import check_keys, read_toml, toml_pair
 from common.tomlfile import toml_number as _num
+from common.vehicle import Vehicle
+from common.vehicle_toml import vehicle_document
 
 TOP_KEYS = ("name", "modules", "body")
-MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "mass_kg", "izz_kgm2")
+MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "vehicle", "mass_kg", "izz_kgm2")
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
+
+def _module_vehicle(m: Mapping[str, Any], where: str, base_dir: Path | None
+                    ) -> tuple[Vehicle | None, Path | None]:
+    """A module entry's ``vehicle = "file.toml"`` (relative to ``base_dir``), or None."""
+    if "vehicle" not in m:
+        return None, None
+    raw = m["vehicle"]
+    if not isinstance(raw, str) or not raw:
+        raise UserError(f"{where}vehicle must be a vehicle.toml file name")
+    if "thrust_table" in m:
+        raise UserError(f"{where}a vehicle module's tables are in its vehicle file: drop "
+                        "thrust_table")
+    path = Path(raw)
+    if not path.is_absolute() and base_dir is not None:
+        path = base_dir / path
+    try:
+        v = Vehicle.load(path)
+    except UserError as exc:
+        raise UserError(f"{where}vehicle: {exc}") from None
+    if v.valves.delay_s or v.valves.rise_s:
+        raise UserError(f"{where}vehicle {path}: [valves] delay_s/rise_s of a vehicle in a "
+                        "structure are not built yet (use the vehicle alone, or drop them)")
+    return v, path
+
 
 @dataclass(frozen=True)
 class Module:
@@ -74,6 +108,10 @@ class Module:
         table: its thrust table.
         table_path: the file the table came from, or None for the default (Table 2).
         mass_kg, izz_kgm2: known mass and Izz about the module centre, or None.
+        vehicle: a :class:`common.vehicle.Vehicle` whose thrusters the module carries
+            instead of the TPODS geometry (issue 24: structures compose vehicles), its
+            tracked origin at ``position_m`` turned by ``yaw_deg``; None for a TPODS module.
+        vehicle_path: the file it came from.
     """
 
     name: str
@@ -83,12 +121,38 @@ class Module:
     table_path: Path | None = None
     mass_kg: float | None = None
     izz_kgm2: float | None = None
+    vehicle: Vehicle | None = None
+    vehicle_path: Path | None = None
+
+    @property
+    def n_channels(self) -> int:
+        """Its valve channels: 4 (a TPODS module) or its vehicle's thrusters."""
+        return 4 if self.vehicle is None else self.vehicle.n_channels
+
+    @property
+    def uses_default_table(self) -> bool:
+        """True when ``--thrust-table`` would replace a table of this module."""
+        if self.vehicle is None:
+            return self.table_path is None
+        return any(t.table is not None and t.table_path is None for t in self.vehicle.thrusters)
+
+    def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
+        """(..., C) thrust per thruster of the module, N, for its duty columns."""
+        if self.vehicle is None:
+            return self.table.thrust_n(duty_pct, clamp=clamp)
+        return self.vehicle.thrust_n(duty_pct, clamp=clamp)
+
+    def sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
+        """Its thrust uncertainty per thruster (its table's, or its vehicle's)."""
+        if self.vehicle is None:
+            return thrust_sensitivity(self.table, duty_pct, clamp=clamp)
+        return self.vehicle.thruster_sensitivity(duty_pct, clamp=clamp)
 
     def wrench_matrix(self, arm_m: float = ARM_M) -> np.ndarray:
-        """(3, 4): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton of
+        """(3, C): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton of
         each of the module's thrusters: the module force turned by ``yaw_deg``, the moment
         the module's own plus ``position x force``."""
-        w1 = module_wrench_1(arm_m)
+        w1 = module_wrench_1(arm_m) if self.vehicle is None else self.vehicle.module_wrench_matrix()
         a = math.radians(self.yaw_deg)
         c, s = math.cos(a), math.sin(a)
         fx = c * w1[0] - s * w1[1]
@@ -168,12 +232,13 @@ class Structure(ThrusterLayout):
             table = None
             if "thrust_table" in m:
                 table, tpath = table_entry(m["thrust_table"], where, base_dir, cache)
+            vehicle, vpath = _module_vehicle(m, where, base_dir)
             mass = m.get("mass_kg")
             izz = m.get("izz_kgm2")
             mass = None if mass is None else _num(mass, f"{where}mass_kg", positive=True)
             izz = None if izz is None else _num(izz, f"{where}izz_kgm2", positive=True)
             modules.append(Module(mname, pos, yaw, table if table is not None else
-                                  load_thrust_table(None), tpath, mass, izz))
+                                  load_thrust_table(None), tpath, mass, izz, vehicle, vpath))
         body = parse_body(data["body"]) if "body" in data else Body()
         return cls(name.strip(), tuple(modules), body, source)
 
@@ -196,6 +261,11 @@ class Structure(ThrusterLayout):
                 fname = f"{m.name}_thrust_table.toml"
                 m.table.save(folder / fname)
                 d["thrust_table"] = fname
+            if m.vehicle is not None:
+                v = m.vehicle
+                d["vehicle"] = f"{m.name}_vehicle.toml"
+                (folder / d["vehicle"]).write_text(tomli_w.dumps(vehicle_document(
+                    v.name, v.thrusters, v.valves, v.body, folder, f"{m.name}_")))
             if m.mass_kg is not None:
                 d["mass_kg"] = m.mass_kg
             if m.izz_kgm2 is not None:
@@ -212,13 +282,14 @@ class Structure(ThrusterLayout):
         """A copy in which every module whose entry names no ``thrust_table`` uses ``table``
         instead of the default (what ``--thrust-table`` means for a structure run; see
         :meth:`check_table_option`)."""
-        return replace(self, modules=tuple(m if m.table_path is not None else replace(m, table=table)
-                                           for m in self.modules))
+        return replace(self, modules=tuple(
+            replace(m, vehicle=m.vehicle.with_table(table)) if m.vehicle is not None else
+            m if m.table_path is not None else replace(m, table=table) for m in self.modules))
 
     def check_table_option(self, option: str = "--thrust-table") -> None:
         """UserError when every module names its own ``thrust_table``: a table given on
         the command line would then be ignored."""
-        if all(m.table_path is not None for m in self.modules):
+        if not any(m.uses_default_table for m in self.modules):
             raise UserError(f"{self.source}: every module names its own thrust_table; "
                             f"{option} would be ignored (drop it)")
 
@@ -253,13 +324,19 @@ class Structure(ThrusterLayout):
     @property
     def n_channels(self) -> int:
         """Valve channels: 4 per module."""
-        return 4 * len(self.modules)
+        return sum(m.n_channels for m in self.modules)
+
+    def _slices(self) -> list[tuple[int, int]]:
+        """``(first, end)`` channel of every module (module 1's first)."""
+        ends = np.cumsum([m.n_channels for m in self.modules]).tolist()
+        return list(zip([0] + ends[:-1], ends, strict=True))
 
     @property
     def is_single_at_origin(self) -> bool:
         """One module at the tracked origin with yaw 0 (today's isolated module)."""
         m = self.modules[0]
-        return len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
+        return (len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
+                and m.vehicle is None)
 
     def module_wrench_matrix(self) -> np.ndarray:
         """(3, 4N): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton
@@ -282,11 +359,15 @@ class Structure(ThrusterLayout):
     def extent_m(self) -> float:
         """The farthest thruster from the tracked origin, m (a module's centre distance
         plus its thrusters' arm)."""
-        return max(math.hypot(*m.position_m) for m in self.modules) + self.arm_m
+        if all(m.vehicle is None for m in self.modules):
+            return max(math.hypot(*m.position_m) for m in self.modules) + self.arm_m
+        return max(math.hypot(*m.position_m) + (self.arm_m if m.vehicle is None else
+                                                  m.vehicle.extent_m()) for m in self.modules)
 
     def tables(self) -> tuple[ThrustTable, ...]:
-        """Every module's table, in module order."""
-        return tuple(m.table for m in self.modules)
+        """Every module's table (a vehicle module's tables), in module order."""
+        return tuple(t for m in self.modules
+                     for t in ((m.table,) if m.vehicle is None else m.vehicle.tables()))
 
     # ---------------------------------------------------------------- thrust
     def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
@@ -294,11 +375,11 @@ class Structure(ThrusterLayout):
         m's four columns through module m's table with k = open valves of module m."""
         d = self._check_duty(duty_pct)
         out = np.empty_like(d)
-        for i, m in enumerate(self.modules):
+        for m, (a, b) in zip(self.modules, self._slices(), strict=True):
             try:
-                out[..., 4 * i:4 * i + 4] = m.table.thrust_n(d[..., 4 * i:4 * i + 4], clamp=clamp)
+                out[..., a:b] = m.thrust_n(d[..., a:b], clamp=clamp)
             except UserError as exc:
-                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
+                raise UserError(f"module {m.name} (d{a + 1}..d{b}): {exc}") from None
         return out
 
     def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
@@ -313,12 +394,12 @@ class Structure(ThrusterLayout):
         pinv = _pinv_w1(self.arm_m)
         thrust = np.zeros(d.shape[:-1] + (4,))
         jacs, names, blocks = [], [], []
-        for i, m in enumerate(self.modules):
+        for m, (a, b) in zip(self.modules, self._slices(), strict=True):
             try:
-                s = thrust_sensitivity(m.table, d[..., 4 * i:4 * i + 4], clamp=clamp)
+                s = m.sensitivity(d[..., a:b], clamp=clamp)
             except UserError as exc:
-                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
-            p = pinv @ m.wrench_matrix(self.arm_m)  # (4, 4)
+                raise UserError(f"module {m.name} (d{a + 1}..d{b}): {exc}") from None
+            p = pinv @ m.wrench_matrix(self.arm_m)  # (4, C)
             thrust = thrust + s.thrust_n @ p.T
             jacs.append(np.einsum("ij,...jp->...ip", p, s.jacobian))
             names.extend(f"{m.name}:{n}" for n in s.names)
@@ -329,13 +410,18 @@ class Structure(ThrusterLayout):
 
     @property
     def states_uncertainty(self) -> bool:
-        """True when any module's table states an uncertainty."""
-        return any(m.table.states_uncertainty for m in self.modules)
+        """True when any module's table (a vehicle module's tables or valve forces) states
+        an uncertainty."""
+        return any(m.table.states_uncertainty if m.vehicle is None else m.vehicle.states_uncertainty
+                   for m in self.modules)
 
     def describe(self) -> list[str]:
         """One line per module (for summaries)."""
         return [f"{m.name}: position ({m.position_m[0]:g}, {m.position_m[1]:g}) m, yaw "
-                f"{m.yaw_deg:g} deg, table {m.table_path or 'Table 2 (default)'}"
+                f"{m.yaw_deg:g} deg, " + (f"table {m.table_path or 'Table 2 (default)'}"
+                                          if m.vehicle is None else
+                                          f"vehicle {m.vehicle.name} ({m.vehicle.n_channels} "
+                                          f"thrusters, {m.vehicle_path})")
                 for m in self.modules]
 
 

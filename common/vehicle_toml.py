@@ -139,9 +139,9 @@ def _parse(data: Mapping[str, Any], base_dir: Path | None
 
 
 def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves, body: Body,
-                     folder: Path) -> dict[str, Any]:
+                     folder: Path, prefix: str = "") -> dict[str, Any]:
     """The TOML document of a vehicle, self-contained in ``folder``: a table read from a
-    file is saved there as ``thrust_table_<supply>.toml``; the built-in one stays
+    file is saved there as ``<prefix>thrust_table_<supply>.toml``; the built-in one stays
     ``"default"``."""
     out: dict[str, Any] = {"vehicle": {"name": name}, "thrusters": []}
     for t in thrusters:
@@ -154,7 +154,7 @@ def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves,
         elif t.table_path is None:
             d["thrust_table"] = DEFAULT_TABLE
         else:
-            fname = f"thrust_table_{t.supply}.toml"
+            fname = f"{prefix}thrust_table_{t.supply}.toml"
             t.table.save(folder / fname)
             d["thrust_table"] = fname
         d["supply"] = t.supply

@@ -13,7 +13,7 @@ import pytest
 from common.argtypes import VehicleFile
 from common.errors import UserError
 from common.layout import module_wrench_1, virtual_from_wrench
-from common.layout_files import folder_layout, load_layout
+from common.layout_files import folder_layout, load_layout, load_structure_only
 from common.runfolder import read_run, write_run
 from common.structure import Structure
 from common.thrust_table import ThrustTable
@@ -177,3 +177,39 @@ def test_first_order_rise_keeps_every_impulse_exact():
 def test_a_body_frame_wrench_is_exactly_its_virtual_thrusts():
     w = np.array([[0.3, -0.2, 0.01], [0.0, 0.0, -0.02]])
     assert np.allclose(virtual_from_wrench(w) @ module_wrench_1().T, w, rtol=0, atol=1e-15)
+
+
+def test_a_structure_composes_vehicles(tmp_path):
+    (tmp_path / "sat.toml").write_text(EIGHT.read_text())
+    (tmp_path / "tp.toml").write_text(TPODS.read_text())
+    (tmp_path / "s.toml").write_text('''name = "pair"
+[[modules]]
+name = "tpods1"
+position_m = [-0.4, 0.0]
+vehicle = "tp.toml"
+[[modules]]
+name = "sat"
+position_m = [0.4, 0.1]
+yaw_deg = 90.0
+vehicle = "sat.toml"
+''')
+    s = load_layout(tmp_path / "s.toml")
+    assert isinstance(s, Structure) and s.n_channels == 12 and not s.is_single_at_origin
+    assert s.command_columns()[-1] == "d12"
+    d = np.hstack([_duties(4), np.where(_duties(8, seed=5) > 0, 100.0, 0.0)])
+    w = s.module_wrench_matrix()
+    assert np.allclose(s.virtual_thrust(d) @ module_wrench_1().T, s.thrust_n(d) @ w.T, atol=1e-14)
+    # the TPODS vehicle module is today's module: the same wrench as a plain module entry
+    plain = Structure.from_dict({"name": "p", "modules": [
+        {"name": "tpods1", "position_m": [-0.4, 0.0]}]})
+    assert np.allclose(w[:, :4], plain.module_wrench_matrix(), rtol=0, atol=1e-15)
+    # the satellite turned 90 degrees: its T1 pushes along -x of its body, i.e. -y here
+    assert np.allclose(w[:2, 4], [0.0, -1.0], atol=1e-15)
+    sens = s.virtual_sensitivity(d)
+    assert "sat:T1:force" in sens.names
+    (tmp_path / "copy").mkdir()
+    again = load_layout(s.write(tmp_path / "copy"))
+    assert np.array_equal(again.module_wrench_matrix(), w)
+    assert (tmp_path / "copy" / "sat_vehicle.toml").is_file()
+    with pytest.raises(UserError, match="does not take a vehicle yet"):
+        load_structure_only(tmp_path / "s.toml", "tpods run play", "why")
