@@ -128,3 +128,14 @@ def random_seed(text: str) -> int:
     if not 0 <= v <= SEED_MAX:
         raise argparse.ArgumentTypeError(f"must be a whole number in 0..{SEED_MAX}, got {text!r}")
     return v
+
+
+class VehicleFile(str):
+    """The path of ``--vehicle FILE``: a str that says it names a vehicle.toml. The option
+    shares ``args.structure`` with ``--structure`` (a vehicle goes wherever a structure
+    goes); :func:`common.vehicle.load_layout` reads it as a vehicle."""
+
+
+def vehicle_file(text: str) -> VehicleFile:
+    """argparse type of ``--vehicle``."""
+    return VehicleFile(text)

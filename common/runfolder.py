@@ -6,11 +6,17 @@ A run is a folder holding (see docs/run-format.md):
   the last row marks the end of the commanded span.
 - ``thrusts.csv``   optional ``t,T1,T2,T3,T4`` in newtons, same hold rule; used
   instead of commands.csv + thrust table when present.
+- ``wrench.csv``    optional ``t,fx,fy,mz`` (N, N, N m about the tracked origin), same
+  hold rule, frame in run.json ``wrench_frame`` (``body`` default, or ``lab``): the
+  realised wrench replaces commands and thrust model (:mod:`common.wrench_input`).
 - ``poses.csv``     ``t,x,y,psi``: metres and radians, lab frame; psi may be wrapped.
 - ``run.json``      optional metadata (truth for simulated runs; a recorder's ``status``).
 - ``structure.toml`` optional: the run is a structure run (:mod:`common.structure`):
   commands.csv holds ``t,d1..d{4N}`` (module 1's four duties, then module 2's, ...),
   thrusts.csv ``t,T1..T{4N}``, and poses.csv is the tracked structure frame.
+- ``vehicle.toml`` optional: the run is a vehicle run (:mod:`common.vehicle`), read as a
+  structure run is: commands.csv ``t,d1..dN`` in the vehicle's thruster order. Every reader
+  below takes a Vehicle wherever it takes a Structure (``Run.structure``).
 
 Readers validate and refuse bad input with one :class:`UserError` line naming the
 file and the row. A run whose ``run.json`` (or, for a body folder of ``tpods mocap
@@ -35,11 +41,14 @@ import numpy as np
 
 from common.csvtable import read_table, read_table_lines  # noqa: F401  (re-exported)
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.plausible import check_duty_rows, check_pose_rows
 from common.runwriter import CsvLog, command_columns, write_json_atomic
 from common.structure import Structure
 from common.thrust_table import load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
+from common.vehicle import Vehicle
+from common.wrench_input import WRENCH_COLUMNS, wrench_frame, wrench_thrusts
 
 COMMAND_COLUMNS = ("t", "d1", "d2", "d3", "d4")
 THRUST_COLUMNS = ("t", "T1", "T2", "T3", "T4")
@@ -73,7 +82,11 @@ class Run:
         meta: run.json contents ({} when absent).
         structure: the structure of a structure run (``structure.toml`` in the folder or
             given to :func:`read_run`), else None. Then duty_pct is (Nc, 4N) and
-            thrust_n (Nc', 4N), module 1's four channels first.
+            thrust_n (Nc', 4N), module 1's four channels first. A vehicle run's
+            :class:`common.vehicle.Vehicle` goes here too (duty_pct (Nc, N)).
+        wrench_frame: ``body`` or ``lab`` for a wrench run (wrench.csv), else None: then
+            thrust_t, thrust_n are the VIRTUAL thrusts of its body-frame wrench
+            (:func:`common.wrench_input.wrench_thrusts`), whatever the structure.
     """
 
     path: Path
@@ -84,7 +97,8 @@ class Run:
     thrust_t: np.ndarray | None = None
     thrust_n: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
-    structure: Structure | None = None
+    structure: Structure | Vehicle | None = None
+    wrench_frame: str | None = None
 
     @property
     def truth(self) -> dict[str, Any] | None:
@@ -101,12 +115,14 @@ class Run:
         and ``table``, when given, replaces the default Table 2 for the modules whose
         entry names no ``thrust_table`` (modules with their own table keep it).
         """
+        if self.wrench_frame is not None:
+            return self.thrust_t, self.thrust_n
         if self.structure is not None:
             s = self.structure_for(table)
             if self.thrust_n is not None:
                 return self.thrust_t, s.virtual_from_thrust(self.thrust_n)
             try:
-                return self.cmd_t, s.virtual_thrust(self.duty_pct, clamp=clamp)
+                return s.input_profile(self.cmd_t, self.duty_pct, clamp=clamp)
             except UserError as exc:
                 raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
         if self.thrust_n is not None:
@@ -127,17 +143,27 @@ class Run:
     def thrust_sensitivity(self, table=None, clamp: bool = False) -> ThrustSensitivity | None:
         """The thrust table's uncertainty at this run's commands (the consider input):
         :func:`common.thrust_uncertainty.thrust_sensitivity` of ``table`` (default Table 2),
-        or for a structure run every module's, mapped to the virtual thrusts
-        (:meth:`common.structure.Structure.virtual_sensitivity`). None when thrusts.csv
-        gives the thrusts or no table states an uncertainty."""
+        or for a structure or vehicle run every table's (and valve force's), mapped to the
+        virtual thrusts (:meth:`common.structure.Structure.virtual_sensitivity`) on the rows
+        of :meth:`thrust_profile`. None when thrusts.csv gives the thrusts or no table
+        states an uncertainty."""
+        return self.input_sensitivity(table, clamp)[1]
+
+    def input_sensitivity(self, table=None, clamp: bool = False
+                          ) -> tuple[np.ndarray, ThrustSensitivity | None]:
+        """``(times, sensitivity)``: :meth:`thrust_sensitivity` with the times of its rows
+        (the command times, or a vehicle's valve-timed rows of :meth:`thrust_profile`)."""
         if self.thrust_n is not None:
-            return None
+            return self.thrust_t, None
         try:
             if self.structure is not None:
                 s = self.structure_for(table)
-                return s.virtual_sensitivity(self.duty_pct, clamp=clamp) if s.states_uncertainty else None
+                if not s.states_uncertainty:
+                    return self.cmd_t, None
+                return s.input_sensitivity(self.cmd_t, self.duty_pct, clamp=clamp)
             table = table if table is not None else load_thrust_table(None)
-            return thrust_sensitivity(table, self.duty_pct, clamp=clamp) if table.states_uncertainty else None
+            return self.cmd_t, (thrust_sensitivity(table, self.duty_pct, clamp=clamp)
+                                if table.states_uncertainty else None)
         except UserError as exc:
             raise UserError(f"{self.path / 'commands.csv'}: {exc}") from None
 
@@ -149,37 +175,45 @@ class Run:
         if keep.sum() < 2:
             raise UserError(f"{self.path}: window {t0}:{t1} holds fewer than 2 poses")
         return Run(self.path, self.cmd_t, self.duty_pct, self.pose_t[keep], self.pose[keep],
-                   self.thrust_t, self.thrust_n, self.meta, self.structure)
+                   self.thrust_t, self.thrust_n, self.meta, self.structure, self.wrench_frame)
 
 
-def read_run(path: str | Path, structure: Structure | str | Path | None = None) -> Run:
+def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | None = None) -> Run:
     """Load and validate a run folder.
 
-    ``structure`` (a :class:`common.structure.Structure` or its TOML file) makes it a
-    structure run; without it, a ``structure.toml`` in the folder does. A structure run's
+    ``structure`` (a :class:`common.structure.Structure`, a :class:`common.vehicle.Vehicle`
+    or its TOML file) makes it a structure (vehicle) run; without it, a ``structure.toml``
+    (``vehicle.toml``) in the folder does. A structure run's
     commands.csv needs ``t,d1..d{4N}`` (thrusts.csv ``t,T1..T{4N}``); an explicit
     ``structure`` wins over the folder's file.
     """
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path}: run folder not found")
-    if structure is None and (path / "structure.toml").is_file():
-        structure = path / "structure.toml"
-    if structure is not None and not isinstance(structure, Structure):
-        structure = Structure.load(structure)
+    if structure is None:
+        structure = folder_layout(path)
+    structure = as_layout(structure)
     cmd_cols = COMMAND_COLUMNS if structure is None else structure.command_columns()
     thrust_cols = THRUST_COLUMNS if structure is None else structure.thrust_columns()
     thrust_file = path / "thrusts.csv"
     cmd_file = path / "commands.csv"
+    wrench_file = path / "wrench.csv"
     thrust_t = thrust_n = None
     duty = None
-    if thrust_file.exists():
+    wrench = None
+    if wrench_file.exists():
+        if thrust_file.exists():
+            raise UserError(f"{path}: holds both wrench.csv and thrusts.csv; a run's input is one "
+                            "of them: remove one")
+        wrench = read_table(wrench_file, WRENCH_COLUMNS)
+        thrust_t = wrench[:, 0]
+    elif thrust_file.exists():
         tv, tlines = read_table_lines(thrust_file, thrust_cols)
         thrust_t, thrust_n = tv[:, 0], tv[:, 1:]
         if np.any(thrust_n < 0):
             row = int(np.argwhere(thrust_n < 0)[0][0])
             raise UserError(f"{thrust_file}: line {tlines[row]}: negative thrust")
-    if cmd_file.exists() or thrust_t is None:
+    if (cmd_file.exists() and wrench is None) or thrust_t is None:
         cv, clines = read_table_lines(cmd_file, cmd_cols)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         check_duty_rows(duty, clines, cmd_file)
@@ -189,7 +223,8 @@ def read_run(path: str | Path, structure: Structure | str | Path | None = None) 
     pose_t, pose = pv[:, 0], pv[:, 1:]
     check_pose_rows(pose, plines, path / "poses.csv")
     span_t = thrust_t if thrust_t is not None else cmd_t
-    span_name = "thrusts.csv" if thrust_t is not None else "commands.csv"
+    span_name = ("commands.csv" if thrust_t is None else
+                 "wrench.csv" if wrench is not None else "thrusts.csv")
     outside = (pose_t < span_t[0]) | (pose_t > span_t[-1])
     if outside.any():
         i = int(np.nonzero(outside)[0][0])
@@ -211,7 +246,12 @@ def read_run(path: str | Path, structure: Structure | str | Path | None = None) 
         warn_if_partial(path, meta)
     else:
         warn_if_partial(path)  # a body folder of a mocap recording
-    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure)
+    frame = None
+    if wrench is not None:
+        frame = wrench_frame(meta, str(meta_file))
+        thrust_t, thrust_n = wrench_thrusts(wrench[:, 0], wrench[:, 1:], frame, pose_t, pose[:, 2])
+        cmd_t = thrust_t
+    return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure, frame)
 
 
 def _check_truth(meta_file: Path, truth: Any) -> None:
@@ -280,12 +320,13 @@ def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.n
 
 def write_run(path: str | Path, *, cmd_t=None, duty_pct=None, pose_t, pose, thrust_t=None,
               thrust_n=None, meta: dict[str, Any] | None = None,
-              structure: Structure | None = None) -> Path:
+              structure: Structure | Vehicle | None = None) -> Path:
     """Write a run folder (creating it): CSVs with 12 significant digits, run.json
     atomically with the toolkit's JSON policy (``common.runwriter``). Returns the folder.
     commands.csv/thrusts.csv get one column per channel of ``duty_pct``/``thrust_n``
     (``d1..d{4N}`` for a structure's 4N channels). With ``structure`` the folder also
-    gets its ``structure.toml`` (and the modules' own tables)."""
+    gets its ``structure.toml`` (and the modules' own tables), or a vehicle's
+    ``vehicle.toml``."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     n_cmd = 4 if duty_pct is None else np.shape(duty_pct)[-1]

@@ -19,6 +19,10 @@ The file (docs/run-format.md, "Structure runs")::
     mass_kg = 0.72                       # optional, known module mass
     izz_kgm2 = 1.2e-3                    # optional, known module Izz (about its centre)
     [[modules]]
+    name = "sat"
+    position_m = [0.4, 0.0]
+    vehicle = "sat.toml"                 # optional (issue 24): a vehicle.toml whose
+                                         # thrusters this module carries (its own tables)
     ...
     [body]                               # optional: known values or priors of the whole
     mass_kg = 1.9                        # body; a value with a sigma is a prior
@@ -32,12 +36,15 @@ The plant (:mod:`estimator.plant.model`) takes the thrusts of ONE module at the 
 origin with yaw 0; a structure passes *virtual* thrusts (:meth:`Structure.virtual_thrust`):
 the four numbers whose wrench about the tracked origin equals the sum of every module's
 wrench (the minimum-norm solution; they may be negative). A single module at the origin
-with yaw 0 gives exactly its table's thrusts.
+with yaw 0 gives exactly its table's thrusts. A module naming a ``vehicle`` carries that
+vehicle's N thrusters (its valve channels, in its thruster order) placed with the vehicle's
+tracked origin at ``position_m``, turned ``yaw_deg``; its thrust is the vehicle's
+(:class:`common.vehicle.Vehicle`). Such a structure is not played, run as a plant or
+estimated live yet (4-channel controllers per module).
 """
 
 from __future__ import annotations
 
-import difflib
 import math
 import re
 from collections.abc import Mapping
@@ -48,53 +55,46 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from common.body import BODY_KEYS as BODY_KEYS  # re-exported: structure.toml's [body] keys
+from common.body import Body, parse_body
 from common.constants import ARM_M, PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.errors import UserError
+from common.layout import ThrusterLayout, block_diagonal, check_parts, module_wrench_1, table_entry
+from common.layout import pinv_w1 as _pinv_w1
 from common.plausible import check_module_spacing
 from common.thrust_table import ThrustTable, load_thrust_table
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
-from common.tomlfile import read_toml
+from common.tomlfile import check_keys, read_toml, toml_pair
 from common.tomlfile import toml_number as _num
+from common.vehicle import Vehicle
+from common.vehicle_toml import vehicle_document
 
 TOP_KEYS = ("name", "modules", "body")
-MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "mass_kg", "izz_kgm2")
-BODY_KEYS = ("mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "com_m", "com_sigma_m")
+MODULE_KEYS = ("name", "position_m", "yaw_deg", "thrust_table", "vehicle", "mass_kg", "izz_kgm2")
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 
-_S = math.sqrt(0.5)
-
-
-def module_wrench_1(arm_m: float = ARM_M) -> np.ndarray:
-    """(3, 4) wrench matrix of one module in its own frame: rows Fx (N), Fy (N), Mz (N m
-    about the module centre) per thruster newton (docs/run-format.md, "Thruster geometry")."""
-    return np.array([[-_S, _S, _S, -_S],
-                     [_S, _S, -_S, -_S],
-                     [arm_m, -arm_m, arm_m, -arm_m]])
-
-
-def _pinv_w1(arm_m: float = ARM_M) -> np.ndarray:
-    """(4, 3) pseudo-inverse of :func:`module_wrench_1`: its rows are orthogonal, so
-    ``pinv = W1^T diag(1/|row|^2)`` (exact; no SVD)."""
-    w1 = module_wrench_1(arm_m)
-    return w1.T / np.sum(w1 * w1, axis=1)
-
-
-def _nearest(key: str, valid: tuple[str, ...]) -> str:
-    near = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
-    return f" (did you mean {near[0]!r}?)" if near else ""
-
-
-def _check_keys(data: Mapping[str, Any], valid: tuple[str, ...], where: str) -> None:
-    for key in data:
-        if key not in valid:
-            raise UserError(f"{where}unknown key {key!r}{_nearest(key, valid)}; valid: "
-                            f"{', '.join(valid)}")
-
-
-def _pair(x: Any, what: str) -> tuple[float, float]:
-    if not isinstance(x, list | tuple) or len(x) != 2:
-        raise UserError(f"{what} must be two numbers [x, y], got {x!r}")
-    return _num(x[0], what), _num(x[1], what)
+def _module_vehicle(m: Mapping[str, Any], where: str, base_dir: Path | None
+                    ) -> tuple[Vehicle | None, Path | None]:
+    """A module entry's ``vehicle = "file.toml"`` (relative to ``base_dir``), or None."""
+    if "vehicle" not in m:
+        return None, None
+    raw = m["vehicle"]
+    if not isinstance(raw, str) or not raw:
+        raise UserError(f"{where}vehicle must be a vehicle.toml file name")
+    if "thrust_table" in m:
+        raise UserError(f"{where}a vehicle module's tables are in its vehicle file: drop "
+                        "thrust_table")
+    path = Path(raw)
+    if not path.is_absolute() and base_dir is not None:
+        path = base_dir / path
+    try:
+        v = Vehicle.load(path)
+    except UserError as exc:
+        raise UserError(f"{where}vehicle: {exc}") from None
+    if v.valves.delay_s or v.valves.rise_s:
+        raise UserError(f"{where}vehicle {path}: [valves] delay_s/rise_s of a vehicle in a "
+                        "structure are not built yet (use the vehicle alone, or drop them)")
+    return v, path
 
 
 @dataclass(frozen=True)
@@ -108,6 +108,10 @@ class Module:
         table: its thrust table.
         table_path: the file the table came from, or None for the default (Table 2).
         mass_kg, izz_kgm2: known mass and Izz about the module centre, or None.
+        vehicle: a :class:`common.vehicle.Vehicle` whose thrusters the module carries
+            instead of the TPODS geometry (issue 24: structures compose vehicles), its
+            tracked origin at ``position_m`` turned by ``yaw_deg``; None for a TPODS module.
+        vehicle_path: the file it came from.
     """
 
     name: str
@@ -117,12 +121,38 @@ class Module:
     table_path: Path | None = None
     mass_kg: float | None = None
     izz_kgm2: float | None = None
+    vehicle: Vehicle | None = None
+    vehicle_path: Path | None = None
+
+    @property
+    def n_channels(self) -> int:
+        """Its valve channels: 4 (a TPODS module) or its vehicle's thrusters."""
+        return 4 if self.vehicle is None else self.vehicle.n_channels
+
+    @property
+    def uses_default_table(self) -> bool:
+        """True when ``--thrust-table`` would replace a table of this module."""
+        if self.vehicle is None:
+            return self.table_path is None
+        return any(t.table is not None and t.table_path is None for t in self.vehicle.thrusters)
+
+    def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
+        """(..., C) thrust per thruster of the module, N, for its duty columns."""
+        if self.vehicle is None:
+            return self.table.thrust_n(duty_pct, clamp=clamp)
+        return self.vehicle.thrust_n(duty_pct, clamp=clamp)
+
+    def sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
+        """Its thrust uncertainty per thruster (its table's, or its vehicle's)."""
+        if self.vehicle is None:
+            return thrust_sensitivity(self.table, duty_pct, clamp=clamp)
+        return self.vehicle.thruster_sensitivity(duty_pct, clamp=clamp)
 
     def wrench_matrix(self, arm_m: float = ARM_M) -> np.ndarray:
-        """(3, 4): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton of
+        """(3, C): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton of
         each of the module's thrusters: the module force turned by ``yaw_deg``, the moment
         the module's own plus ``position x force``."""
-        w1 = module_wrench_1(arm_m)
+        w1 = module_wrench_1(arm_m) if self.vehicle is None else self.vehicle.module_wrench_matrix()
         a = math.radians(self.yaw_deg)
         c, s = math.cos(a), math.sin(a)
         fx = c * w1[0] - s * w1[1]
@@ -133,55 +163,7 @@ class Module:
 
 
 @dataclass(frozen=True)
-class Body:
-    """``[body]``: known values or priors of the whole structure (None: unknown).
-
-    A value without a sigma (or with sigma 0) is known; with a sigma it is a prior.
-    Units: kg, kg m^2 (about the centre of mass), m (centre of mass in the tracked frame).
-    """
-
-    mass_kg: float | None = None
-    mass_sigma_kg: float | None = None
-    izz_kgm2: float | None = None
-    izz_sigma_kgm2: float | None = None
-    com_m: tuple[float, float] | None = None
-    com_sigma_m: tuple[float, float] | None = None
-
-    def _entries(self) -> list[tuple[str, float, float | None]]:
-        """``(parameter, value, sigma or None)`` of every given value, in the estimators'
-        names (mass, izz, cx, cy)."""
-        out = []
-        if self.mass_kg is not None:
-            out.append(("mass", float(self.mass_kg), self.mass_sigma_kg))
-        if self.izz_kgm2 is not None:
-            out.append(("izz", float(self.izz_kgm2), self.izz_sigma_kgm2))
-        if self.com_m is not None:
-            s = self.com_sigma_m or (None, None)
-            out += [("cx", float(self.com_m[0]), s[0]), ("cy", float(self.com_m[1]), s[1])]
-        return out
-
-    def known(self) -> dict[str, float]:
-        """The known values (no sigma, or sigma 0) by parameter name: ``mass`` (kg), ``izz``
-        (kg m^2 about the centre of mass), ``cx``, ``cy`` (m, tracked frame). The estimators
-        fix them unless told to estimate them."""
-        return {n: v for n, v, s in self._entries() if not s}
-
-    def priors(self) -> dict[str, tuple[float, float]]:
-        """The Gaussian priors ``name -> (mean, sigma)`` (a value with a sigma > 0), in the
-        units of :meth:`known`."""
-        return {n: (v, float(s)) for n, v, s in self._entries() if s}
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for k in BODY_KEYS:
-            v = getattr(self, k)
-            if v is not None:
-                out[k] = list(v) if isinstance(v, tuple) else v
-        return out
-
-
-@dataclass(frozen=True)
-class Structure:
+class Structure(ThrusterLayout):
     """A rigid structure and its modules (see the module doc).
 
     Attributes:
@@ -199,13 +181,7 @@ class Structure:
     arm_m: float = ARM_M
 
     def __post_init__(self) -> None:
-        if not self.modules:
-            raise UserError(f"{self.source}: a structure needs at least one [[modules]] entry")
-        seen = set()
-        for m in self.modules:
-            if m.name in seen:
-                raise UserError(f"{self.source}: module name {m.name!r} appears twice")
-            seen.add(m.name)
+        check_parts([m.name for m in self.modules], self.source, "structure", "modules", "module")
         check_module_spacing([m.name for m in self.modules], [m.position_m for m in self.modules],
                              self.source, 2 * self.arm_m)
 
@@ -230,7 +206,7 @@ class Structure:
 
     @classmethod
     def _from_dict(cls, data: Mapping[str, Any], source: str, base_dir: Path | None) -> Structure:
-        _check_keys(data, TOP_KEYS, "")
+        check_keys(data, TOP_KEYS, "")
         name = data.get("name")
         if not isinstance(name, str) or not name.strip():
             raise UserError('no name: add name = "..." (the structure\'s name)')
@@ -243,60 +219,27 @@ class Structure:
             where = f"[[modules]] #{i}: "
             if not isinstance(m, Mapping):
                 raise UserError(f"{where}must be a table")
-            _check_keys(m, MODULE_KEYS, where)
+            check_keys(m, MODULE_KEYS, where)
             mname = m.get("name")
             if not isinstance(mname, str) or not _NAME.match(mname):
                 raise UserError(f"{where}name must be letters, digits, '_' or '-', got {mname!r}")
             where = f"[[modules]] {mname!r}: "
             if "position_m" not in m:
                 raise UserError(f"{where}no position_m: add position_m = [x, y] (m)")
-            pos = _pair(m["position_m"], f"{where}position_m")
+            pos = toml_pair(m["position_m"], f"{where}position_m")
             yaw = _num(m.get("yaw_deg", 0.0), f"{where}yaw_deg")
             tpath = None
             table = None
             if "thrust_table" in m:
-                if not isinstance(m["thrust_table"], str) or not m["thrust_table"]:
-                    raise UserError(f"{where}thrust_table must be a file name")
-                tpath = Path(m["thrust_table"])
-                if not tpath.is_absolute() and base_dir is not None:
-                    tpath = base_dir / tpath
-                if tpath not in cache:
-                    try:
-                        cache[tpath] = load_thrust_table(tpath)
-                    except UserError as exc:
-                        raise UserError(f"{where}thrust_table: {exc}") from None
-                table = cache[tpath]
+                table, tpath = table_entry(m["thrust_table"], where, base_dir, cache)
+            vehicle, vpath = _module_vehicle(m, where, base_dir)
             mass = m.get("mass_kg")
             izz = m.get("izz_kgm2")
             mass = None if mass is None else _num(mass, f"{where}mass_kg", positive=True)
             izz = None if izz is None else _num(izz, f"{where}izz_kgm2", positive=True)
             modules.append(Module(mname, pos, yaw, table if table is not None else
-                                  load_thrust_table(None), tpath, mass, izz))
-        body = Body()
-        if "body" in data:
-            b = data["body"]
-            if not isinstance(b, Mapping):
-                raise UserError("[body] must be a table")
-            _check_keys(b, BODY_KEYS, "[body]: ")
-            kw: dict[str, Any] = {}
-            for k in ("mass_kg", "izz_kgm2"):
-                if k in b:
-                    kw[k] = _num(b[k], f"[body] {k}", positive=True)
-            for k in ("mass_sigma_kg", "izz_sigma_kgm2"):
-                if k in b:
-                    kw[k] = _num(b[k], f"[body] {k}", nonneg=True)
-            if "com_m" in b:
-                kw["com_m"] = _pair(b["com_m"], "[body] com_m")
-            if "com_sigma_m" in b:
-                s = b["com_sigma_m"]
-                sx, sy = (s, s) if not isinstance(s, list | tuple) else _pair(s, "[body] com_sigma_m")
-                kw["com_sigma_m"] = (_num(sx, "[body] com_sigma_m", nonneg=True),
-                                     _num(sy, "[body] com_sigma_m", nonneg=True))
-            for v, s in (("mass_kg", "mass_sigma_kg"), ("izz_kgm2", "izz_sigma_kgm2"),
-                         ("com_m", "com_sigma_m")):
-                if s in kw and v not in kw:
-                    raise UserError(f"[body] {s} given without {v}")
-            body = Body(**kw)
+                                  load_thrust_table(None), tpath, mass, izz, vehicle, vpath))
+        body = parse_body(data["body"]) if "body" in data else Body()
         return cls(name.strip(), tuple(modules), body, source)
 
     @classmethod
@@ -318,6 +261,11 @@ class Structure:
                 fname = f"{m.name}_thrust_table.toml"
                 m.table.save(folder / fname)
                 d["thrust_table"] = fname
+            if m.vehicle is not None:
+                v = m.vehicle
+                d["vehicle"] = f"{m.name}_vehicle.toml"
+                (folder / d["vehicle"]).write_text(tomli_w.dumps(vehicle_document(
+                    v.name, v.thrusters, v.valves, v.body, folder, f"{m.name}_")))
             if m.mass_kg is not None:
                 d["mass_kg"] = m.mass_kg
             if m.izz_kgm2 is not None:
@@ -334,13 +282,14 @@ class Structure:
         """A copy in which every module whose entry names no ``thrust_table`` uses ``table``
         instead of the default (what ``--thrust-table`` means for a structure run; see
         :meth:`check_table_option`)."""
-        return replace(self, modules=tuple(m if m.table_path is not None else replace(m, table=table)
-                                           for m in self.modules))
+        return replace(self, modules=tuple(
+            replace(m, vehicle=m.vehicle.with_table(table)) if m.vehicle is not None else
+            m if m.table_path is not None else replace(m, table=table) for m in self.modules))
 
     def check_table_option(self, option: str = "--thrust-table") -> None:
         """UserError when every module names its own ``thrust_table``: a table given on
         the command line would then be ignored."""
-        if all(m.table_path is not None for m in self.modules):
+        if not any(m.uses_default_table for m in self.modules):
             raise UserError(f"{self.source}: every module names its own thrust_table; "
                             f"{option} would be ignored (drop it)")
 
@@ -375,39 +324,50 @@ class Structure:
     @property
     def n_channels(self) -> int:
         """Valve channels: 4 per module."""
-        return 4 * len(self.modules)
+        return sum(m.n_channels for m in self.modules)
+
+    def _slices(self) -> list[tuple[int, int]]:
+        """``(first, end)`` channel of every module (module 1's first)."""
+        ends = np.cumsum([m.n_channels for m in self.modules]).tolist()
+        return list(zip([0] + ends[:-1], ends, strict=True))
 
     @property
     def is_single_at_origin(self) -> bool:
         """One module at the tracked origin with yaw 0 (today's isolated module)."""
         m = self.modules[0]
-        return len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
-
-    def command_columns(self) -> tuple[str, ...]:
-        """Header of a structure's commands.csv: ``t, d1 .. d{4N}``."""
-        return ("t",) + tuple(f"d{i}" for i in range(1, self.n_channels + 1))
-
-    def thrust_columns(self) -> tuple[str, ...]:
-        """Header of a structure's thrusts.csv: ``t, T1 .. T{4N}``."""
-        return ("t",) + tuple(f"T{i}" for i in range(1, self.n_channels + 1))
+        return (len(self.modules) == 1 and m.position_m == (0.0, 0.0) and m.yaw_deg == 0.0
+                and m.vehicle is None)
 
     def module_wrench_matrix(self) -> np.ndarray:
         """(3, 4N): body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per newton
         of every thruster, module 1's four columns first."""
         return np.hstack([m.wrench_matrix(self.arm_m) for m in self.modules])
 
-    def virtual_matrix(self) -> np.ndarray:
-        """(4, 4N) ``pinv(W1) @ module_wrench_matrix()``: physical thrusts to the virtual
-        thrusts of one module at the tracked origin with the same wrench."""
-        return _pinv_w1(self.arm_m) @ self.module_wrench_matrix()
+    def _duty_error(self, n_given: int) -> str:
+        return (f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
+                f"columns (d1..d{self.n_channels}), got {n_given}")
 
-    def _check_duty(self, duty_pct: np.ndarray) -> np.ndarray:
-        d = np.asarray(duty_pct, dtype=float)
-        if d.ndim == 0 or d.shape[-1] != self.n_channels:
-            raise UserError(f"{self.source}: {self.n_modules} module(s) need {self.n_channels} duty "
-                            f"columns (d1..d{self.n_channels}), got "
-                            f"{d.shape[-1] if d.ndim else 0}")
-        return d
+    kind = "structure"
+
+    def parts_text(self) -> str:
+        return f"{self.n_modules} modules"
+
+    def single_table(self) -> ThrustTable:
+        """The table of module 1 (the one table of a single module at the origin)."""
+        return self.modules[0].table
+
+    def extent_m(self) -> float:
+        """The farthest thruster from the tracked origin, m (a module's centre distance
+        plus its thrusters' arm)."""
+        if all(m.vehicle is None for m in self.modules):
+            return max(math.hypot(*m.position_m) for m in self.modules) + self.arm_m
+        return max(math.hypot(*m.position_m) + (self.arm_m if m.vehicle is None else
+                                                  m.vehicle.extent_m()) for m in self.modules)
+
+    def tables(self) -> tuple[ThrustTable, ...]:
+        """Every module's table (a vehicle module's tables), in module order."""
+        return tuple(t for m in self.modules
+                     for t in ((m.table,) if m.vehicle is None else m.vehicle.tables()))
 
     # ---------------------------------------------------------------- thrust
     def thrust_n(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
@@ -415,31 +375,12 @@ class Structure:
         m's four columns through module m's table with k = open valves of module m."""
         d = self._check_duty(duty_pct)
         out = np.empty_like(d)
-        for i, m in enumerate(self.modules):
+        for m, (a, b) in zip(self.modules, self._slices(), strict=True):
             try:
-                out[..., 4 * i:4 * i + 4] = m.table.thrust_n(d[..., 4 * i:4 * i + 4], clamp=clamp)
+                out[..., a:b] = m.thrust_n(d[..., a:b], clamp=clamp)
             except UserError as exc:
-                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
+                raise UserError(f"module {m.name} (d{a + 1}..d{b}): {exc}") from None
         return out
-
-    def virtual_from_thrust(self, thrust_n: np.ndarray) -> np.ndarray:
-        """(..., 4) virtual thrusts, N, of physical thrusts (..., 4N) (min-norm, may be
-        negative). Exactly ``thrust_n`` for a single module at the origin."""
-        t = np.asarray(thrust_n, dtype=float)
-        if t.shape[-1] != self.n_channels:
-            raise UserError(f"{self.source}: need {self.n_channels} thrust columns, got {t.shape[-1]}")
-        if self.is_single_at_origin:
-            return t
-        return t @ self.virtual_matrix().T
-
-    def virtual_thrust(self, duty_pct: np.ndarray, clamp: bool = False) -> np.ndarray:
-        """(..., 4) virtual thrusts, N, for duty rows (..., 4N) in percent: what the plant
-        takes as ``thrust_n`` (its wrench about the tracked origin is the structure's).
-        A single module at the origin gives exactly ``table.thrust_n(duty)``."""
-        if self.is_single_at_origin:
-            d = self._check_duty(duty_pct)
-            return self.modules[0].table.thrust_n(d, clamp=clamp)
-        return self.virtual_from_thrust(self.thrust_n(duty_pct, clamp=clamp))
 
     def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
         """The thrust-table uncertainty of every module mapped to the virtual thrusts:
@@ -453,34 +394,34 @@ class Structure:
         pinv = _pinv_w1(self.arm_m)
         thrust = np.zeros(d.shape[:-1] + (4,))
         jacs, names, blocks = [], [], []
-        for i, m in enumerate(self.modules):
+        for m, (a, b) in zip(self.modules, self._slices(), strict=True):
             try:
-                s = thrust_sensitivity(m.table, d[..., 4 * i:4 * i + 4], clamp=clamp)
+                s = m.sensitivity(d[..., a:b], clamp=clamp)
             except UserError as exc:
-                raise UserError(f"module {m.name} (d{4 * i + 1}..d{4 * i + 4}): {exc}") from None
-            p = pinv @ m.wrench_matrix(self.arm_m)  # (4, 4)
+                raise UserError(f"module {m.name} (d{a + 1}..d{b}): {exc}") from None
+            p = pinv @ m.wrench_matrix(self.arm_m)  # (4, C)
             thrust = thrust + s.thrust_n @ p.T
             jacs.append(np.einsum("ij,...jp->...ip", p, s.jacobian))
             names.extend(f"{m.name}:{n}" for n in s.names)
             blocks.append(s.covariance)
-        n = len(names)
-        cov = np.zeros((n, n))
-        j = 0
-        for b in blocks:
-            cov[j:j + len(b), j:j + len(b)] = b
-            j += len(b)
+        cov = block_diagonal(blocks)
         jac = np.concatenate(jacs, axis=-1) if jacs else np.zeros(thrust.shape + (0,))
         return ThrustSensitivity(thrust, jac, tuple(names), cov)
 
     @property
     def states_uncertainty(self) -> bool:
-        """True when any module's table states an uncertainty."""
-        return any(m.table.states_uncertainty for m in self.modules)
+        """True when any module's table (a vehicle module's tables or valve forces) states
+        an uncertainty."""
+        return any(m.table.states_uncertainty if m.vehicle is None else m.vehicle.states_uncertainty
+                   for m in self.modules)
 
     def describe(self) -> list[str]:
         """One line per module (for summaries)."""
         return [f"{m.name}: position ({m.position_m[0]:g}, {m.position_m[1]:g}) m, yaw "
-                f"{m.yaw_deg:g} deg, table {m.table_path or 'Table 2 (default)'}"
+                f"{m.yaw_deg:g} deg, " + (f"table {m.table_path or 'Table 2 (default)'}"
+                                          if m.vehicle is None else
+                                          f"vehicle {m.vehicle.name} ({m.vehicle.n_channels} "
+                                          f"thrusters, {m.vehicle_path})")
                 for m in self.modules]
 
 

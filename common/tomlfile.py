@@ -1,12 +1,15 @@
-"""Reading the toolkit's TOML input files (thrust tables, structure.toml, PARTS.toml):
-the file itself (:func:`read_toml`) and the numbers in it (:func:`toml_number`), each
-problem a :class:`~common.errors.UserError` of one line that names the file.
+"""Reading the toolkit's TOML input files (thrust tables, structure.toml, vehicle.toml,
+PARTS.toml): the file itself (:func:`read_toml`), the numbers in it (:func:`toml_number`,
+:func:`toml_pair`) and its keys (:func:`check_keys`, with a did-you-mean), each problem a
+:class:`~common.errors.UserError` of one line that names the file.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -48,3 +51,25 @@ def toml_number(x: Any, what: str, *, positive: bool = False, nonneg: bool = Fal
     if nonneg and x < 0:
         raise UserError(f"{what} must be >= 0, got {x!r}")
     return float(x)
+
+
+def nearest_key(key: str, valid: tuple[str, ...]) -> str:
+    """`` (did you mean 'x'?)`` for the valid key closest to ``key``, or ``""``."""
+    near = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
+    return f" (did you mean {near[0]!r}?)" if near else ""
+
+
+def check_keys(data: Mapping[str, Any], valid: tuple[str, ...], where: str) -> None:
+    """UserError ``<where>unknown key 'k' (did you mean ...?); valid: ...`` for the first
+    key of ``data`` not in ``valid``."""
+    for key in data:
+        if key not in valid:
+            raise UserError(f"{where}unknown key {key!r}{nearest_key(key, valid)}; valid: "
+                            f"{', '.join(valid)}")
+
+
+def toml_pair(x: Any, what: str) -> tuple[float, float]:
+    """``x`` as two finite numbers ``[x, y]``; else a UserError naming ``what``."""
+    if not isinstance(x, list | tuple) or len(x) != 2:
+        raise UserError(f"{what} must be two numbers [x, y], got {x!r}")
+    return toml_number(x[0], what), toml_number(x[1], what)

@@ -87,7 +87,8 @@ class StructureMcConfig:
 
     def to_dict(self) -> dict[str, Any]:
         s = self.structure
-        return {"structure": s.name, "structure_file": str(s.source), "modules": s.n_modules,
+        return {"structure": s.name, "structure_file": str(s.source),
+                **({"thrusters": s.n_channels} if s.kind == "vehicle" else {"modules": s.n_modules}),
                 "runs": self.runs, "spread": self.spread, "com_spread_m": self.com_spread_m,
                 "duration_s": self.duration_s, "input": self.input, "seed": self.seed,
                 "pose_rate_hz": self.pose_rate_hz, "cmd_rate_hz": self.cmd_rate_hz,
@@ -181,7 +182,7 @@ def run_structure_montecarlo(cfg: StructureMcConfig, progress: bool = False
     s = cfg.structure
     cmd_t, duty = make_input(cfg.input, cfg.duration_s, cfg.cmd_rate_hz, cfg.amplitude_pct,
                              cfg.omega_rad_s, n_channels=s.n_channels)
-    thrust = s.virtual_thrust(duty, clamp=cfg.clamp)
+    thrust_t, thrust = s.input_profile(cmd_t, duty, clamp=cfg.clamp)  # a vehicle's valve timing too
     rng = np.random.default_rng(cfg.seed)
     truths = draw_truth(cfg, rng)
     seeds = rng.integers(0, 2**63 - 1, cfg.runs)
@@ -202,9 +203,9 @@ def run_structure_montecarlo(cfg: StructureMcConfig, progress: bool = False
             sim = simulate(cmd_t, duty, PlantParams(m, izz, cx=cx, cy=cy), config=SimConfig(
                 pose_rate_hz=cfg.pose_rate_hz, noise_pos_m=cfg.noise_pos_m,
                 noise_yaw_rad=cfg.noise_yaw_rad, drop=cfg.drop, seed=int(seeds[i]),
-                clamp=cfg.clamp), thrust_n=thrust)
+                clamp=cfg.clamp), thrust_n=thrust, thrust_t=thrust_t)
             try:
-                res = batch_ls(sim.pose_t, sim.pose, cmd_t, thrust, names=NAMES,
+                res = batch_ls(sim.pose_t, sim.pose, thrust_t, thrust, names=NAMES,
                                initial=dict(start), sigma_pos_m=cfg.noise_pos_m,
                                sigma_yaw_rad=cfg.noise_yaw_rad)
             except UserError as exc:
@@ -234,7 +235,7 @@ def summary_lines(res: StructureMcResult) -> list[str]:
     """The text report of ``tpods estimate montecarlo --structure``."""
     c = res.config
     s = res.summary()
-    lines = [f"Monte Carlo of structure {c.structure.name!r} ({c.structure.n_modules} modules): "
+    lines = [f"Monte Carlo of {c.structure.kind} {c.structure.name!r} ({c.structure.parts_text()}): "
              f"{res.done} runs x {c.duration_s:g} s, {c.input}, batch LS of mass, izz, cx, cy; "
              f"spread +/-{c.spread:g} (m, Izz), +/-{c.com_spread_m:g} m (cx, cy); "
              f"{res.elapsed_s:.1f} s"]

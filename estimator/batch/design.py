@@ -104,18 +104,16 @@ class DesignSettings:
         """The duties every module's table accepts."""
         if self.structure is None:
             return table.duty_range
-        lo = max(m.table.duty_range[0] for m in self.structure.modules)
-        hi = min(m.table.duty_range[1] for m in self.structure.modules)
-        return lo, hi
+        return self.structure.duty_range()
 
 
 def evaluate_commands(cmd_t, duty_pct, table: ThrustTable, settings: DesignSettings,
                       label: str = "", spec: SineInput | None = None) -> Evaluation:
     """D-optimal criterion and workspace check of a duty sequence (start at rest, centre)."""
-    thrust = (table.thrust_n(duty_pct) if settings.structure is None
-              else settings.structure.virtual_thrust(duty_pct))
+    hold_t, thrust = ((cmd_t, table.thrust_n(duty_pct)) if settings.structure is None
+                      else settings.structure.input_profile(cmd_t, duty_pct))  # valve timing too
     t_pose = pose_times(cmd_t[0], cmd_t[-1], settings.pose_rate_hz)
-    c = crlb(t_pose, cmd_t, thrust, settings.plant.kwargs(), sigma_pos_m=settings.sigma_pos_m,
+    c = crlb(t_pose, hold_t, thrust, settings.plant.kwargs(), sigma_pos_m=settings.sigma_pos_m,
              sigma_yaw_rad=settings.sigma_yaw_rad, keep_sensitivities=True, names=settings.names)
     exc = np.abs(c.states[:, :2] - c.states[0, :2]).max(axis=0)
     half = np.asarray(settings.table_size_m, float) / 2 - settings.margin_m

@@ -77,9 +77,10 @@ def undetermined(res: BatchResult, thrust_n: np.ndarray, arm_m: float = ARM_M,
 
 
 def structure_extent_m(structure) -> float:
-    """The farthest thruster of a :class:`common.structure.Structure` from its tracked
-    origin, m (a module's centre distance plus its thrusters' arm)."""
-    return max(math.hypot(*m.position_m) for m in structure.modules) + structure.arm_m
+    """The farthest thruster of a :class:`common.structure.Structure` (a module's centre
+    distance plus its thrusters' arm) or :class:`common.vehicle.Vehicle` from its tracked
+    origin, m."""
+    return structure.extent_m()
 
 
 def refuse_undetermined(res: BatchResult, thrust_n: np.ndarray, where: str = "this run",

@@ -21,6 +21,7 @@ from estimator.estimate.knowledge import BodyKnowledge
 from estimator.estimate.options import EstimateOptions, Inputs, _windowed, as_window
 from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _structure_consider, structure_keys
+from estimator.estimate.vehicle_start import scan_start
 
 
 def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelection | None,
@@ -36,12 +37,19 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
     window = as_window(window)
     prior = None
     if run.structure is not None:
+        body = run.structure.body
+        if (run.structure.kind == "vehicle" and not run.structure.is_single_at_origin
+                and body.mass_kg is None and body.izz_kgm2 is None):
+            # a vehicle (not today's module) that says nothing of its mass: scan for a start
+            scanned = scan_start(_windowed(run, window), table, names, fixed, initial, clamp=clamp,
+                                 sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+            if scanned is not None:
+                initial, note = scanned[0], note or scanned[1]
         # a structure's start: its geometry (or its [body] values), not the paper's module
         guess = {k: v for k, v in run.structure.initial_guess().items()
                  if k in names and k not in initial}
         if guess:
             initial = {**guess, **initial}
-            body = run.structure.body
             from_body = set(guess) & (set(body.known()) | set(body.priors()))
             src = ("geometry" if not from_body else
                    "[body] values" if from_body == set(guess) else "[body] values and geometry")

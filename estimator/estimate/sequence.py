@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.runfolder import Run, read_run
 from common.thrust_table import ThrustTable
 from estimator.plant.inputs import from_commands_csv
@@ -70,11 +71,8 @@ def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = Fal
     ``structure`` (a :class:`common.structure.Structure` or its TOML file; a run folder's
     own structure.toml otherwise) makes it a structure sequence: virtual thrusts, 4N duty
     columns, ``table`` for the modules without their own."""
-    from common.structure import Structure
-
     p = Path(path)
-    if structure is not None and not isinstance(structure, Structure):
-        structure = Structure.load(structure)
+    structure = as_layout(structure)
     if p.is_dir() and (p / "poses.csv").exists():
         run = read_run(p, structure=structure)
         cmd_t, thrust = run.thrust_profile(table, clamp=clamp)
@@ -91,19 +89,19 @@ def load_sequence(path: str | Path, table: ThrustTable | None, clamp: bool = Fal
     csv = p / "commands.csv" if p.is_dir() else p
     if not csv.exists():
         raise UserError(f"{p}: neither a run folder with poses.csv nor a commands.csv")
-    if structure is None and p.is_dir() and (p / "structure.toml").is_file():
-        structure = Structure.load(p / "structure.toml")
+    if structure is None and p.is_dir():
+        structure = as_layout(folder_layout(p))
     if structure is not None:
         cmd_t, duty = from_commands_csv(csv, structure.n_channels)
         if len(cmd_t) < 2:
             raise UserError(f"{csv}: need at least two command rows (the last one ends the sequence)")
         s = structure.with_table(table) if table is not None else structure
         try:
-            thrust = s.virtual_thrust(duty, clamp=clamp)
-            sens = s.virtual_sensitivity(duty, clamp=clamp) if s.states_uncertainty else None
+            prof_t, thrust = s.input_profile(cmd_t, duty, clamp=clamp)
+            sens = s.input_sensitivity(cmd_t, duty, clamp=clamp)[1] if s.states_uncertainty else None
         except UserError as exc:
             raise UserError(f"{csv}: {exc}") from None
-        seq = CommandSequence("planned", cmd_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
+        seq = CommandSequence("planned", prof_t, thrust, pose_times(cmd_t[0], cmd_t[-1], pose_rate_hz),
                               np.zeros(6), structure=s)
         return _structure_sensitivity(seq, sens, False)
     cmd_t, duty = from_commands_csv(csv)

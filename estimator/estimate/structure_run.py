@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.layout_files import as_layout, folder_layout
 from common.runfolder import Run
 from common.thrust_table import ThrustTable
 from estimator.batch.least_squares import BatchResult
@@ -26,27 +27,21 @@ def _is_structure_run(run: Run | str | Path, structure) -> bool:
         return True
     if isinstance(run, Run):
         return run.structure is not None
-    return (Path(run) / "structure.toml").is_file()
+    return folder_layout(run) is not None
 
 
 def _structure_of(run: Run | str | Path, structure):
     """The Structure of a structure run (``structure`` given, the Run's or its folder's)."""
-    from common.structure import Structure
-
-    if isinstance(structure, Structure):
-        return structure
     if structure is not None:
-        return Structure.load(structure)
+        return as_layout(structure)
     if isinstance(run, Run):
         return run.structure
-    return Structure.load(Path(run) / "structure.toml")
+    return as_layout(folder_layout(run))
 
 
 def _with_structure(run: Run, structure) -> Run:
     """``run`` read as a structure run of ``structure`` (a Structure or its TOML file)."""
-    from common.structure import Structure
-
-    s = structure if isinstance(structure, Structure) else Structure.load(structure)
+    s = as_layout(structure)
     if run.duty_pct is not None and run.duty_pct.shape[-1] != s.n_channels:
         raise UserError(f"{run.path / 'commands.csv'}: {run.duty_pct.shape[-1]} duty columns; "
                         f"structure {s.name!r} has {s.n_channels} channels")
@@ -65,11 +60,11 @@ def _structure_consider(res: BatchResult, run: Run, table: ThrustTable, clamp: b
     if run.thrust_n is not None:
         res.thrust_note = THRUSTS_GIVEN
         return
-    sens = run.thrust_sensitivity(table, clamp=clamp)
+    sens_t, sens = run.input_sensitivity(table, clamp=clamp)
     if sens is None or sens.empty:
         res.thrust_note = NO_UNCERTAINTY
         return
-    c = batch_consider(res, run.cmd_t, sens, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+    c = batch_consider(res, sens_t, sens, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     res.add_thrust_covariance(c.cov_thrust, c.names)
     res.thrust_note = ("sigma = measurement noise + the modules' thrust table uncertainty "
                        f"({', '.join(c.names)})")
@@ -85,7 +80,8 @@ def structure_keys(res: BatchResult, run: Run) -> dict[str, Any]:
 
 def com_keys(values: Mapping[str, float], names: Sequence[str], cov: np.ndarray,
              run: Run) -> dict[str, Any]:
-    """The keys of :func:`structure_keys` from any estimate: ``values`` every parameter's
+    """The keys of :func:`structure_keys` from any estimate (a vehicle run's also
+    ``vehicle``: its name, beside ``structure``): ``values`` every parameter's
     value (mass, izz, cx, cy; estimated or fixed), ``names`` the estimated ones and ``cov``
     the covariance of the state ``(x, y, psi, u, v, r, *names)`` (a batch fit's, or a
     filter's final P). Sigma 0 for a fixed value."""
@@ -101,6 +97,7 @@ def com_keys(values: Mapping[str, float], names: Sequence[str], cov: np.ndarray,
             g[idx[n]] = v
     out: dict[str, Any] = {
         "structure": run.structure.name,
+        **({"vehicle": run.structure.name} if run.structure.kind == "vehicle" else {}),
         "com_x_m": cx, "com_x_sigma_m": sig["cx"], "com_y_m": cy, "com_y_sigma_m": sig["cy"],
         "izz_origin_kgm2": izz + m * (cx * cx + cy * cy),
         "izz_origin_sigma_kgm2": float(math.sqrt(max(float(g @ cov @ g), 0.0)))}

@@ -17,7 +17,9 @@ from common.plausible import check_duty_rows
 from common.runfolder import COMMAND_COLUMNS, read_table_lines
 from common.runwriter import command_columns
 
-INPUT_NAMES = ("phase-sine", "translate-rotate")
+INPUT_NAMES = ("phase-sine", "translate-rotate", "pulses")
+PULSE_S = 0.5
+"""Open time of each valve in the ``pulses`` input, s (then as long closed)."""
 
 
 def _grid(duration_s: float, cmd_rate_hz: float) -> np.ndarray:
@@ -65,6 +67,22 @@ def translate_rotate(duration_s: float, cmd_rate_hz: float = 50.0, translate_pct
     return _close(t, duty, duration_s)
 
 
+def pulses(duration_s: float, n_channels: int, pulse_s: float = PULSE_S,
+           duty_pct: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """An on/off input for any number of valves: valve i (from 1) opens at ``duty_pct``
+    (100: fully open) for ``pulse_s``, then all stay closed for ``pulse_s``, then valve
+    i + 1, cycling. Each valve's force and moment show alone (mass, Izz and the centre of
+    mass separate); the switch times are exact multiples of ``pulse_s``."""
+    if duration_s <= 0:
+        raise UserError(f"duration must be positive, got {duration_s:g} s")
+    t = np.arange(int(math.ceil(duration_s / pulse_s - 1e-9))) * pulse_s
+    duty = np.zeros((len(t), n_channels))
+    slot = np.arange(len(t))
+    on = slot % 2 == 0
+    duty[on, (slot[on] // 2) % n_channels] = duty_pct
+    return _close(t, duty, duration_s)
+
+
 def from_commands_csv(path: str | Path, n_channels: int = 4,
                       valid_pct: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read a commands.csv (run-folder format) as an input sequence: (N,) s and (N,
@@ -89,7 +107,8 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
 
     ``n_channels`` > 4 (a structure's 4N valves): the phase-sine's phase shifts continue
     across modules (channel i at (i-1) pi/4), a file needs ``d1..d{n_channels}``;
-    ``translate-rotate`` is a single-module input and is refused.
+    ``translate-rotate`` is a single-module input and is refused; ``pulses`` (any number
+    of channels: each valve fully open in turn, :func:`pulses`) ignores ``cmd_rate_hz``.
 
     A file input is cut to ``duration_s`` (rows after it dropped, a closing row added);
     ``duration_s=None`` takes the whole file (and :data:`DEFAULT_DURATION_S` for a
@@ -107,6 +126,8 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
             raise UserError("--input translate-rotate is the single module's input; a structure "
                             "takes phase-sine or a commands.csv with d1..d{4N}")
         return translate_rotate(duration_s, cmd_rate_hz)
+    if spec == "pulses":
+        return pulses(duration_s, n_channels)
     p = Path(spec)
     if p.is_dir():
         p = p / "commands.csv"

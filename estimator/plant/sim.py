@@ -40,6 +40,8 @@ class SimResult:
 
     Attributes:
         cmd_t, duty_pct, thrust_n: (Nc,), (Nc, 4), (Nc, 4): the held commands.
+        thrust_t: the times of ``thrust_n``'s rows when they are not ``cmd_t`` (a vehicle's
+            valve timing), else None.
         pose_t: (N,) kept pose times, s.
         pose: (N, 3) measured x, y (m) and yaw (rad, wrapped to (-pi, pi]).
         states: (N, 6) true states at pose_t (yaw continuous).
@@ -55,6 +57,7 @@ class SimResult:
     params: PlantParams
     config: SimConfig
     extra: dict[str, Any] = field(default_factory=dict)
+    thrust_t: np.ndarray | None = None
 
 
 def pose_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
@@ -67,7 +70,7 @@ def pose_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
 def simulate(cmd_t: np.ndarray, duty_pct: np.ndarray, params: PlantParams,
              table: ThrustTable | None = None, config: SimConfig | None = None,
-             thrust_n: np.ndarray | None = None) -> SimResult:
+             thrust_n: np.ndarray | None = None, thrust_t: np.ndarray | None = None) -> SimResult:
     """Simulate a run: exact integration under the held commands, then noisy, thinned poses.
 
     Args:
@@ -77,6 +80,9 @@ def simulate(cmd_t: np.ndarray, duty_pct: np.ndarray, params: PlantParams,
         table: thrust table mapping duty to thrust (default: the paper's Table 2).
         config: measurement settings.
         thrust_n: optional (Nc, 4) thrusts in N overriding the table.
+        thrust_t: the times of ``thrust_n``'s rows when they are not ``cmd_t`` (a vehicle's
+            valve dead time and rise, :meth:`common.vehicle.Vehicle.input_profile`); the
+            poses still span ``cmd_t``.
     """
     config = config or SimConfig()
     if not 0.0 <= config.drop < 1.0:
@@ -89,7 +95,8 @@ def simulate(cmd_t: np.ndarray, duty_pct: np.ndarray, params: PlantParams,
         thrust_n = load_thrust_table(None).thrust_n(duty_pct, config.clamp) if table is None \
             else table.thrust_n(duty_pct, config.clamp)
     t_all = pose_times(cmd_t[0], cmd_t[-1], config.pose_rate_hz)
-    states_all = integrate_zoh(np.asarray(config.initial_state, float), cmd_t, thrust_n, t_all, params)
+    hold_t = cmd_t if thrust_t is None else np.asarray(thrust_t, dtype=float)
+    states_all = integrate_zoh(np.asarray(config.initial_state, float), hold_t, thrust_n, t_all, params)
     rng = np.random.default_rng(config.seed)
     keep = np.ones(len(t_all), dtype=bool)
     if config.drop > 0:
@@ -105,7 +112,7 @@ def simulate(cmd_t: np.ndarray, duty_pct: np.ndarray, params: PlantParams,
     pose = tracked_pose(states_all, params.cx, params.cy) + noise
     pose[:, 2] = wrap_angle(pose[:, 2])
     return SimResult(cmd_t, duty_pct, thrust_n, t_all[keep], pose[keep], states_all[keep],
-                     params, config)
+                     params, config, thrust_t=None if thrust_t is None else hold_t)
 
 
 def truth_dict(res: SimResult) -> dict[str, Any]:

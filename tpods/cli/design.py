@@ -27,6 +27,7 @@ from tpods.cli.options import (
     add_pose_rate,
     add_random_seed,
     add_sim_duration,
+    add_structure_or_vehicle,
     add_thrust_table,
 )
 
@@ -75,8 +76,7 @@ def register(sub) -> None:
     d.add_argument("--per", choices=("thruster", "nozzles", "both"), default="both",
                    help="--for thrust-calibration: the factors to design for (default both)")
     add_json_flag(d)
-    d.add_argument("--structure", default=None, metavar="F",
-                   help="design for a structure (structure.toml): every module's duties "
+    add_structure_or_vehicle(d, "design for a structure (structure.toml): every module's duties "
                         "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "
                         "mass default to the file's [body] values or its geometry")
     d.set_defaults(func=cmd_design)
@@ -125,9 +125,9 @@ def cmd_design(args: argparse.Namespace) -> int:
     if min(args.table_size) <= 2 * args.margin:
         raise UserError("--table-size must exceed twice the --margin")
     if getattr(args, "structure", None):
-        from common.structure import Structure
+        from common.layout_files import load_layout
 
-        known = Structure.load(args.structure).body.known()
+        known = load_layout(args.structure).body.known()
         if all(n in known for n in ("mass", "izz", "cx", "cy")):
             raise UserError(f"{args.structure}: [body] gives mass, Izz and the centre of mass as "
                             "known: nothing left to design for (give a value a sigma, or drop it)")
@@ -136,14 +136,14 @@ def cmd_design(args: argparse.Namespace) -> int:
     structure = None
     plant = PlantParams(args.mass, args.izz)
     if getattr(args, "structure", None):
-        from common.structure import Structure
+        from common.layout_files import load_layout
 
         if args.design_for == "thrust-calibration":
             raise UserError("--for thrust-calibration is not built for structures yet")
         if args.compare:
             raise UserError("--compare takes single-module inputs; a structure design "
                             "compares with the phase-shifted sine over all its channels")
-        structure = Structure.load(args.structure)
+        structure = load_layout(args.structure)
         g = structure.initial_guess()
         given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
         plant = PlantParams(args.mass if "mass" in given else g["mass"],

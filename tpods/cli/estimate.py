@@ -16,6 +16,7 @@ from tpods.cli.options import (
     add_pose_rate,
     add_random_seed,
     add_sine_amplitude,
+    add_structure_or_vehicle,
     add_thrust_table,
 )
 
@@ -51,8 +52,7 @@ def register_sim(sub) -> None:
     p.add_argument("--izz", type=positive_float, default=None,
                    help="kg m^2 about the centre of mass (default: the structure's [body] "
                         "izz_kgm2, else 3.78e-3)")
-    p.add_argument("--structure", default=None, metavar="F",
-                   help="structure.toml: simulate several modules on one rigid body (copied "
+    add_structure_or_vehicle(p, "structure.toml: simulate several modules on one rigid body (copied "
                         "into the run folder as given: its [body] values are known values or "
                         "priors for tpods estimate; the truth goes to run.json)")
     p.add_argument("--com", type=float_list(2), default=None, metavar="X,Y",
@@ -91,7 +91,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     generated = args.input in INPUT_NAMES
     if generated:  # sizes and duties from the options, before anything is allocated
         check_sim_size(args, args.duration or DEFAULT_DURATION_S)
-        for t in ([table] if structure is None else [m.table for m in structure.modules]):
+        for t in ([table] if structure is None else structure.tables()):
             check_phase_sine(args, t)
     cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude, args.omega,
                              n_channels=n_channels)
@@ -111,8 +111,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     noise_yaw_rad=math.radians(args.noise_yaw_deg), drop=args.drop,
                     seed=args.seed, clamp=args.clamp)
     try:
-        virtual = None if structure is None else structure.virtual_thrust(duty, clamp=args.clamp)
-        res = simulate(cmd_t, duty, params, table, cfg, thrust_n=virtual)
+        thrust_t, virtual = (None, None) if structure is None else \
+            structure.input_profile(cmd_t, duty, clamp=args.clamp)
+        res = simulate(cmd_t, duty, params, table, cfg, thrust_n=virtual, thrust_t=thrust_t)
     except UserError as exc:  # a duty of a commands.csv outside the table: name the options
         raise UserError(f"--input {args.input}: {clamp_named(exc)}") from None
     with out.writing() as d:
@@ -123,7 +124,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     for line in summary_lines(res):
         print("  " + line)
     if structure is not None:
-        print(f"  structure       {structure.name}: {structure.n_modules} modules, centre of mass "
+        print(f"  {structure.kind:<9}       {structure.name}: {structure.parts_text()}, centre of mass "
               f"({cx:+.4g}, {cy:+.4g}) m in the tracked frame")
         for line in body_note(structure):
             print("  " + line)
@@ -133,11 +134,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def sim_structure(args: argparse.Namespace, table):
     """The ``--structure`` of ``tpods sim`` with ``--thrust-table`` applied to the modules
     without their own table, or None."""
-    from common.structure import Structure
+    from common.layout_files import load_layout
 
     if args.structure is None:
         return None
-    s = Structure.load(args.structure)
+    s = load_layout(args.structure)
     if args.thrust_table is not None:
         s.check_table_option()
         s = s.with_table(table)
@@ -166,11 +167,15 @@ def write_sim_structure(folder, structure) -> None:
     import json
 
     from common.runwriter import write_json_atomic
+    from common.vehicle import Vehicle
 
     structure.write(folder)
     meta_file = folder / "run.json"
     meta = json.loads(meta_file.read_text())
-    meta["settings"]["structure"] = {"name": structure.name, "modules": structure.describe()}
+    if isinstance(structure, Vehicle):
+        meta["settings"]["vehicle"] = {"name": structure.name, "thrusters": structure.describe()}
+    else:
+        meta["settings"]["structure"] = {"name": structure.name, "modules": structure.describe()}
     write_json_atomic(meta_file, meta)
 
 

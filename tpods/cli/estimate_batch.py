@@ -41,6 +41,7 @@ from tpods.cli.options import (
     add_report_out,
     add_result_out,
     add_sim_duration,
+    add_structure_or_vehicle,
     add_thrust_table,
 )
 
@@ -101,8 +102,7 @@ def register(sub, est, rep) -> None:
     p.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
                    help="parameters to estimate, comma-separated (default mass,izz; a structure "
                         "run: mass,izz,cx,cy less the --fixed ones)")
-    p.add_argument("--structure", default=None, metavar="F",
-                   help="structure.toml: read RUN_DIR as a structure run (default: its own "
+    add_structure_or_vehicle(p, "structure.toml: read RUN_DIR as a structure run (default: its own "
                         "structure.toml, if any); estimates the centre of mass cx, cy too")
     p.add_argument("--fixed", type=key_values, default={}, metavar="NAME=VALUE,...",
                    help="values of parameters that are not estimated (arm, ct, cr, kb, ax, ay, "
@@ -136,8 +136,7 @@ def register(sub, est, rep) -> None:
     c.add_argument("--pose-rate", type=positive_float, default=120.0,
                    help="pose rate for a planned sequence, Hz (default 120)")
     c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
-    c.add_argument("--structure", default=None, metavar="F",
-                   help="structure.toml: a structure's sequence (4N duty columns); bounds "
+    add_structure_or_vehicle(c, "structure.toml: a structure's sequence (4N duty columns); bounds "
                         "mass, izz, cx, cy (default: the run folder's own structure.toml)")
     c.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
                    help="a structure: the parameters to bound (default mass,izz,cx,cy less "

@@ -29,6 +29,7 @@ from tpods.cli.options import (
     add_report_out,
     add_result_out,
     add_sim_duration,
+    add_structure_or_vehicle,
 )
 
 
@@ -205,7 +206,7 @@ def register(sub, est, rep) -> None:
         "std against the mean reported sigma, NEES (4 dof) with its 95 %% bounds and the "
         "fractions within 2 and 3 sigma; --out DIR writes montecarlo.json and runs.csv. The "
         "filter options do not apply")
-    g.add_argument("--structure", default=None, metavar="F", help="structure.toml")
+    add_structure_or_vehicle(g, "structure.toml")
     g.add_argument("--com-spread", type=nonneg_float, default=0.02, metavar="M",
                    help="half-width of the uniform cx, cy draw, m (default 0.02)")
     g.add_argument("--noise-pos", type=positive_float, default=None, metavar="M",
@@ -350,7 +351,7 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
     (:mod:`estimator.montecarlo_structure`)."""
     import math
 
-    from common.structure import Structure
+    from common.layout_files import load_layout
     from estimator.montecarlo_structure import (
         StructureMcConfig,
         run_structure_montecarlo,
@@ -362,7 +363,7 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
     out_folder = result_output(args.out, "montecarlo.json", force=args.force,
                                command="tpods estimate montecarlo")
     cfg = StructureMcConfig(
-        Structure.load(args.structure), runs=args.runs, spread=args.spread,
+        load_layout(args.structure), runs=args.runs, spread=args.spread,
         com_spread_m=args.com_spread, duration_s=args.duration, input=args.input,
         seed=args.seed, pose_rate_hz=args.pose_rate, cmd_rate_hz=args.cmd_rate, drop=args.drop,
         noise_pos_m=args.noise_pos if args.noise_pos is not None else 0.01,

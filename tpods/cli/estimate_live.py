@@ -16,7 +16,7 @@ from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.estimate_ekf import add_batch_options
 from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
-from tpods.cli.options import add_key_prefixes
+from tpods.cli.options import add_key_prefixes, add_structure_or_vehicle
 from tpods.cli.stopping import zenoh_session
 
 
@@ -31,8 +31,7 @@ def register(est) -> None:
     p.add_argument("--body", default=None,
                    help="body name: its poses are tpods/mocap/<body>/pose (default tpods1; with "
                         "--structure the structure's name)")
-    p.add_argument("--structure", default=None, metavar="F",
-                   help="structure.toml (issue 18): a rigid body moved by several modules; commands "
+    add_structure_or_vehicle(p, "structure.toml (issue 18): a rigid body moved by several modules; commands "
                         "from tpods/<module>/cmd of every module in F, merged; estimates mass, Izz "
                         "about the centre of mass and the centre of mass (ls-ekf only)")
     p.add_argument("--thrust-table", default=None, metavar="F",
@@ -81,9 +80,12 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     structure = None
     if args.structure is not None:
-        from common.structure import Structure
+        from common.layout_files import load_structure_only
 
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods estimate live",
+            "the live filter merges 4-valve modules' command streams and knows no valve timing; "
+            "record the run and estimate it with tpods estimate batch RUN")
         if args.method == "ekf":
             raise UserError("--structure is estimated with --method ls-ekf only: from a structure's "
                             "geometric start the EKF alone diverges (docs/estimators.md)")

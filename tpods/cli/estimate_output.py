@@ -58,7 +58,8 @@ def centre_of_mass_lines(out: dict[str, Any]) -> list[str]:
         return []
     return [f"  centre of mass ({out['com_x_m']:+.5f} +/- {out['com_x_sigma_m']:.2g}, "
             f"{out['com_y_m']:+.5f} +/- {out['com_y_sigma_m']:.2g}) m in the tracked frame of "
-            f"structure {out['structure']!r}; Izz above is about it",
+            f"{'vehicle' if 'vehicle' in out else 'structure'} {out['structure']!r}; Izz above is "
+            "about it",
             f"  Izz about the tracked origin = {out['izz_origin_kgm2']:.6g} +/- "
             f"{out['izz_origin_sigma_kgm2']:.3g} kg m^2"]
 

@@ -6,6 +6,8 @@ wherever it appears (same names, defaults, types and help), so that it is writte
 - :func:`add_report_out`: the required report folder of the ``tpods report`` commands.
 - :func:`add_key_prefixes` and :func:`check_key_prefixes`: the Zenoh key prefixes of the
   commands that read or write the live streams (``view``, ``export mcap``, ``estimate live``).
+- :func:`add_structure_or_vehicle`: ``--structure F`` or ``--vehicle FILE`` (one of them),
+  both into ``args.structure`` (a vehicle goes wherever a structure goes).
 - :func:`add_noise_sigmas`: the pose noise of a fit (``estimate batch|crlb``,
   ``calibrate thrust``).
 - single options written alike by several commands: the valve controller's
@@ -24,7 +26,14 @@ from __future__ import annotations
 
 import argparse
 
-from common.argtypes import SIGMA_POS_M, SIGMA_YAW_DEG, nonneg_float, positive_float, random_seed
+from common.argtypes import (
+    SIGMA_POS_M,
+    SIGMA_YAW_DEG,
+    nonneg_float,
+    positive_float,
+    random_seed,
+    vehicle_file,
+)
 from common.errors import UserError
 from common.outputs import add_force
 
@@ -56,6 +65,21 @@ def check_key_prefixes(args: argparse.Namespace) -> None:
     for opt, v in (("--prefix", args.prefix), ("--mocap-prefix", args.mocap_prefix)):
         if not v.strip("/"):
             raise UserError(f"{opt} must not be empty")
+
+
+VEHICLE_HELP = ("vehicle.toml (issue 24): any planar vehicle, its thrusters as data; read as a "
+                "structure is (commands.csv t,d1..dN in its thruster order)")
+
+
+def add_structure_or_vehicle(p: argparse.ArgumentParser | argparse._ArgumentGroup,
+                             structure_help: str, vehicle_help: str = VEHICLE_HELP) -> None:
+    """``--structure F`` and ``--vehicle FILE``, mutually exclusive, both stored in
+    ``args.structure`` (``--vehicle`` as a :class:`common.argtypes.VehicleFile`, which
+    :func:`common.vehicle.load_layout` reads as a vehicle)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--structure", default=None, metavar="F", help=structure_help)
+    g.add_argument("--vehicle", dest="structure", type=vehicle_file, default=None,
+                   metavar="FILE", help=vehicle_help)
 
 
 def add_noise_sigmas(p: argparse.ArgumentParser) -> None:
@@ -114,9 +138,10 @@ def add_json_flag(p: argparse.ArgumentParser) -> None:
 
 
 def add_input_choice(p: argparse.ArgumentParser) -> None:
-    """``--input``: phase-sine, translate-rotate or a commands.csv."""
+    """``--input``: phase-sine, translate-rotate, pulses or a commands.csv."""
     p.add_argument("--input", default="phase-sine",
-                   help="phase-sine, translate-rotate or PATH/commands.csv (default phase-sine)")
+                   help="phase-sine, translate-rotate, pulses (each valve fully open in turn, "
+                        "for on/off valves) or PATH/commands.csv (default phase-sine)")
 
 
 def add_sine_amplitude(p: argparse.ArgumentParser) -> None:

@@ -21,6 +21,7 @@ from tpods.cli.options import (
     add_noise_seed,
     add_pose_rate,
     add_sine_amplitude,
+    add_structure_or_vehicle,
     add_watchdog_ms,
 )
 from tpods.cli.parser import group
@@ -40,8 +41,7 @@ def register(sub) -> None:
     p.add_argument("--valves", required=True, metavar="URL",
                    help="valve controller: device path or pyserial URL (socket://HOST:PORT, ...); "
                         "with --structure one per module: NAME=URL,NAME=URL")
-    p.add_argument("--structure", default=None, metavar="F",
-                   help="play on a structure (structure.toml): every module's controller from "
+    add_structure_or_vehicle(p, "play on a structure (structure.toml): every module's controller from "
                         "--valves NAME=URL,..., each module's commands on tpods/<module>/cmd, one "
                         "commands.csv with 4 columns per module; any controller's lost link "
                         "closes them all")
@@ -90,8 +90,7 @@ def register(sub) -> None:
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
     add_noise_seed(s)
     s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
-    s.add_argument("--structure", default=None, metavar="F",
-                   help="simulate a structure (structure.toml): one emulated controller per module "
+    add_structure_or_vehicle(s, "simulate a structure (structure.toml): one emulated controller per module "
                         "(their paths printed as 'valves NAME: PATH'), the truth from its [body] "
                         "(centre of mass included), poses of its tracked frame")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
@@ -167,12 +166,15 @@ def cmd_play(args: argparse.Namespace) -> int:
     clock = _clock(args)
     structure = None
     if args.structure:
-        from common.structure import Structure
+        from common.layout_files import load_structure_only
 
         if args.capture is not None:
             raise UserError("--capture is not built for --structure yet (one transcript per "
                             "controller)")
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods run play",
+            "the valve protocol drives one 4-channel controller per module; simulate it with "
+            "tpods sim --vehicle")
         urls = _module_urls(args.valves, [m.name for m in structure.modules])
         cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
                                  args.omega, n_channels=structure.n_channels)
@@ -320,10 +322,12 @@ def cmd_plant(args: argparse.Namespace) -> int:
     stop = threading.Event()
     structure = None
     if args.structure:
-        from common.structure import Structure
+        from common.layout_files import load_structure_only
         from tpods.plant_loop import StructureThrust, StructureValves
 
-        structure = Structure.load(args.structure)
+        structure = load_structure_only(
+            args.structure, "tpods run plant",
+            "its emulated controllers are 4-channel modules; simulate it with tpods sim --vehicle")
         g = structure.initial_guess()  # [body] values where given, else the geometry
         given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
         params = PlantParams(args.mass if "mass" in given else g["mass"],
