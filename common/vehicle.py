@@ -259,13 +259,23 @@ class Vehicle(ThrusterLayout):
     def initial_guess(self) -> dict[str, float]:
         """A start for the estimators: the [body] values where given, else the paper's
         module (2.268 kg, 3.78e-3 kg m^2) with its centre of mass at the tracked origin
-        (a start, not an estimate)."""
+        (a start, not an estimate); with only one of mass and Izz given, the other from the
+        thrusters' reach (the farthest thruster / sqrt 2) as radius of gyration."""
         b = self.body
         out = {"mass": PAPER_MASS_KG, "izz": PAPER_IZZ_KGM2, "cx": 0.0, "cy": 0.0}
         if b.mass_kg is not None:
             out["mass"] = float(b.mass_kg)
         if b.izz_kgm2 is not None:
             out["izz"] = float(b.izz_kgm2)
+        if not self.is_single_at_origin and (b.mass_kg is None) != (b.izz_kgm2 is None):
+            # one of them known: the other from the thrusters' reach as the radius of gyration
+            # (as estimator.estimate.vehicle_start's scan): the paper's module's Izz is 100x too
+            # small for a 23 kg air-bearing satellite, and the fit does not converge from it
+            reach2 = max(self.extent_m(), 0.05) ** 2 / 2.0
+            if b.izz_kgm2 is None:
+                out["izz"] = out["mass"] * reach2
+            else:
+                out["mass"] = out["izz"] / reach2
         if b.com_m is not None:
             out["cx"], out["cy"] = (float(v) for v in b.com_m)
         return out

@@ -95,3 +95,34 @@ def absorbed_on_rows(sens: ThrustSensitivity, factor_jac: np.ndarray) -> tuple[s
         if np.linalg.norm(A @ x - b) <= ABSORB_TOL * nb:
             out.append(n)
     return tuple(out)
+
+
+def calibrated_vehicle(vehicle, names: Sequence[str], values: Sequence[float],
+                       cov: np.ndarray, source: str):
+    """A copy of ``vehicle`` (a :class:`common.vehicle.Vehicle` of on/off valves) with the
+    in-flight factors in its valves' ``force_n`` and their sigma in ``force_sigma_n``
+    (the factor's sigma times the stated force: the new value carries the calibration's
+    whole uncertainty, noise, known body and the stated forces'; correlations between
+    the factors are left out). UserError for a thruster with a thrust table (a table's
+    factors go into the table: ``tpods calibrate thrust --thrust-table``)."""
+    from dataclasses import replace
+
+    sig = np.sqrt(np.clip(np.diag(np.asarray(cov, float)), 0.0, None))
+    factor = {}
+    for n, v, s in zip(names, values, sig, strict=True):
+        if n == "scale":
+            factor.update({j: (float(v), float(s)) for j in range(vehicle.n_channels)})
+        else:
+            factor[int(n.split(".")[1]) - 1] = (float(v), float(s))
+    thrusters = []
+    for j, t in enumerate(vehicle.thrusters):
+        if j not in factor:
+            thrusters.append(t)
+            continue
+        if t.table is not None:
+            raise UserError(f"{vehicle.source}: thruster {t.name} has a thrust table: its factor "
+                            "cannot be written into vehicle.toml (calibrate the table with "
+                            "--thrust-table)")
+        v, s = factor[j]
+        thrusters.append(replace(t, force_n=t.force_n * v, force_sigma_n=abs(t.force_n) * s))
+    return replace(vehicle, thrusters=tuple(thrusters), source=source)

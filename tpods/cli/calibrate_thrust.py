@@ -52,8 +52,12 @@ def register_thrust(cal) -> None:
     p.add_argument("--izz-sigma", type=nonneg_float, default=0.0, metavar="KGM2",
                    help="its standard uncertainty, kg m^2 (default 0; tpods calibrate bifilar "
                         "gives it)")
-    p.add_argument("--thrust-table", required=True, metavar="T.toml",
-                   help="the table to calibrate ('table2': the built-in Table 2)")
+    p.add_argument("--thrust-table", default=None, metavar="T.toml",
+                   help="the table to calibrate ('table2': the built-in Table 2); a vehicle "
+                        "run of on/off valves needs none (its vehicle.toml is calibrated)")
+    p.add_argument("--vehicle", default=None, metavar="FILE",
+                   help="vehicle.toml of the run (default: the run folder's): its valves' "
+                        "forces are calibrated and --out writes a new vehicle.toml")
     p.add_argument("--per", choices=("thruster", "nozzles", "both", "common"), default="thruster",
                    help="thruster: efficiency of each thruster (default); nozzles: scale of each "
                         "nozzle count the run uses; both: efficiencies and the scales of the "
@@ -76,18 +80,32 @@ def register_thrust(cal) -> None:
 
 
 def cmd_thrust(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from common.argtypes import vehicle_file
     from common.outputs import not_an_input
     from common.plausible import body_problems
     from common.runfolder import read_run
     from common.thrust_table import ThrustTable
     from estimator.batch.thrust_calibration import calibrate_run
 
-    out = result_output(args.out, "thrust_table.toml", force=args.force,
-                        command="tpods calibrate thrust")
-    builtin = args.thrust_table.lower() == "table2"
-    not_an_input(out, args.run_dir, None if builtin else args.thrust_table)
-    table = ThrustTable.default() if builtin else ThrustTable.load(args.thrust_table)
-    run = read_run(args.run_dir)
+    run = read_run(args.run_dir, vehicle_file(args.vehicle) if args.vehicle else None)
+    vehicle = run.structure if hasattr(run.structure, "thrusters") else None
+    if vehicle is None and args.thrust_table is None:
+        raise UserError("--thrust-table is needed: the run is not a vehicle run (no vehicle.toml "
+                        "in it and no --vehicle)")
+    if run.structure is not None and vehicle is None:
+        raise UserError(f"{run.path}: a structure run: its modules' tables are calibrated one "
+                        "module at a time (calibrate thrust is not built for structures)")
+    out = result_output(args.out, "vehicle.toml" if vehicle is not None else "thrust_table.toml",
+                        force=args.force, command="tpods calibrate thrust")
+    builtin = args.thrust_table is not None and args.thrust_table.lower() == "table2"
+    not_an_input(out, args.run_dir, None if builtin or args.thrust_table is None
+                 else args.thrust_table)
+    table = (None if args.thrust_table is None else ThrustTable.default() if builtin
+             else ThrustTable.load(args.thrust_table))
+    if vehicle is not None:
+        table = vehicle.with_table(table) if table is not None else vehicle
     if args.izz is None and args.izz_sigma:
         raise UserError("--izz-sigma is the uncertainty of a known --izz; without --izz, Izz is "
                         "estimated (its sigma is reported)")
@@ -107,10 +125,24 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     unusable = [n for n, v in zip(res.names, res.values, strict=True) if v <= 0]
     doc.update({"run": str(run.path), "thrust_table": "built-in Table 2" if builtin
                 else args.thrust_table, "out": None if unusable else str(out.main)})
+    if vehicle is not None:
+        doc["vehicle"] = vehicle.name
     if not unusable:
-        new = res.new_table(table, run=str(run.path))
         with out.writing_main() as (main, d):  # d: None for --out FILE.toml
-            new.save(main)
+            if vehicle is not None:
+                import tomli_w
+
+                from common.vehicle_toml import vehicle_document
+                from estimator.batch.thrust_calibration_vehicle import calibrated_vehicle
+
+                v = calibrated_vehicle(vehicle, res.names, res.values, res.cov, str(main))
+                main.write_text(f"# tpods calibrate thrust {run.path}: in-flight factors "
+                                f"{dict(zip(res.names, np.round(res.values, 5).tolist(), strict=True))} "
+                                f"(--mass {args.mass:g}); force_sigma_n = the factors' total "
+                                "sigma\n" + tomli_w.dumps(vehicle_document(
+                                    v.name, v.thrusters, v.valves, v.body, main.parent)))
+            else:
+                res.new_table(table, run=str(run.path)).save(main)
             if d is not None:
                 (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     warnings = list(res.warnings)

@@ -206,17 +206,12 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
 
 
 def vehicle_thrusters(path: str | Path) -> list[str]:
-    """The names of a vehicle file's ``[[thrusters]]``, in order (command columns d1..dN).
+    """The names of a vehicle file's thrusters, in order (command columns d1..dN): the file
+    read and checked whole (:meth:`common.vehicle.Vehicle.load`), so a broken vehicle is
+    refused before anything is imported."""
+    from common.vehicle import Vehicle
 
-    A stand-in until :mod:`common.vehicle` lands (then ``Vehicle.load``): it reads only
-    the number and names of the thrusters."""
-    from common.tomlfile import read_toml
-
-    doc = read_toml(path, "vehicle file")
-    th = doc.get("thrusters")
-    if not isinstance(th, list) or not th or not all(isinstance(t, dict) for t in th):
-        raise UserError(f"{path}: no [[thrusters]] entries (a vehicle file lists one per thruster)")
-    return [str(t.get("name", f"T{i + 1}")) for i, t in enumerate(th)]
+    return [t.name for t in Vehicle.load(path).thrusters]
 
 
 def _copy_vehicle(src: str, run: Path, force: bool) -> None:

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
+from common.thrust_table import ThrustTable
 from tests.support.cli import run
 from tpods.cli import main
 
@@ -127,7 +128,7 @@ def test_a_vehicle_without_thrusters_is_refused(tpods_exe, tmp_path):
     v.write_text('[vehicle]\nname = "x"\n')
     p = run(tpods_exe, "import", "commands", str(AEVAR / "real_test_data_excerpt.csv"), "--out",
             str(tmp_path / "o"), *CMD_ARGS, "--vehicle", str(v))
-    _one_line_error(p, "no [[thrusters]] entries")
+    _one_line_error(p, "no thrusters")
 
 
 def test_a_different_vehicle_file_is_refused_before_anything_is_written(tmp_path, capsys):
@@ -135,10 +136,13 @@ def test_a_different_vehicle_file_is_refused_before_anything_is_written(tmp_path
     out.mkdir()
     (out / "vehicle.toml").write_text('[vehicle]\nname = "other"\n')
     v = tmp_path / "v.toml"
-    v.write_text('[vehicle]\nname = "v"\n[[thrusters]]\nname = "A"\nthrust_table = "tables/a.toml"\n'
-                 '[[thrusters]]\nname = "B"\nforce_n = 0.4\n')
+    v.write_text('[vehicle]\nname = "v"\n[[thrusters]]\nname = "A"\nposition_m = [0.1, 0]\n'
+                 'direction = [0, 1]\nthrust_table = "tables/a.toml"\nsupply = "a"\n'
+                 '[[thrusters]]\nname = "B"\nposition_m = [-0.1, 0]\ndirection = [0, -1]\n'
+                 'force_n = 0.4\n')
     (tmp_path / "tables").mkdir()
-    (tmp_path / "tables/a.toml").write_text("# a table\n")
+    ThrustTable.default().save(tmp_path / "tables/a.toml")
+    table_text = (tmp_path / "tables/a.toml").read_text()
     log = tmp_path / "log.csv"
     log.write_text("t_s,v\n0,\"[1, 0]\"\n1,\"[0, 1]\"\n")
     argv = ["import", "commands", str(log), "--out", str(out), "--columns", "t=t_s,valves=v", "--vehicle", str(v)]
@@ -147,6 +151,6 @@ def test_a_different_vehicle_file_is_refused_before_anything_is_written(tmp_path
     assert not (out / "commands.csv").exists()
     assert main([*argv, "--force"]) == 0
     assert (out / "vehicle.toml").read_text() == v.read_text()
-    assert (out / "tables/a.toml").read_text() == "# a table\n"  # the table it names, beside it
+    assert (out / "tables/a.toml").read_text() == table_text  # the table it names, beside it
     meta = json.loads((out / "run.json").read_text())
     assert meta["commands_source"]["thrusters"] == ["A", "B"]
