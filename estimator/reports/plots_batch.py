@@ -41,6 +41,32 @@ def plot_residuals(t: np.ndarray, residuals: np.ndarray, path: str | Path, *, ti
     return path
 
 
+def plot_poses_fit(t: np.ndarray, pose: np.ndarray, residuals: np.ndarray, path: str | Path, *,
+                   title: str = "") -> Path:
+    """The measured poses (dots) against the fitted model's (line): x, y (m) and yaw (deg)
+    against time, the model's poses being ``pose - residuals``; ``pose`` (N, 3) at ``t``."""
+    t = np.asarray(t, float)
+    pose = np.asarray(pose, float)
+    yaw = np.unwrap(pose[:, 2])
+    model = np.column_stack([pose[:, 0] - residuals[:, 0], pose[:, 1] - residuals[:, 1],
+                             yaw - residuals[:, 2]])
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for ax, meas, fit, lab in zip(axes, (pose[:, 0], pose[:, 1], np.degrees(yaw)),
+                                  (model[:, 0], model[:, 1], np.degrees(model[:, 2])),
+                                  ("x [m]", "y [m]", "yaw [deg]"), strict=True):
+        ax.plot(t - t[0], meas, ".", ms=2, alpha=0.6, label="measured")
+        ax.plot(t - t[0], fit, "-", lw=1.0, color="C3", label="fitted model")
+        ax.set_ylabel(lab)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title or "Measured poses and the fitted model")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_sensitivities(t: np.ndarray, sens_x: np.ndarray, names, theta, path: str | Path, *,
                        title: str = "") -> Path:
     """State sensitivities ``theta_j dx_i/dtheta_j`` (N, 6, p) against time (Fig. 6).

@@ -199,7 +199,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         out["warnings"] = [*out.get("warnings", []), *body_lines]
     scan = _delay_scan(est, args, out) if args.delay_scan else None
     if args.out_folder is not None:
-        from estimator.reports.plots_batch import plot_residuals
+        from estimator.reports.plots_batch import plot_poses_fit, plot_residuals
 
         with args.out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             write_json(main, out)
@@ -209,6 +209,10 @@ def cmd_batch(args: argparse.Namespace) -> int:
                 plot_residuals(res.t, res.residuals, d / "residuals.png", sigma_pos_m=args.sigma_pos,
                                sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
                                title=f"Batch LS residuals: {run.path.name}")
+                rows = np.searchsorted(run.pose_t, res.t)
+                plot_poses_fit(res.t, run.pose[rows], res.residuals, d / "poses_fit.png",
+                               title=f"Batch LS: measured poses and the fitted model, "
+                                     f"{run.path.name}")
     if not res.converged:
         print(f"tpods: warning: {res.message}; the estimate below is not a converged solution",
               file=sys.stderr)
@@ -245,7 +249,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  delay scan: {scan.describe()}")
     if args.out_folder is not None:
         print(f"  wrote {args.out_folder.main}"
-              + (", residuals.csv, residuals.png" if args.out_folder.is_folder else ""))
+              + (", residuals.csv, residuals.png, poses_fit.png" if args.out_folder.is_folder else ""))
     return 0
 
 

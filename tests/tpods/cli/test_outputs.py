@@ -183,7 +183,8 @@ def test_estimate_batch_force_and_interrupt(tmp_path, capsys, monkeypatch):
     monkeypatch.undo()
     capsys.readouterr()
     assert main(["estimate", "batch", str(run), "--out", str(old), "--force"]) == 0
-    assert {p.name for p in old.iterdir()} == {"estimate.json", "residuals.csv", "residuals.png"}
+    assert {p.name for p in old.iterdir()} == {"estimate.json", "residuals.csv", "residuals.png",
+                                           "poses_fit.png"}
     _no_temporaries(tmp_path)
 
 
@@ -367,7 +368,8 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
 # what each command needs to run for real, and the files a folder output receives besides
 # the main file (MAIN_FILE)
 REAL = {
-    "estimate batch": (["estimate", "batch", "RUN", "--out", "OUT"], {"residuals.csv", "residuals.png"}),
+    "estimate batch": (["estimate", "batch", "RUN", "--out", "OUT"],
+                       {"residuals.csv", "residuals.png", "poses_fit.png"}),
     "estimate batch ekf": (["estimate", "batch", "RUN", "--method", "ekf", "--out", "OUT"],
                            {"history.csv", "errors.png"}),
     "estimate crlb": (["estimate", "crlb", "RUN", "--out", "OUT"], {"sensitivities.png"}),
