@@ -16,6 +16,15 @@ UNITS = {"mass": "kg", "izz": "kg m$^2$", "ct": "N s/m", "cr": "N m s", "kb": "N
 STATE_LABELS = ("x [m]", "y [m]", r"$\psi$ [rad]", "u [m/s]", "v [m/s]", "r [rad/s]")
 
 
+def _save(fig, path: str | Path) -> Path:
+    """Lay out, write (110 dpi) and close ``fig``; the path written."""
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_residuals(t: np.ndarray, residuals: np.ndarray, path: str | Path, *, title: str = "",
                    sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0)) -> Path:
     """Residuals of x, y (cm) and yaw (deg) against time with +/-3 sigma lines (Fig. 5)."""
@@ -34,11 +43,7 @@ def plot_residuals(t: np.ndarray, residuals: np.ndarray, path: str | Path, *, ti
                 transform=ax.transAxes, va="top", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title or "Least-squares residuals (dashed: +/-3 sigma of the noise)")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_poses_fit(t: np.ndarray, pose: np.ndarray, residuals: np.ndarray, path: str | Path, *,
@@ -60,11 +65,7 @@ def plot_poses_fit(t: np.ndarray, pose: np.ndarray, residuals: np.ndarray, path:
     axes[0].legend(loc="best", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title or "Measured poses and the fitted model")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_sensitivities(t: np.ndarray, sens_x: np.ndarray, names, theta, path: str | Path, *,
@@ -90,8 +91,4 @@ def plot_sensitivities(t: np.ndarray, sens_x: np.ndarray, names, theta, path: st
             ax.tick_params(labelsize=7)
         axes[-1, j].set_xlabel("time [s]")
     fig.suptitle(title or r"Sensitivities $\theta\,\partial x/\partial\theta$ (blue: outputs)")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
