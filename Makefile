@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test demo bench bench-long robustness lint clean golden fixtures
+.PHONY: setup test test-slow demo bench bench-long robustness lint clean golden fixtures
 
 setup: $(STAMP)
 
@@ -21,6 +21,10 @@ $(STAMP): pyproject.toml
 # thread) in each of the suite's few hundred `tpods` subprocesses
 test: $(STAMP)
 	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --durations=15
+
+# the many-seed studies marked slow (skipped by make test: tests/conftest.py), minutes each
+test-slow: $(STAMP)
+	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto -m slow --durations=15
 
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/tpods demo

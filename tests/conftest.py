@@ -75,6 +75,12 @@ def pytest_collection_modifyitems(config, items):
     together and in their order (module fixtures are shared as before)."""
     rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+    # tests marked slow (many-seed Monte Carlo) run only when asked for: pytest -m slow
+    if "slow" not in (config.getoption("markexpr") or ""):
+        skip = pytest.mark.skip(reason="slow: run with pytest -m slow (or make test-slow)")
+        for item in items:
+            if item.get_closest_marker("slow") is not None:
+                item.add_marker(skip)
 
 
 def pytest_addoption(parser):
