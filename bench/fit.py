@@ -6,18 +6,29 @@ Per nozzle count ``k`` the per-step mean thrusts ``z`` (gram-force) at duties ``
 estimate computed stably). For each order the result holds the residual RMS, the
 coefficient covariance ``s^2 (H^T H)^-1``, AICc, BIC and the leave-one-step-out
 cross-validation RMS (exact, from the hat matrix). Pure functions on arrays.
+
+The noise variance behind a table's stated covariance (:func:`pool_noise`): a cubic on 9
+duty steps leaves 5 residual degrees of freedom, and ``s^2`` from 5 is itself uncertain
+(a coefficient's error over its sigma is then Student-t with 5 dof: rms 1.29, |z| > 2 in
+10 % of fits instead of 5 %). The covariance is scaled by ``nu / (nu - 2)``, the variance of
+Student-t with the ``nu`` residual degrees of freedom behind it, so that the stated sigma is
+the rms error (and |z| > 2 in 5 % of fits again). With 2 or fewer dof per nozzle count (a
+cubic on 5 steps) that variance is not finite: the counts, which share one balance and one
+procedure, are then pooled (Bartlett's test of equal variances is reported; with 1 or 2 dof
+per count it rejects mostly by chance, a near-zero ``s^2``, so it does not decide).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from common.chi2 import sf as chi2_sf
 from common.errors import UserError
 from common.thrust_table import ThrustTable
 
@@ -132,6 +143,8 @@ class ThrustFit:
     order_request: str
     data: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]
     """``data[k] = (duty_pct, thrust_gf, std_gf)`` per step."""
+    noise: dict[str, Any] = field(default_factory=dict)
+    """How the selected fits' noise variance was set (:func:`pool_noise`)."""
 
     def table(self, pressure_psi: float | None = None, source: str | None = None) -> ThrustTable:
         """ThrustTable (gram-force) with the selected orders and fit statistics in ``extra``."""
@@ -158,7 +171,8 @@ class ThrustFit:
         extra: dict[str, Any] = {}
         if source:
             extra["source"] = source
-        extra["fit"] = {"criterion": self.criterion, "order": self.order_request, "nozzles": stats}
+        extra["fit"] = {"criterion": self.criterion, "order": self.order_request, "nozzles": stats,
+                        **({"noise": self.noise} if self.noise else {})}
         return ThrustTable(coeffs, "gf", (float(duties.min()), float(duties.max())), pressure_psi, extra)
 
 
@@ -250,7 +264,61 @@ def fit_steps(steps: pd.DataFrame, order: str | int = "auto", criterion: str = "
             selected[int(k)] = order
         fits[int(k)] = fk
         data[int(k)] = (d, z, sd)
-    return ThrustFit(fits, selected, criterion, str(order), data)
+    noise = pool_noise(fits, selected)
+    return ThrustFit(fits, selected, criterion, str(order), data, noise)
+
+
+POOL_ALPHA = 0.01
+"""Bartlett's test level below which the note warns of unequal variances."""
+
+
+def pool_noise(fits: dict[int, dict[int, PolyFit]], selected: Mapping[int, int]) -> dict[str, Any]:
+    """Rescale the covariance of every selected fit (in place in ``fits``) by ``nu / (nu -
+    2)`` (module doc); returns what was done (JSON-ready). A count with ``nu <= 2`` residual
+    dof: every count then takes the variance pooled over the counts (and their summed
+    ``nu``); a variance that still rests on ``nu <= 2`` has no finite t variance: its
+    covariance stays ``s^2`` and the note says so."""
+    sel = {k: fits[k][n] for k, n in selected.items()}
+    dof = {k: f.n_points - f.order - 1 for k, f in sel.items()}
+    used = [k for k in sel if dof[k] > 0 and sel[k].rss > 0]
+    if not used:
+        return {}
+    nu_all = sum(dof[k] for k in used)
+    pooled = sum(sel[k].rss for k in used) / nu_all
+    p_value = math.nan
+    if len(used) > 1:
+        s2 = np.array([sel[k].rss / dof[k] for k in used])
+        nu = np.array([dof[k] for k in used], dtype=float)
+        c = 1.0 + (np.sum(1.0 / nu) - 1.0 / nu_all) / (3.0 * (len(used) - 1))
+        stat = float((nu_all * math.log(pooled) - np.sum(nu * np.log(s2))) / c)
+        p_value = chi2_sf(stat, len(used) - 1)
+    pool = min(dof[k] for k in used) <= 2 and len(used) > 1
+    out: dict[str, Any] = {"pooled": bool(pool), "bartlett_p": p_value, "nozzles": {}}
+    for k in used:
+        f = sel[k]
+        s2_k, nu_k = (pooled, nu_all) if pool else (f.rss / dof[k], dof[k])
+        inflate = nu_k / (nu_k - 2.0) if nu_k > 2 else 1.0
+        factor = s2_k * inflate / (f.rss / dof[k])
+        fits[k][f.order] = replace(f, covariance=f.covariance * factor)
+        out["nozzles"][str(k)] = {"variance_gf2": s2_k * inflate, "dof": nu_k,
+                                  "t_inflation": inflate}
+    worst = nu_all if pool else min(dof[k] for k in used)
+    bartlett = f"Bartlett p = {p_value:.3g}" if math.isfinite(p_value) else ""
+    if pool:
+        note = (f"residual variances of the nozzle counts pooled ({bartlett}), {nu_all} dof, "
+                "scaled by nu/(nu-2)")
+        if p_value < POOL_ALPHA:
+            note += ("; the counts' variances look unequal: the pooled one may understate "
+                     "the noisiest count (add duty steps to fit each on its own)")
+    else:
+        note = ("each nozzle count's own residual variance, scaled by nu/(nu-2)"
+                + (f" ({bartlett})" if bartlett else ""))
+    if worst <= 2:
+        note += (f"; {worst} residual dof leave the variance itself unknown (Student-t "
+                 "without a finite variance): the covariance is s^2 alone and understates "
+                 "the error; add duty steps")
+    out["note"] = note
+    return out
 
 
 def max_error_pct_full_scale(table: ThrustTable, reference: ThrustTable,
