@@ -112,6 +112,21 @@ def live_summary(live: subprocess.Popen, log: Path) -> dict[str, Any]:
     return json.loads(stdout.strip().splitlines()[-1])
 
 
+def child_failed(what: str, proc: subprocess.Popen, log: Path) -> UserError:
+    """The one-line error for a child that exited non-zero: its exit code, the last line of
+    its log that names an error (what the child said, so a loaded CI run's failure can be
+    read from the test output alone), and the log's path."""
+    said = ""
+    try:
+        lines = [ln.strip() for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+        errs = [ln for ln in lines if "error" in ln.lower()]
+        said = (errs or lines or [""])[-1][:300]
+    except OSError:
+        pass
+    return UserError(f"the {what} failed (exit {proc.returncode}"
+                     + (f": {said}" if said else "") + f"; see {log})")
+
+
 def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> None:
     """Signal a running child and wait for it (killed after ``timeout_s``)."""
     if proc.poll() is None:

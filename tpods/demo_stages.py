@@ -33,7 +33,6 @@ from bench.valves import ValveController
 from calibration.bifilar import swing_and_estimate
 from calibration.mass import mass_from_readings, take_readings
 from calibration.plots import plot_trace_fit
-from common.errors import UserError
 from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
@@ -42,6 +41,7 @@ from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
 from tpods.demo_fit import BackgroundFit, batch_row, save_switches, switch_run
 from tpods.demo_procs import (
+    child_failed,
     child_zenoh_args,
     demo_session,
     follow_player,
@@ -205,8 +205,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
             phases["played"] = follow_player(procs["play"], duration, args.time_scale,
                                              f"{name} (lab time)")
             if procs["play"].returncode != 0:
-                raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
-                                f"{d / 'play.log'})")
+                raise child_failed("player", procs["play"], d / "play.log")
             t_end = time.monotonic()
             summary = live_summary(procs["live"], d / "live.log")
             phases["estimator's end"] = time.monotonic() - t_end

@@ -248,8 +248,7 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
             raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
                             "the player closed every module's valves")
         if procs["play"].returncode != 0:
-            raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
-                            f"{d / 'play.log'})")
+            raise dp.child_failed("player", procs["play"], d / "play.log")
         summary: dict[str, Any] = {}
         if not args.no_live:
             t_end = time.monotonic()
