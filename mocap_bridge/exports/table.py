@@ -265,6 +265,15 @@ def finish(t_source_s: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, psi_rad: np
 AGREE_RAD = 1e-3
 """Two readings of an undeclared rotation convention must give the same yaw within this."""
 
+LEVEL_DEG = 10.0
+"""A body on an air-bearing table or a floor stays within this of level (deg, every frame)."""
+
+TILTED_DEG = 30.0
+"""...and a reading that tilts it beyond this somewhere is not the file's convention: when
+exactly one convention keeps the body level and every other tilts it this far, that one is
+chosen (a Vicon Tracker export of a ground robot whose helical vector passes 2 pi reads
+1.7 deg of tilt as helical and 136 deg as Euler XYZ, docs/real-data.md)."""
+
 
 def resolve_yaw(candidates: dict[str, np.ndarray], plane: FloorPlane, given: str | None,
                 what: str, option: str = "--rotation") -> tuple[np.ndarray, str]:
@@ -273,7 +282,9 @@ def resolve_yaw(candidates: dict[str, np.ndarray], plane: FloorPlane, given: str
     ``candidates`` maps each convention the file may use to its matrices (N, 3, 3). With
     ``given`` (the user's choice) that one is used. Otherwise the conventions must agree
     on the yaw of every frame within :data:`AGREE_RAD` (they do for a level body, as on
-    an air-bearing table); if they do not, a :class:`UserError` asks for ``option``.
+    an air-bearing table), or exactly one of them must keep the body level
+    (:data:`LEVEL_DEG`, every other tilting it past :data:`TILTED_DEG`); otherwise a
+    :class:`UserError` asks for ``option``.
     Returns the yaw and the note run.json records."""
     if given is not None:
         if given not in candidates:
@@ -285,6 +296,14 @@ def resolve_yaw(candidates: dict[str, np.ndarray], plane: FloorPlane, given: str
         return yaws[0], names[0]
     gap = max((angle_gap(yaws[0], y) for y in yaws[1:]), default=0.0)
     if gap > AGREE_RAD:
+        tilt = {n: float(np.degrees(np.max(tilt_rad(candidates[n], plane), initial=0.0)))
+                for n in names}
+        level = [n for n in names if tilt[n] <= LEVEL_DEG]
+        if len(level) == 1 and all(tilt[n] >= TILTED_DEG for n in names if n != level[0]):
+            k = names.index(level[0])
+            others = ", ".join(f"{tilt[n]:.3g} deg as {n}" for n in names if n != level[0])
+            return yaws[k], (f"{level[0]} (undeclared; the only reading that keeps the body "
+                             f"level: max tilt {tilt[level[0]]:.2g} deg, against {others})")
         raise UserError(f"{what}: the file does not say whether its angles are "
                         f"{' or '.join(names)}, and the yaw differs by up to "
                         f"{math.degrees(gap):.3g} deg between them (the body tilts); "

@@ -1,7 +1,8 @@
 """Vicon Tracker and Nexus CSV exports, as the bytes their makers write.
 
 No licensed real Vicon export was found, so the bytes are built from what Vicon documents
-and what other people's readers expect, cited beside each:
+and what other people's readers expect, cited beside each (a real Tracker 3 export without
+a licence, [QBI], is read by tests/regression/test_real_vicon_tracker.py when you have it):
 
 - [T41] Vicon Tracker 4.1 help, "Exporting data to CSV"
   (https://vicon-help.atlassian.net/wiki/spaces/Tracker41/pages/14320223/Exporting+data+to+CSV):
@@ -20,6 +21,15 @@ and what other people's readers expect, cited beside each:
   five lines.
 - [KON] Universitaet Konstanz CCU wiki, "Vicon: Data format documentation": a Tracker
   ``Trajectories`` export (marker X, Y, Z only; ``;`` as separator in that locale).
+- [QBI] uncobruce/viconplotter, vicon_data/QBii_Square_2m_cw.csv at cd30bc51b1fd4e0cb8d53a200ab22f9b74bcac90
+  (a ground robot driven round a 2 m square, exported by Vicon Tracker 3; the repository
+  states no licence, so none of its bytes are here): UTF-8 with a byte-order mark, CRLF,
+  an empty last line; ``Objects``, ``100``, ``,,Global Angle QBii:QBii,,,,,,`` (one name
+  cell for the object's six columns, no ``Global Position`` cell),
+  ``Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ``, ``,,rad,rad,rad,mm,mm,mm``; the angles are helical
+  and undeclared: after the robot's fourth quarter turn the rotation vector's length is
+  near 2 pi with its axis in the floor plane (RX, RY, RZ = -5.80, -2.33, -0.44 rad), a
+  level body as helical and a 136 deg tilt as Euler XYZ.
 - [QUA] a reader of Tracker exports with quaternions (stored code index, file id
   34625983598): ``Objects``, ``100``, ``,,Global Angle (Quaternion) ...``,
   ``Frame,Sub Frame,TX,TY,TZ,RX,RY,RZ,RW``.
@@ -215,3 +225,33 @@ def test_plane_and_yaw_sign_for_a_y_up_vicon():
     t2 = read_poses(TRACKER, PoseOptions(body="tpods1", yaw_sign=-1.0), "t.csv")
     np.testing.assert_allclose(t2.psi_rad, [-0.1, -0.2, -0.3, -3.1])
     assert t2.source["yaw_sign"] == -1.0
+
+
+def _near_two_pi(w: np.ndarray) -> str:
+    """Helical cells of the small rotation ``w`` (rad) written as Tracker writes it after a
+    full turn [QBI]: length 2 pi - |w| about the opposite axis (the same rotation)."""
+    n = float(np.linalg.norm(w))
+    return ",".join(f"{c:.6f}" for c in -(2 * math.pi - n) * w / n)
+
+
+def test_a_level_body_past_a_full_turn_is_read_as_helical():
+    # [QBI]'s layout; the rows are ours: a quarter turn, then a full turn plus a 0.9 deg
+    # tilt and 0.46 deg of yaw, whose helical vector is near 2 pi with its axis mostly in
+    # the floor plane
+    w = np.array([0.015, 0.006, 0.008])
+    text = ("\ufeffObjects\r\n100\r\n,,Global Angle QBii:QBii,,,,,,\r\n"
+            "Frame,Sub Frame,RX,RY,RZ,TX,TY,TZ\r\n,,rad,rad,rad,mm,mm,mm\r\n"
+            "1,0,0.010000,0.004000,-1.570796,-995.182861,-99.083923,167.123489\r\n"
+            f"2,0,{_near_two_pi(w)},-998.507019,138.898529,170.335892\r\n\r\n")
+    assert detect_format(text) == "vicon"
+    t = read_poses(text, PoseOptions(), "QBii_Square_2m_cw.csv")
+    assert t.source["format"] == "vicon-tracker-csv" and t.source["body"] == "QBii:QBii"
+    assert t.source["rotation"].startswith("helical (undeclared; the only reading that keeps "
+                                           "the body level")
+    want = read_poses(text, PoseOptions(rotation="helical"), "h.csv").psi_rad
+    np.testing.assert_allclose(t.psi_rad, want)
+    assert t.psi_rad[1] == pytest.approx(0.008, abs=2e-4)  # ~ the small rotation's yaw
+    np.testing.assert_allclose(t.x_m, [-0.995182861, -0.998507019])
+    # a body tilted under both readings is still a question, never a guess
+    with pytest.raises(UserError, match="give --rotation"):
+        read_poses(text.replace("0.010000,0.004000,-1.570796", "0.4,0.3,1.2"), PoseOptions(), "x.csv")
