@@ -140,7 +140,8 @@ def cmd_thrust(args: argparse.Namespace) -> int:
                                 f"{dict(zip(res.names, np.round(res.values, 5).tolist(), strict=True))} "
                                 f"(--mass {args.mass:g}); force_sigma_n = the factors' total "
                                 "sigma\n" + tomli_w.dumps(vehicle_document(
-                                    v.name, v.thrusters, v.valves, v.body, main.parent)))
+                                    v.name, v.thrusters, v.valves, v.body, main.parent,
+                                    supplies=v.supplies)))
             else:
                 res.new_table(table, run=str(run.path)).save(main)
             if d is not None:
