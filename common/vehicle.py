@@ -308,6 +308,11 @@ class Vehicle(ThrusterLayout):
         t, v = super().input_profile(cmd_t, duty_pct, clamp=clamp)
         return self._timed(t, v)
 
+    def through_valves(self, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A hold of rows linear in the thrusts (thrusts, their derivatives) through the
+        valves' known dead time and rise (:meth:`input_profile`'s timing)."""
+        return self._timed(np.asarray(t, dtype=float), np.asarray(rows, dtype=float))
+
     def _timed(self, t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A hold of rows ``v`` (N, ...) through the valves' delay and rise (linear)."""
         shape = v.shape[1:]
@@ -320,9 +325,13 @@ class Vehicle(ThrusterLayout):
         """:meth:`virtual_sensitivity` through the same delay and rise as
         :meth:`input_profile` (both linear in the thrusts), on its rows."""
         s = self.virtual_sensitivity(duty_pct, clamp=clamp)
-        t, thrust = self._timed(np.asarray(cmd_t, dtype=float), s.thrust_n)
-        _, jac = self._timed(np.asarray(cmd_t, dtype=float), s.jacobian)
-        return t, ThrustSensitivity(thrust, jac, s.names, s.covariance)
+        n = len(s.thrust_n)
+        # timed together: the rise cuts a hold where any of its values changes, so the
+        # thrusts and the derivatives keep the same rows (a valve without a parameter too)
+        t, rows = self._timed(np.asarray(cmd_t, dtype=float),
+                              np.concatenate([s.thrust_n, s.jacobian.reshape(n, -1)], axis=1))
+        jac = rows[:, 4:].reshape((len(rows),) + s.jacobian.shape[1:])
+        return t, ThrustSensitivity(rows[:, :4], jac, s.names, s.covariance)
 
     # ---------------------------------------------------------------- text
     def initial_guess(self) -> dict[str, float]:

@@ -182,7 +182,8 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     fixed.update({k: 0.0 for k in ("ct", "cr", "kb", "ax", "ay") if k not in extras})
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     if vehicle:  # its thrusts as they are; the factors relative to them
-        base = VehicleThrust(table, duty, arm_m, clamp)
+        base = VehicleThrust(table, duty, arm_m, clamp, cmd_t=cmd_t)
+        hold_t = base.hold_t  # the thrusts' rows: through the valves' dead time and rise
         f0 = np.ones(len(names))
         kept: tuple[str, ...] = ()
     else:
@@ -193,12 +194,13 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
                        for n in names])
         cal = table.calibration
         kept = tuple(p for p in (cal.parameters if cal is not None else ()) if p not in names)
+        hold_t = cmd_t
     i_izz = 5 + len(extras) if estimate_izz else None  # Izz: the last extra
     izz0 = None
     if estimate_izz:  # start from the linear solution (no damping): a dead thruster is far from 1
         _, fjac = (base.factor_thrust(names, np.ones(len(names))) if vehicle else
                    factor_thrust(base, duty, names, np.ones(len(names)), clamp))
-        f_lin, izz_lin = linear_start(pose_t, pose, cmd_t, fjac, mass_kg, arm_m)
+        f_lin, izz_lin = linear_start(pose_t, pose, hold_t, fjac, mass_kg, arm_m)
         if f_lin is not None and not izz0_kgm2:
             f0 = np.clip(f_lin, -2.0, 3.0)
         izz0 = izz_start(mass_kg, izz0_kgm2, izz_lin)
@@ -206,7 +208,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     z = np.concatenate([pose[0], np.zeros(3), ex0, f0])
     scale = np.concatenate([np.ones(6), [izz0 if e == "izz" else PARAM_SCALE[e] for e in extras],
                             np.ones(len(names))])
-    full = CalibrationFit(pose_t, pose, cmd_t, duty, base, names, extras, fixed, w, clamp, max_step)
+    full = CalibrationFit(pose_t, pose, hold_t, duty, base, names, extras, fixed, w, clamp, max_step)
     ne = full.ne
 
     # separability, checked at the start (structure does not depend on the estimate)
@@ -239,7 +241,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         if last:
             h = span
         keep = t_rel <= h + 1e-9
-        fit = full if last else CalibrationFit(pose_t[keep], pose[keep], cmd_t, duty, base, names, extras,
+        fit = full if last else CalibrationFit(pose_t[keep], pose[keep], hold_t, duty, base, names, extras,
                                      fixed, w, clamp, max_step)
         stages.append(h)
         z, converged, cost, res, cache = gauss_newton(
@@ -268,7 +270,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         cov_izz = Si @ Si.T * izz_sigma_kgm2**2
     # the table's own uncertainty, without the terms the factors absorb
     if vehicle:  # its stated uncertainty on the virtual thrusts
-        sens = table.virtual_sensitivity(duty, clamp=clamp)
+        sens = table.input_sensitivity(cmd_t, duty, clamp=clamp)[1]  # on hold_t's rows
         absorbed = absorbed_on_rows(sens, base.factor_thrust(names, z[ne:])[1])
     else:
         absorbed = absorbed_terms(table, names)
