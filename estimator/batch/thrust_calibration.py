@@ -122,7 +122,7 @@ from estimator.batch.thrust_factors import (  # noqa: F401  (re-exported)
     remaining_uncertainty,
     with_factors,
 )
-from estimator.plant.model import ARM_M
+from estimator.plant.model import ARM_M, output_jacobian
 
 
 def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *, mass_kg: float,
@@ -132,7 +132,8 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
                      clamp: bool = False, tol: float = 1e-8, max_iter: int = 30,
                      horizon0_s: float | None = 5.0,
                      max_step: float = DEFAULT_MAX_STEP_S,
-                     izz0_kgm2: float | None = None) -> ThrustCalibrationResult:
+                     izz0_kgm2: float | None = None,
+                     estimate_com: bool = False) -> ThrustCalibrationResult:
     """Estimate the in-situ factors of ``table`` from a run of a body of known m and Izz.
 
     Args:
@@ -153,6 +154,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         sigma_pos_m, sigma_yaw_rad: pose noise.
         tol: largest scaled correction at convergence; max_iter: per stage.
         horizon0_s: first horizon of the growing-horizon start (None: all at once).
+        estimate_com: estimate the centre of mass's offset cx, cy (m, body frame of the
+            tracked origin) with the factors (reported in ``extras`` with their noise
+            sigma); else it is at the tracked origin.
 
     Raises UserError for a run that cannot separate the factors (see the module doc).
     """
@@ -175,7 +179,8 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     if vehicle:
         check_per(per)
     names, ref = factor_names(per, duty, cmd_t, float(pose_t[-1]))
-    extras = MODEL_EXTRAS[model] + (("izz",) if estimate_izz else ())
+    model_extras = MODEL_EXTRAS[model] + (("cx", "cy") if estimate_com else ())
+    extras = model_extras + (("izz",) if estimate_izz else ())
     fixed = {"mass": float(mass_kg), "arm": float(arm_m)}
     if not estimate_izz:
         fixed["izz"] = float(izz_kgm2)
@@ -284,8 +289,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     kept_cross = np.zeros((len(sl), len(kept))) if kept else None
     if keepc:
         params, grid, _, states = cache
-        J = output_sensitivity(states, grid, params,
-                               segment_jacobian(grid, sens.jacobian[..., keepc]))
+        J = output_jacobian(states[grid.node_pos], output_sensitivity(
+            states, grid, params, segment_jacobian(grid, sens.jacobian[..., keepc])), (),
+            *CalibrationFit.offset(params))
         Pc = sens.covariance[np.ix_(keepc, keepc)]
         b = np.einsum("kin,i,kip->np", H, w, J, optimize=True)
         S = (cov_all @ b)[sl]
@@ -301,7 +307,6 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     P = len(names)
     cov = sum(parts.values())
     cov = 0.5 * (cov + cov.T)
-    model_extras = MODEL_EXTRAS[model]
     ex_sig = np.sqrt(np.maximum(np.diag(cov_all)[6:6 + len(model_extras)], 0.0))
     known = {"mass_kg": float(mass_kg), "mass_sigma_kg": float(mass_sigma_kg)}
     if not estimate_izz:

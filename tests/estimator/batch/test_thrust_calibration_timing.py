@@ -37,3 +37,21 @@ def test_factors_of_a_timed_vehicle_are_one():
     assert r.converged
     assert abs(r.values[0] - 1.0) < 3.5 * r.sigma[0], (r.values, r.sigma)
     assert abs(r.izz["izz_kgm2"] - 0.31) < 3.5 * r.izz["izz_sigma_kgm2"]
+
+
+def test_centre_of_mass_estimated_with_the_factors():
+    v = Vehicle.load(EIGHT)
+    v = dataclasses.replace(
+        v, thrusters=tuple(dataclasses.replace(t, force_sigma_n=None) for t in v.thrusters),
+        valves=dataclasses.replace(v.valves, delay_s=0.03, rise_s=0.015))
+    cmd_t, duty = make_input("pulse-groups", 60.0, n_channels=8)
+    hold_t, thrust = v.input_profile(cmd_t, duty)
+    sim = simulate(cmd_t, duty, PlantParams(23.09, 0.31, cx=0.012, cy=-0.008), None,
+                   SimConfig(seed=5), thrust_n=thrust, thrust_t=hold_t)
+    r = calibrate_thrust(sim.pose_t, sim.pose, cmd_t, duty, v, mass_kg=23.09, izz_kgm2=None,
+                         per="common", estimate_com=True)
+    assert r.converged and set(r.extras) == {"cx", "cy"}
+    assert abs(r.values[0] - 1.0) < 3.5 * r.sigma[0], (r.values, r.sigma)
+    for name, true in (("cx", 0.012), ("cy", -0.008)):
+        assert abs(r.extras[name] - true) < 3.5 * r.extras_sigma[name], (name, r.extras)
+    assert abs(r.izz["izz_kgm2"] - 0.31) < 3.5 * r.izz["izz_sigma_kgm2"]

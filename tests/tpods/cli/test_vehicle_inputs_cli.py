@@ -60,3 +60,15 @@ def test_delay_on_a_run_without_a_vehicle_is_one_line(tpods_exe, tmp_path):
                 "mass,izz,delay")
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "--vehicle" in lines[0], r.stderr
+
+
+def test_calibrate_thrust_estimates_the_centre_of_mass_when_asked(tpods_exe, tmp_path):
+    truth, _ = _files(tmp_path)
+    _sim(tpods_exe, truth, tmp_path / "run", "pulse-groups")
+    r = run_cli(tpods_exe, "calibrate", "thrust", str(tmp_path / "run"), "--mass", "23.09",
+                "--per", "common", "--estimate-com", "--json", "--out", str(tmp_path / "cal"))
+    assert r.returncode == 0, r.stderr
+    cal = json.loads(r.stdout)
+    assert set(cal["extras"]) == {"cx", "cy"}
+    # the run folder's vehicle (delay 30 ms) is the model: its timing is applied
+    assert abs(cal["factors"]["scale"]["value"] - 1.0) < 3.5 * cal["factors"]["scale"]["sigma"]
