@@ -19,8 +19,9 @@ of the mass includes what the run leaves uncertain in the delay and the drop.
 
 Where the run does not inform an input parameter it is NOT estimated and a warning says
 why: a drop when no two valves of its supply are ever open together, a delay when the
-valves never switch, and either when its sigma at the solution exceeds
-:data:`UNINFORMED_SIGMA` (then the fit is repeated with it held at its start value).
+valves never open, a delay the fit drives to its bound 0 (held at 0), and either when its
+sigma at the solution exceeds :data:`UNINFORMED_SIGMA` (then the fit is repeated with it
+held at its start value).
 """
 
 from __future__ import annotations
@@ -264,6 +265,12 @@ def fit_input_params(pose_t, pose, vehicle: Vehicle, cmd_t, duty, *,
                                                                    tol_sigma)
         for n, x in zip(keep, theta, strict=True):
             theta_all[model.names.index(n)] = x
+        if "delay" in keep and theta[keep.index("delay")] == 0.0:
+            # pinned at its bound: the run shows no dead time it can resolve from none
+            skip["delay"] = "at its bound"
+            warnings.append("delay is not estimated: the fit reaches its bound 0 s (no dead time "
+                            "the run can tell from none); held at 0")
+            continue
         cov = safe_inverse(Lam)
         sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
         loose = [(n, s) for n, s in zip(keep, sigma[len(z):], strict=True)

@@ -103,3 +103,16 @@ def test_delay_and_drop_over_many_seeds():
     assert conv == 12
     assert np.all(z < 3.5), z.max()
     assert np.all(rel < 0.10), rel.max()
+
+
+def test_a_vehicle_without_dead_time_holds_the_delay_at_zero_and_says_so():
+    _, model = vehicles()
+    cmd_t, duty = make_input("pulse-groups", 60.0, n_channels=8)
+    hold_t, thrust = model.input_profile(cmd_t, duty)
+    params = PlantParams(TRUTH["mass"], TRUTH["izz"], cx=TRUTH["cx"], cy=TRUTH["cy"])
+    sim = simulate(cmd_t, duty, params, None, SimConfig(seed=0), thrust_n=thrust, thrust_t=hold_t)
+    res = fit_input_params(sim.pose_t, sim.pose, model, cmd_t, duty, initial=START)
+    assert res.converged and "delay" not in res.names and res.params["delay"] == 0.0
+    assert any("reaches its bound 0 s" in w for w in res.warnings)
+    drop = res.names.index("drop")
+    assert abs(res.z0[6 + drop]) < 3.5 * res.sigma[6 + drop]
