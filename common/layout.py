@@ -179,6 +179,11 @@ class ThrusterLayout:
         commands' own times; a vehicle with valve dead time or rise overrides it."""
         return np.asarray(cmd_t, dtype=float), self.virtual_thrust(duty_pct, clamp=clamp)
 
+    def through_valves(self, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A hold ``(t (N,), rows (N, ...))`` of values linear in the thrusts seen through
+        the valves' timing: here unchanged (a vehicle applies its dead time and rise)."""
+        return np.asarray(t, dtype=float), np.asarray(rows, dtype=float)
+
     def input_sensitivity(self, cmd_t: np.ndarray, duty_pct: np.ndarray, clamp: bool = False
                           ) -> tuple[np.ndarray, ThrustSensitivity]:
         """:meth:`virtual_sensitivity` on the rows of :meth:`input_profile`: its times and

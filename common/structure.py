@@ -265,7 +265,8 @@ class Structure(ThrusterLayout):
                 v = m.vehicle
                 d["vehicle"] = f"{m.name}_vehicle.toml"
                 (folder / d["vehicle"]).write_text(tomli_w.dumps(vehicle_document(
-                    v.name, v.thrusters, v.valves, v.body, folder, f"{m.name}_")))
+                    v.name, v.thrusters, v.valves, v.body, folder, f"{m.name}_",
+                    supplies=v.supplies)))
             if m.mass_kg is not None:
                 d["mass_kg"] = m.mass_kg
             if m.izz_kgm2 is not None:

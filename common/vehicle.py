@@ -18,10 +18,17 @@ thrusters; thruster i is valve channel ``d{i}`` of its commands.csv (docs/run-fo
     [valves]                           # optional, known
     delay_s = 0.0                      # dead time from command to force, s
     rise_s = 0.0                       # first-order rise time constant, s
+    [supplies.main]                    # optional, on/off valves of supply "main"
+    drop_per_valve = 0.02              # force lost per OTHER open valve (fraction), default 0
+    drop_sigma = 0.005                 # optional 1-sigma of drop_per_valve
     [body]                             # optional, as structure.toml's [body]
 
-Thrust of thruster i (N): an on/off valve ``force_n * duty / 100`` (a duty between 0 and
-100 is the PWM average); a table valve its table at its duty with ``k`` = the number of
+Thrust of thruster i (N): an on/off valve ``force_n * duty / 100 * (1 - drop * (k - 1))``
+with ``k`` the number of valves open (duty > 0) on its supply at that instant and
+``drop`` its supply's ``drop_per_valve`` (0 <= drop < 1/(n-1) for n valves on the supply;
+default 0: no drop, the thrust bit for bit as without it; k changes only when a valve
+switches, so the hold stays a hold and the switching instants stay exact); a duty between
+0 and 100 is the PWM average; a table valve its table at its duty with ``k`` = the number of
 valves open on its supply (every thruster of a supply that holds a table uses that one
 table: the per-nozzle-count drop of today's tables). Wrench column of thruster i:
 ``[dx, dy, x dy - y dx]`` (body-frame force per newton and its moment about the tracked
@@ -49,7 +56,7 @@ from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustSensitivity, thrust_sensitivity
 from common.tomlfile import read_toml
 from common.valve_timing import delayed, first_order_rise
-from common.vehicle_toml import Thruster, Valves, parse_vehicle, vehicle_document
+from common.vehicle_toml import Supply, Thruster, Valves, parse_vehicle, vehicle_document
 
 SINGLE_MODULE_TOL = 1e-12
 """A 4-thruster vehicle whose wrench matrix is within this of :func:`module_wrench_1`
@@ -67,6 +74,7 @@ class Vehicle(ThrusterLayout):
     body: Body = field(default_factory=Body)
     source: str = "vehicle"
     arm_m: float = ARM_M
+    supplies: tuple[Supply, ...] = ()
 
     def __post_init__(self) -> None:
         check_parts([t.name for t in self.thrusters], self.source, "vehicle", "thrusters",
@@ -90,15 +98,16 @@ class Vehicle(ThrusterLayout):
         """Read ``vehicle.toml``; UserError naming the file and the key on any problem."""
         path = Path(path)
         source = str(path)
-        name, thrusters, valves, body = parse_vehicle(read_toml(path, "vehicle file"), source,
-                                                      path.parent)
-        return cls(name, thrusters, valves, body, source)
+        name, thrusters, valves, body, supplies = parse_vehicle(
+            read_toml(path, "vehicle file"), source, path.parent)
+        return cls(name, thrusters, valves, body, source, supplies=supplies)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], source: str = "vehicle.toml",
                   base_dir: Path | None = None) -> Vehicle:
         """A vehicle from parsed TOML (``thrust_table`` paths relative to ``base_dir``)."""
-        return cls(*parse_vehicle(data, source, base_dir), source=source)
+        name, thrusters, valves, body, supplies = parse_vehicle(data, source, base_dir)
+        return cls(name, thrusters, valves, body, source, supplies=supplies)
 
     def write(self, folder: str | Path) -> Path:
         """Write ``folder/vehicle.toml`` self-contained (a table file saved beside as
@@ -106,8 +115,38 @@ class Vehicle(ThrusterLayout):
         folder = Path(folder)
         path = folder / "vehicle.toml"
         path.write_text(tomli_w.dumps(vehicle_document(self.name, self.thrusters, self.valves,
-                                                       self.body, folder)))
+                                                       self.body, folder,
+                                                       supplies=self.supplies)))
         return path
+
+    def with_input_params(self, delay_s: float | None = None,
+                          drops: Mapping[str, float] | None = None) -> Vehicle:
+        """A copy with the valve dead time ``delay_s`` and the supplies' ``drops``
+        (``{supply: drop_per_valve}``) replaced (what an estimate of them means; not
+        range-checked: a finite difference may step outside the file's range)."""
+        v = self if delay_s is None else replace(self, valves=replace(self.valves,
+                                                                      delay_s=float(delay_s)))
+        if drops:
+            known = {s.name: s for s in v.supplies}
+            for name, drop in drops.items():
+                known[name] = replace(known.get(name, Supply(name)), drop_per_valve=float(drop))
+            v = replace(v, supplies=tuple(known.values()))
+        return v
+
+    def drop_of(self, supply: str) -> float:
+        """The ``drop_per_valve`` of ``supply`` (0 without a ``[supplies.<name>]`` entry)."""
+        return next((s.drop_per_valve for s in self.supplies if s.name == supply), 0.0)
+
+    def onoff_supplies(self) -> dict[str, np.ndarray]:
+        """``{supply: channel indices}`` of the supplies of on/off valves."""
+        onoff = self._onoff()
+        return {s: np.array([i for i in onoff if self.thrusters[i].supply == s])
+                for s in dict.fromkeys(self.thrusters[i].supply for i in onoff)}
+
+    def open_counts(self, duty_pct: np.ndarray, supply: str) -> np.ndarray:
+        """(...,) the number of valves of ``supply`` open (duty > 0) in each row."""
+        idx = self.onoff_supplies()[supply]
+        return np.sum(np.asarray(duty_pct, dtype=float)[..., idx] > 0, axis=-1)
 
     def with_table(self, table: ThrustTable) -> Vehicle:
         """A copy in which every thruster with ``thrust_table = "default"`` uses ``table``
@@ -178,6 +217,8 @@ class Vehicle(ThrusterLayout):
         out = np.zeros_like(d)
         for i in self._onoff():
             out[..., i] = self.thrusters[i].force_n * d[..., i] / 100.0
+        if any(s.drop_per_valve for s in self.supplies):
+            out *= self._drop_factor(d)
         for supply, table, idx in self._supplies():
             try:
                 out[..., idx] = table.thrust_n(d[..., idx], clamp=clamp)
@@ -196,6 +237,7 @@ class Vehicle(ThrusterLayout):
         phys = self.thrust_n(d, clamp=clamp)
         jacs, names, blocks = [], [], []
         groups = self._supplies()
+        factor = self._drop_factor(d)
         for supply, table, idx in groups:
             s = thrust_sensitivity(table, d[..., idx], clamp=clamp)
             jac = np.zeros(d.shape + (len(s.names),))
@@ -207,12 +249,38 @@ class Vehicle(ThrusterLayout):
             t = self.thrusters[i]
             if t.force_sigma_n and np.any(d[..., i] > 0):
                 jac = np.zeros(d.shape + (1,))
-                jac[..., i, 0] = d[..., i] / 100.0
+                jac[..., i, 0] = d[..., i] / 100.0 * factor[..., i]
                 jacs.append(jac)
                 names.append(f"{t.name}:force")
                 blocks.append(np.array([[t.force_sigma_n ** 2]]))
+        for s in self.supplies:
+            if s.drop_sigma:
+                jac = self._drop_column(d, s.name)
+                if np.any(jac):
+                    jacs.append(jac)
+                    names.append(f"{s.name}:drop")
+                    blocks.append(np.array([[s.drop_sigma ** 2]]))
         jac = np.concatenate(jacs, axis=-1) if jacs else np.zeros(d.shape + (0,))
         return ThrustSensitivity(phys, jac, tuple(names), block_diagonal(blocks))
+
+    def _drop_factor(self, d: np.ndarray) -> np.ndarray:
+        """(..., N) ``1 - drop * (k - 1)`` of every on/off valve (1 elsewhere) at duty rows ``d``."""
+        out = np.ones(d.shape)
+        for s in self.supplies:
+            if s.drop_per_valve:
+                idx = self.onoff_supplies()[s.name]
+                k = np.sum(d[..., idx] > 0, axis=-1, keepdims=True)
+                out[..., idx] = 1.0 - s.drop_per_valve * np.maximum(k - 1, 0)
+        return out
+
+    def _drop_column(self, d: np.ndarray, supply: str) -> np.ndarray:
+        """(..., N, 1) d thrust / d drop_per_valve of ``supply`` at duty rows ``d``."""
+        idx = self.onoff_supplies()[supply]
+        k = np.sum(d[..., idx] > 0, axis=-1, keepdims=True)
+        jac = np.zeros(d.shape + (1,))
+        force = np.array([self.thrusters[i].force_n for i in idx])
+        jac[..., idx, 0] = -force * d[..., idx] / 100.0 * np.maximum(k - 1, 0)
+        return jac
 
     def virtual_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
         """:meth:`thruster_sensitivity` mapped to the virtual thrusts (``pinv(W1) W``).
@@ -229,7 +297,8 @@ class Vehicle(ThrusterLayout):
     def states_uncertainty(self) -> bool:
         """True when a table states an uncertainty or a valve a force_sigma_n."""
         return (any(t.states_uncertainty for t in self.tables())
-                or any(t.force_sigma_n for t in self.thrusters if t.table is None))
+                or any(t.force_sigma_n for t in self.thrusters if t.table is None)
+                or any(s.drop_sigma for s in self.supplies))
 
     def input_profile(self, cmd_t: np.ndarray, duty_pct: np.ndarray,
                       clamp: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -238,6 +307,11 @@ class Vehicle(ThrusterLayout):
         arrives) and first-order rise (:func:`common.valve_timing.first_order_rise`)."""
         t, v = super().input_profile(cmd_t, duty_pct, clamp=clamp)
         return self._timed(t, v)
+
+    def through_valves(self, t: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A hold of rows linear in the thrusts (thrusts, their derivatives) through the
+        valves' known dead time and rise (:meth:`input_profile`'s timing)."""
+        return self._timed(np.asarray(t, dtype=float), np.asarray(rows, dtype=float))
 
     def _timed(self, t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A hold of rows ``v`` (N, ...) through the valves' delay and rise (linear)."""
@@ -251,9 +325,13 @@ class Vehicle(ThrusterLayout):
         """:meth:`virtual_sensitivity` through the same delay and rise as
         :meth:`input_profile` (both linear in the thrusts), on its rows."""
         s = self.virtual_sensitivity(duty_pct, clamp=clamp)
-        t, thrust = self._timed(np.asarray(cmd_t, dtype=float), s.thrust_n)
-        _, jac = self._timed(np.asarray(cmd_t, dtype=float), s.jacobian)
-        return t, ThrustSensitivity(thrust, jac, s.names, s.covariance)
+        n = len(s.thrust_n)
+        # timed together: the rise cuts a hold where any of its values changes, so the
+        # thrusts and the derivatives keep the same rows (a valve without a parameter too)
+        t, rows = self._timed(np.asarray(cmd_t, dtype=float),
+                              np.concatenate([s.thrust_n, s.jacobian.reshape(n, -1)], axis=1))
+        jac = rows[:, 4:].reshape((len(rows),) + s.jacobian.shape[1:])
+        return t, ThrustSensitivity(rows[:, :4], jac, s.names, s.covariance)
 
     # ---------------------------------------------------------------- text
     def initial_guess(self) -> dict[str, float]:
@@ -291,5 +369,9 @@ class Vehicle(ThrusterLayout):
                          f"supply {t.supply}")
         if self.valves.delay_s or self.valves.rise_s:
             lines.append(f"valves: delay {self.valves.delay_s:g} s, rise {self.valves.rise_s:g} s")
+        for s in self.supplies:
+            if s.drop_per_valve or s.drop_sigma:
+                sig = "" if s.drop_sigma is None else f" +- {s.drop_sigma:g}"
+                lines.append(f"supply {s.name}: drop {s.drop_per_valve:g}{sig} per other open valve")
         return lines
 

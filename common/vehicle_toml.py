@@ -1,5 +1,5 @@
 """The parts of a vehicle and its file (issue 24, docs/run-format.md "Vehicle runs"):
-:class:`Thruster`, :class:`Valves`, the parser of ``vehicle.toml``
+:class:`Thruster`, :class:`Valves`, :class:`Supply` (a shared supply's drop), the parser of ``vehicle.toml``
 (:func:`parse_vehicle`: one UserError naming the file and the key, unknown keys with a
 did-you-mean) and its writer (:func:`vehicle_document`). :class:`common.vehicle.Vehicle`
 is built from them."""
@@ -21,11 +21,12 @@ from common.layout import table_entry
 from common.thrust_table import ThrustTable
 from common.tomlfile import check_keys, toml_number, toml_pair
 
-TOP_KEYS = ("vehicle", "thrusters", "valves", "body")
+TOP_KEYS = ("vehicle", "thrusters", "valves", "supplies", "body")
 VEHICLE_KEYS = ("name",)
 THRUSTER_KEYS = ("name", "position_m", "direction", "force_n", "force_sigma_n", "thrust_table",
                  "supply")
 VALVE_KEYS = ("delay_s", "rise_s")
+SUPPLY_KEYS = ("drop_per_valve", "drop_sigma")
 DEFAULT_SUPPLY = "main"
 DEFAULT_TABLE = "default"
 """``thrust_table = "default"``: the built-in Table 2 (what ``--thrust-table`` replaces)."""
@@ -61,6 +62,18 @@ class Valves:
 
     delay_s: float = 0.0
     rise_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Supply:
+    """``[supplies.<name>]``: the fraction ``drop_per_valve`` of its force that every open
+    on/off valve of the supply loses per OTHER valve open on it at the same instant (its
+    force is ``force_n * (1 - drop_per_valve * (k - 1))`` with k open), and its optional
+    1-sigma ``drop_sigma``."""
+
+    name: str
+    drop_per_valve: float = 0.0
+    drop_sigma: float | None = None
 
 
 def _name(x: Any, what: str) -> str:
@@ -105,8 +118,8 @@ def _thruster(t: Any, i: int, base_dir: Path | None,
 
 
 def parse_vehicle(data: Mapping[str, Any], source: str = "vehicle.toml", base_dir: Path | None = None
-                  ) -> tuple[str, tuple[Thruster, ...], Valves, Body]:
-    """``(name, thrusters, valves, body)`` of a parsed vehicle.toml; UserError
+                  ) -> tuple[str, tuple[Thruster, ...], Valves, Body, tuple[Supply, ...]]:
+    """``(name, thrusters, valves, body, supplies)`` of a parsed vehicle.toml; UserError
     ``<source>: <key>: ...`` on any problem."""
     try:
         return _parse(data, base_dir)
@@ -115,7 +128,7 @@ def parse_vehicle(data: Mapping[str, Any], source: str = "vehicle.toml", base_di
 
 
 def _parse(data: Mapping[str, Any], base_dir: Path | None
-           ) -> tuple[str, tuple[Thruster, ...], Valves, Body]:
+           ) -> tuple[str, tuple[Thruster, ...], Valves, Body, tuple[Supply, ...]]:
     check_keys(data, TOP_KEYS, "")
     v = data.get("vehicle")
     if not isinstance(v, Mapping):
@@ -135,11 +148,43 @@ def _parse(data: Mapping[str, Any], base_dir: Path | None
         check_keys(vv, VALVE_KEYS, "[valves]: ")
         valves = Valves(**{k: toml_number(vv[k], f"[valves] {k}", nonneg=True) for k in vv})
     body = parse_body(data["body"]) if "body" in data else Body()
-    return name, thrusters, valves, body
+    return name, thrusters, valves, body, _supplies(data.get("supplies"), thrusters)
+
+
+def _supplies(raw: Any, thrusters: tuple[Thruster, ...]) -> tuple[Supply, ...]:
+    """``[supplies.<name>]`` tables: a drop per other open valve ``0 <= drop < 1/(n-1)``
+    (n on/off valves on the supply: the force stays positive with all of them open)."""
+    if raw is None:
+        return ()
+    if not isinstance(raw, Mapping):
+        raise UserError("[supplies] must hold tables [supplies.<name>]")
+    out = []
+    for name, entry in raw.items():
+        where = f"[supplies.{name}] "
+        on = [t for t in thrusters if t.supply == name]
+        if not on:
+            used = ", ".join(dict.fromkeys(t.supply for t in thrusters))
+            raise UserError(f"{where}names no supply of a thruster (supplies: {used})")
+        if not isinstance(entry, Mapping):
+            raise UserError(f"{where}must be a table")
+        check_keys(entry, SUPPLY_KEYS, where)
+        if any(t.table is not None for t in on):
+            raise UserError(f"{where}drop_per_valve is for on/off force_n valves; a thrust "
+                            "table states its own force per number of valves open")
+        drop = toml_number(entry.get("drop_per_valve", 0.0), f"{where}drop_per_valve", nonneg=True)
+        limit = 1.0 / max(len(on) - 1, 1)
+        if not drop < limit:
+            raise UserError(f"{where}drop_per_valve must be >= 0 and < 1/(n-1) = {limit:.4g} "
+                            f"with n = {len(on)} valves on the supply, got {drop:g}")
+        sigma = entry.get("drop_sigma")
+        sigma = None if sigma is None else toml_number(sigma, f"{where}drop_sigma", nonneg=True)
+        out.append(Supply(name, drop, sigma))
+    return tuple(out)
 
 
 def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves, body: Body,
-                     folder: Path, prefix: str = "") -> dict[str, Any]:
+                     folder: Path, prefix: str = "", supplies: tuple[Supply, ...] = ()
+                     ) -> dict[str, Any]:
     """The TOML document of a vehicle, self-contained in ``folder``: a table read from a
     file is saved there as ``<prefix>thrust_table_<supply>.toml``; the built-in one stays
     ``"default"``."""
@@ -161,6 +206,11 @@ def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves,
         out["thrusters"].append(d)
     if valves != Valves():
         out["valves"] = {"delay_s": valves.delay_s, "rise_s": valves.rise_s}
+    kept = {s.name: {"drop_per_valve": s.drop_per_valve,
+                     **({} if s.drop_sigma is None else {"drop_sigma": s.drop_sigma})}
+            for s in supplies if s.drop_per_valve or s.drop_sigma is not None}
+    if kept:
+        out["supplies"] = kept
     if body.to_dict():
         out["body"] = body.to_dict()
     return out

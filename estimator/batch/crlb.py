@@ -18,6 +18,10 @@ deviations ``(sigma_pos, sigma_pos, sigma_yaw)`` is ``F = sum_k H_k^T R^-1 H_k``
 ``H_k = [I_3 0] Phi(t_k, t0)``. The initial state is a nuisance: the bound on the
 parameters is the inverse of the Schur complement
 ``F_tt - F_ts F_ss^-1 F_st`` (equal to the parameter block of ``F^-1``).
+
+A vehicle's input parameters (valve dead time ``delay``, shared-supply ``drop``) join the
+bound in :func:`estimator.batch.input_params.crlb_input_params` (the same Fisher matrix
+with their finite-difference columns; the fit's Jacobian).
 """
 
 from __future__ import annotations

@@ -122,7 +122,7 @@ from estimator.batch.thrust_factors import (  # noqa: F401  (re-exported)
     remaining_uncertainty,
     with_factors,
 )
-from estimator.plant.model import ARM_M
+from estimator.plant.model import ARM_M, output_jacobian
 
 
 def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *, mass_kg: float,
@@ -132,7 +132,8 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
                      clamp: bool = False, tol: float = 1e-8, max_iter: int = 30,
                      horizon0_s: float | None = 5.0,
                      max_step: float = DEFAULT_MAX_STEP_S,
-                     izz0_kgm2: float | None = None) -> ThrustCalibrationResult:
+                     izz0_kgm2: float | None = None,
+                     estimate_com: bool = False) -> ThrustCalibrationResult:
     """Estimate the in-situ factors of ``table`` from a run of a body of known m and Izz.
 
     Args:
@@ -153,6 +154,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         sigma_pos_m, sigma_yaw_rad: pose noise.
         tol: largest scaled correction at convergence; max_iter: per stage.
         horizon0_s: first horizon of the growing-horizon start (None: all at once).
+        estimate_com: estimate the centre of mass's offset cx, cy (m, body frame of the
+            tracked origin) with the factors (reported in ``extras`` with their noise
+            sigma); else it is at the tracked origin.
 
     Raises UserError for a run that cannot separate the factors (see the module doc).
     """
@@ -175,14 +179,16 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     if vehicle:
         check_per(per)
     names, ref = factor_names(per, duty, cmd_t, float(pose_t[-1]))
-    extras = MODEL_EXTRAS[model] + (("izz",) if estimate_izz else ())
+    model_extras = MODEL_EXTRAS[model] + (("cx", "cy") if estimate_com else ())
+    extras = model_extras + (("izz",) if estimate_izz else ())
     fixed = {"mass": float(mass_kg), "arm": float(arm_m)}
     if not estimate_izz:
         fixed["izz"] = float(izz_kgm2)
     fixed.update({k: 0.0 for k in ("ct", "cr", "kb", "ax", "ay") if k not in extras})
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     if vehicle:  # its thrusts as they are; the factors relative to them
-        base = VehicleThrust(table, duty, arm_m, clamp)
+        base = VehicleThrust(table, duty, arm_m, clamp, cmd_t=cmd_t)
+        hold_t = base.hold_t  # the thrusts' rows: through the valves' dead time and rise
         f0 = np.ones(len(names))
         kept: tuple[str, ...] = ()
     else:
@@ -193,12 +199,13 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
                        for n in names])
         cal = table.calibration
         kept = tuple(p for p in (cal.parameters if cal is not None else ()) if p not in names)
+        hold_t = cmd_t
     i_izz = 5 + len(extras) if estimate_izz else None  # Izz: the last extra
     izz0 = None
     if estimate_izz:  # start from the linear solution (no damping): a dead thruster is far from 1
         _, fjac = (base.factor_thrust(names, np.ones(len(names))) if vehicle else
                    factor_thrust(base, duty, names, np.ones(len(names)), clamp))
-        f_lin, izz_lin = linear_start(pose_t, pose, cmd_t, fjac, mass_kg, arm_m)
+        f_lin, izz_lin = linear_start(pose_t, pose, hold_t, fjac, mass_kg, arm_m)
         if f_lin is not None and not izz0_kgm2:
             f0 = np.clip(f_lin, -2.0, 3.0)
         izz0 = izz_start(mass_kg, izz0_kgm2, izz_lin)
@@ -206,7 +213,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     z = np.concatenate([pose[0], np.zeros(3), ex0, f0])
     scale = np.concatenate([np.ones(6), [izz0 if e == "izz" else PARAM_SCALE[e] for e in extras],
                             np.ones(len(names))])
-    full = CalibrationFit(pose_t, pose, cmd_t, duty, base, names, extras, fixed, w, clamp, max_step)
+    full = CalibrationFit(pose_t, pose, hold_t, duty, base, names, extras, fixed, w, clamp, max_step)
     ne = full.ne
 
     # separability, checked at the start (structure does not depend on the estimate)
@@ -239,7 +246,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         if last:
             h = span
         keep = t_rel <= h + 1e-9
-        fit = full if last else CalibrationFit(pose_t[keep], pose[keep], cmd_t, duty, base, names, extras,
+        fit = full if last else CalibrationFit(pose_t[keep], pose[keep], hold_t, duty, base, names, extras,
                                      fixed, w, clamp, max_step)
         stages.append(h)
         z, converged, cost, res, cache = gauss_newton(
@@ -268,7 +275,7 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
         cov_izz = Si @ Si.T * izz_sigma_kgm2**2
     # the table's own uncertainty, without the terms the factors absorb
     if vehicle:  # its stated uncertainty on the virtual thrusts
-        sens = table.virtual_sensitivity(duty, clamp=clamp)
+        sens = table.input_sensitivity(cmd_t, duty, clamp=clamp)[1]  # on hold_t's rows
         absorbed = absorbed_on_rows(sens, base.factor_thrust(names, z[ne:])[1])
     else:
         absorbed = absorbed_terms(table, names)
@@ -282,8 +289,9 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     kept_cross = np.zeros((len(sl), len(kept))) if kept else None
     if keepc:
         params, grid, _, states = cache
-        J = output_sensitivity(states, grid, params,
-                               segment_jacobian(grid, sens.jacobian[..., keepc]))
+        J = output_jacobian(states[grid.node_pos], output_sensitivity(
+            states, grid, params, segment_jacobian(grid, sens.jacobian[..., keepc])), (),
+            *CalibrationFit.offset(params))
         Pc = sens.covariance[np.ix_(keepc, keepc)]
         b = np.einsum("kin,i,kip->np", H, w, J, optimize=True)
         S = (cov_all @ b)[sl]
@@ -299,7 +307,6 @@ def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *,
     P = len(names)
     cov = sum(parts.values())
     cov = 0.5 * (cov + cov.T)
-    model_extras = MODEL_EXTRAS[model]
     ex_sig = np.sqrt(np.maximum(np.diag(cov_all)[6:6 + len(model_extras)], 0.0))
     known = {"mass_kg": float(mass_kg), "mass_sigma_kg": float(mass_sigma_kg)}
     if not estimate_izz:

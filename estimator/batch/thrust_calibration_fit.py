@@ -15,7 +15,7 @@ from common.errors import UserError
 from estimator.batch.consider import output_sensitivity, segment_jacobian
 from estimator.batch.crlb import make_grid, reference_states, safe_inverse, trajectory_stm
 from estimator.batch.thrust_factors import factor_thrust
-from estimator.plant.model import wrap_angle
+from estimator.plant.model import output_jacobian, tracked_pose, wrap_angle
 
 MODEL_EXTRAS = {"ideal": (), "friction": ("ct", "cr", "kb"),
                 "friction+tilt": ("ct", "cr", "kb", "ax", "ay")}
@@ -117,7 +117,8 @@ class CalibrationFit:
                 return math.inf, None, None
         if not np.all(np.isfinite(states)):
             return math.inf, None, None
-        res = self.pose - states[grid.node_pos, :3]
+        res = self.pose - tracked_pose(states[grid.node_pos], params.get("cx", 0.0),
+                                       params.get("cy", 0.0))
         res[:, 2] = wrap_angle(res[:, 2])
         return float(np.sum(res**2 * self.w)), res, (params, grid, fjac, states)
 
@@ -129,8 +130,17 @@ class CalibrationFit:
             _, phi = trajectory_stm(z[:6], None, None, self.pose_t, params,
                                     self.extras + self.consider, grid=grid, states=states)
             Jf = output_sensitivity(states, grid, params, segment_jacobian(grid, fjac))
-        H = np.concatenate([phi[:, :3, :self.ne], Jf], axis=-1)
-        return H, phi[:, :3, self.ne:]
+        # the tracked pose's (the centre of mass offset cx, cy; phi[:, :3] exactly without)
+        Hs = output_jacobian(states[grid.node_pos], phi, self.extras + self.consider,
+                             *self.offset(params))
+        Jf = output_jacobian(states[grid.node_pos], Jf, (), *self.offset(params))
+        H = np.concatenate([Hs[:, :, :self.ne], Jf], axis=-1)
+        return H, Hs[:, :, self.ne:]
+
+    @staticmethod
+    def offset(params) -> tuple[float, float]:
+        """The centre of mass's offset ``(cx, cy)`` from the tracked origin, m."""
+        return float(params.get("cx", 0.0)), float(params.get("cy", 0.0))
 
 
 def normal_equations(H, w, res):

@@ -13,6 +13,11 @@ plant's arm), so the factors act on the physical thrusts and reach the plant thr
   the vehicle's thruster (command column) order;
 - ``scale`` (``--per common``): every thrust times one factor.
 
+The thrusts reach the plant through the vehicle's known valve timing (vehicle.toml
+``[valves]`` dead time and rise, :meth:`common.vehicle.Vehicle.through_valves`: linear in
+the thrusts, so the factors' derivatives take the same path); :attr:`VehicleThrust.hold_t`
+are the held rows' times (the commands' own without timing).
+
 Nozzle-count factors (``--per nozzles|both``) belong to a thrust table and are refused here.
 Like the table path the factors are applied outside the thrust model, so a dead (0) or
 reversed (negative) thruster can be estimated. The stated uncertainty's terms that the
@@ -44,7 +49,8 @@ class VehicleThrust:
     """The thrusts of a vehicle's commands with the in-situ factors applied, as the plant
     takes them (virtual), and their derivatives."""
 
-    def __init__(self, vehicle, duty_pct: np.ndarray, arm_m: float, clamp: bool = False):
+    def __init__(self, vehicle, duty_pct: np.ndarray, arm_m: float, clamp: bool = False,
+                 cmd_t: np.ndarray | None = None):
         d = np.asarray(duty_pct, float)
         if d.shape[-1] != vehicle.n_channels:
             raise UserError(f"the vehicle has {vehicle.n_channels} thrusters, the commands "
@@ -53,10 +59,18 @@ class VehicleThrust:
         self.phys = np.asarray(vehicle.thrust_n(d, clamp=clamp), float)  # (Nc, C)
         W = np.asarray(vehicle.module_wrench_matrix(), float)  # (3, C)
         self.V = np.linalg.pinv(module_wrench_1(arm_m)) @ W  # (4, C)
+        self.cmd_t = None if cmd_t is None else np.asarray(cmd_t, float)
+        self.timed = self.cmd_t is not None and hasattr(vehicle, "through_valves")
+        self.base = self.phys @ self.V.T  # (Nc, 4) virtual thrusts without factors
+        # the rise cuts a hold where its values change: the rows of the factor-free thrusts,
+        # which every factored thrust and derivative shares (each carries them along)
+        self.hold_t = (self.cmd_t if not self.timed else
+                       vehicle.through_valves(self.cmd_t, self.base)[0])
 
     def factor_thrust(self, names: Sequence[str], values: Sequence[float]
                       ) -> tuple[np.ndarray, np.ndarray]:
-        """Virtual thrusts (Nc, 4) N with the factors and their derivatives (Nc, 4, P)."""
+        """Virtual thrusts (Nc, 4) N with the factors and their derivatives (Nc, 4, P), on
+        the rows of :attr:`hold_t` (the valves' timing applied when ``cmd_t`` was given)."""
         col = np.ones(self.phys.shape[-1])
         scale = 1.0
         for n, v in zip(names, values, strict=True):
@@ -72,6 +86,12 @@ class VehicleThrust:
             else:
                 j = int(n.split(".")[1]) - 1
                 jac[..., i] = np.outer(self.phys[:, j] * scale, self.V[:, j])
+        if self.timed:  # on the rows of hold_t: through the valves' dead time and rise
+            n = len(self.cmd_t)
+            rows = np.concatenate([self.base, thrust, jac.reshape(n, -1)], axis=1)
+            rows = self.vehicle.through_valves(self.cmd_t, rows)[1]
+            thrust = rows[:, 4:8]
+            jac = rows[:, 8:].reshape((len(rows),) + jac.shape[1:])
         return thrust, jac
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from common.errors import UserError
 from common.runfolder import Run, read_run
 from common.thrust_table import ThrustTable, load_thrust_table
+from estimator.batch.input_params import is_input_name, split_names
 from estimator.batch.model_select import ModelFit, fit_models, select_model
 from estimator.estimate.batch_fit import _least_squares
 from estimator.estimate.filter_fit import _extended_filter, _ideal_filter
@@ -119,6 +120,11 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     Raises UserError for a bad window, option or run.
     """
     o = with_overrides(options, EstimateOptions, overrides, "estimate_run")
+    if o.estimate is not None and any(is_input_name(n) for n in o.estimate):
+        # a vehicle's valve delay / supply drop estimated with the body (issue 24)
+        from estimator.estimate.vehicle_inputs import estimate_with_inputs
+
+        return estimate_with_inputs(run, table, o, *split_names(o.estimate), log=log)
     method, model, window, clamp, estimate = o.method, o.model, o.window, o.clamp, o.estimate
     fixed, initial, select_alpha, structure = o.fixed, o.initial, o.select_alpha, o.structure
     sigma_pos_m, sigma_yaw_rad, max_iter = o.sigma_pos_m, o.sigma_yaw_rad, o.max_iter

@@ -17,7 +17,7 @@ from common.plausible import check_duty_rows
 from common.runfolder import COMMAND_COLUMNS, read_table_lines
 from common.runwriter import command_columns
 
-INPUT_NAMES = ("phase-sine", "translate-rotate", "pulses")
+INPUT_NAMES = ("phase-sine", "translate-rotate", "pulses", "pulse-groups")
 PULSE_S = 0.5
 """Open time of each valve in the ``pulses`` input, s (then as long closed)."""
 
@@ -83,6 +83,28 @@ def pulses(duration_s: float, n_channels: int, pulse_s: float = PULSE_S,
     return _close(t, duty, duration_s)
 
 
+GROUP_SIZES = (1, 2, 3)
+"""Valves open together in the ``pulse-groups`` input, in turn."""
+
+
+def pulse_groups(duration_s: float, n_channels: int, pulse_s: float = PULSE_S,
+                 sizes: tuple[int, ...] = GROUP_SIZES, seed: int = 0
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """An on/off input that opens SEVERAL valves at once (what informs a shared supply's
+    drop): like :func:`pulses` (open ``pulse_s``, then all closed ``pulse_s``), but pulse j
+    opens ``sizes[j % len(sizes)]`` distinct valves drawn at random (fixed ``seed``: the
+    same input every time)."""
+    if duration_s <= 0:
+        raise UserError(f"duration must be positive, got {duration_s:g} s")
+    t = np.arange(int(math.ceil(duration_s / pulse_s - 1e-9))) * pulse_s
+    duty = np.zeros((len(t), n_channels))
+    rng = np.random.default_rng(seed)
+    for j, row in enumerate(range(0, len(t), 2)):
+        size = min(sizes[j % len(sizes)], n_channels)
+        duty[row, rng.choice(n_channels, size, replace=False)] = 100.0
+    return _close(t, duty, duration_s)
+
+
 def from_commands_csv(path: str | Path, n_channels: int = 4,
                       valid_pct: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read a commands.csv (run-folder format) as an input sequence: (N,) s and (N,
@@ -108,7 +130,8 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
     ``n_channels`` > 4 (a structure's 4N valves): the phase-sine's phase shifts continue
     across modules (channel i at (i-1) pi/4), a file needs ``d1..d{n_channels}``;
     ``translate-rotate`` is a single-module input and is refused; ``pulses`` (any number
-    of channels: each valve fully open in turn, :func:`pulses`) ignores ``cmd_rate_hz``.
+    of channels: each valve fully open in turn, :func:`pulses`) and ``pulse-groups`` (1, 2,
+    3 valves open at once, :func:`pulse_groups`) ignore ``cmd_rate_hz``.
 
     A file input is cut to ``duration_s`` (rows after it dropped, a closing row added);
     ``duration_s=None`` takes the whole file (and :data:`DEFAULT_DURATION_S` for a
@@ -128,6 +151,8 @@ def make_input(spec: str, duration_s: float | None, cmd_rate_hz: float = 50.0,
         return translate_rotate(duration_s, cmd_rate_hz)
     if spec == "pulses":
         return pulses(duration_s, n_channels)
+    if spec == "pulse-groups":
+        return pulse_groups(duration_s, n_channels)
     p = Path(spec)
     if p.is_dir():
         p = p / "commands.csv"

@@ -66,6 +66,9 @@ def register_thrust(cal) -> None:
     p.add_argument("--model", choices=("ideal", "friction", "friction+tilt"), default="ideal",
                    help="nuisance parameters estimated beside the factors: ideal (none, "
                         "default), friction (ct, cr, kb), friction+tilt (also ax, ay)")
+    p.add_argument("--estimate-com", action="store_true",
+                   help="estimate the centre of mass's offset cx, cy from the tracked origin "
+                        "with the factors (default: at the tracked origin)")
     p.add_argument("--window", type=time_window, default=None, metavar="T0:T1",
                    help="use only poses with T0 <= t <= T1, s; T0,T1 is read too")
     p.add_argument("--clamp", action="store_true",
@@ -117,7 +120,8 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,
                         mass_sigma_kg=args.mass_sigma, izz_sigma_kgm2=args.izz_sigma,
                         per=args.per, model=args.model, sigma_pos_m=args.sigma_pos,
-                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp)
+                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp,
+                        estimate_com=args.estimate_com)
     if not res.converged:
         raise UserError(f"{run.path}: the calibration did not converge "
                         f"({res.iterations} iterations); no table written")
@@ -140,7 +144,8 @@ def cmd_thrust(args: argparse.Namespace) -> int:
                                 f"{dict(zip(res.names, np.round(res.values, 5).tolist(), strict=True))} "
                                 f"(--mass {args.mass:g}); force_sigma_n = the factors' total "
                                 "sigma\n" + tomli_w.dumps(vehicle_document(
-                                    v.name, v.thrusters, v.valves, v.body, main.parent)))
+                                    v.name, v.thrusters, v.valves, v.body, main.parent,
+                                    supplies=v.supplies)))
             else:
                 res.new_table(table, run=str(run.path)).save(main)
             if d is not None:

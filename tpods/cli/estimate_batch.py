@@ -83,6 +83,17 @@ def name_list(text: str) -> tuple[str, ...]:
     return names
 
 
+def batch_name_list(text: str) -> tuple[str, ...]:
+    """:func:`name_list` plus a vehicle's input parameters delay, drop, drop.<supply>."""
+    from estimator.batch.input_params import split_names
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    plant, inputs = split_names(names)
+    if len(set(inputs)) != len(inputs):
+        raise argparse.ArgumentTypeError(f"names repeat in {text!r}")
+    return (name_list(",".join(plant)) if plant else ()) + inputs
+
+
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
     p = est.add_parser(
@@ -99,9 +110,11 @@ def register(sub, est, rep) -> None:
                    help="use only poses with T0 <= t <= T1 (seconds; either side may be empty)")
     p.add_argument("--initial", type=key_values, default={}, metavar="m=1,izz=0.005",
                    help="initial guess (any of m, izz, ct, cr, kb, ax, ay, cx, cy, x, y, psi, u, v, r)")
-    p.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
+    p.add_argument("--estimate", type=batch_name_list, default=None, metavar="NAMES",
                    help="parameters to estimate, comma-separated (default mass,izz; a structure "
-                        "run: mass,izz,cx,cy less the --fixed ones)")
+                        "run: mass,izz,cx,cy less the --fixed ones); a vehicle of on/off valves "
+                        "also delay (valve dead time, s) and drop (shared-supply drop per other "
+                        "open valve; drop.<supply> for one supply's own)")
     add_structure_or_vehicle(p, "structure.toml: read RUN_DIR as a structure run (default: its own "
                         "structure.toml, if any); estimates the centre of mass cx, cy too")
     p.add_argument("--fixed", type=key_values, default={}, metavar="NAME=VALUE,...",
