@@ -33,7 +33,9 @@ def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [
-    (("estimate", "live", "--method", "ls-ekf"), "tpods estimate live does not take a vehicle yet"),
+    # estimate live takes a vehicle now (tests/estimator/live/test_vehicle_live.py); its EKF
+    # alone is refused as a structure's is
+    (("estimate", "live", "--method", "ekf"), "--vehicle is estimated with --method ls-ekf only"),
     (("run", "plant"), "tpods run plant does not take a vehicle yet"),
     (("run", "play", "--valves", "x"), "tpods run play does not take a vehicle yet"),
 ])
