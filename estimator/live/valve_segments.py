@@ -30,12 +30,15 @@ def has_timing(layout) -> bool:
     return valves is not None and (valves.delay_s > 0 or valves.rise_s > 0)
 
 
-def timed_segments(layout, cmd_t: Sequence[float], cmd_d: Sequence[Sequence[float]],
-                   t0: float, t1: float, arm_m: float
-                   ) -> tuple[list[float], list[tuple[float, float, float]]]:
-    """Hold segments ``(durations s, body wrenches (fx N, fy N, mz N m))`` covering
-    ``[t0, t1]`` of the commands ``cmd_t`` (sorted lab times) with duties ``cmd_d`` through
-    the valve timing of ``layout`` (a :class:`common.vehicle.Vehicle`)."""
+def timed_hold(layout, cmd_t: Sequence[float], cmd_d: Sequence[Sequence[float]],
+               t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's input over ``[t0, t1]`` (``t1 > t0``) of the commands ``cmd_t`` (sorted
+    lab times, s) with duties ``cmd_d`` (%): a hold ``(t (K,), virtual thrusts (K, 4) N)``
+    with ``t[0] = t0`` and the last row at ``t1`` ending it, through the valve timing of
+    ``layout`` (a :class:`common.vehicle.Vehicle`). Each row holds the exact mean of the
+    rise over its span: the interval's own ends are cut points of the rise (a row at ``t0``
+    and at ``t1`` repeating the command in force), so the impulse over ``[t0, t1]`` is
+    exact but for the rise's ``exp(-8)`` settling before the look-back."""
     delay, rise = layout.valves.delay_s, layout.valves.rise_s
     lookback = delay + CUTOFF_TAU * rise
     i0 = bisect.bisect_right(cmd_t, t0 - lookback) - 1
@@ -43,23 +46,27 @@ def timed_segments(layout, cmd_t: Sequence[float], cmd_d: Sequence[Sequence[floa
     settled = i0 >= 0  # a command in force `lookback` before t0: its force has settled
     i0 = max(i0, 0)
     if i1 <= i0:  # nothing acts before t1: valves closed
-        return [t1 - t0], [(0.0, 0.0, 0.0)]
+        return np.array([t0, t1]), np.zeros((2, 4))
     v = layout.virtual_thrust(np.asarray(cmd_d[i0:i1], dtype=float), clamp=True)
     t = np.asarray(cmd_t[i0:i1], dtype=float) + delay
     if not settled:  # closed before the first command acts
         t = np.concatenate([[min(t0, t[0]) - 1.0], t])
         v = np.vstack([np.zeros((1, v.shape[1])), v])
-    start = v[0].copy()
-    if t[-1] < t1:  # the end row (first_order_rise keeps the last row's time)
-        t = np.concatenate([t, [t1]])
-        v = np.vstack([v, v[-1:]])
-    t, v = first_order_rise(t, v, rise, start=start)
-    w = wrench(v, arm_m)
-    seg_dt: list[float] = []
-    seg_w: list[tuple[float, float, float]] = []
-    for k in range(len(t) - 1):
-        a, b = max(t[k], t0), min(t[k + 1], t1)
-        if b > a:
-            seg_dt.append(float(b - a))
-            seg_w.append((float(w[k, 0]), float(w[k, 1]), float(w[k, 2])))
-    return seg_dt, seg_w
+    for cut in (t0, t1):  # the interval's ends as rows: the rise's means split there
+        k = int(np.searchsorted(t, cut, "right"))
+        if t[k - 1] != cut:
+            t = np.insert(t, k, cut)
+            v = np.insert(v, k, v[k - 1], axis=0)
+    t, v = first_order_rise(t, v, rise, start=v[0].copy())
+    k0, k1 = int(np.searchsorted(t, t0, "left")), int(np.searchsorted(t, t1, "left"))
+    return t[k0:k1 + 1], v[k0:k1 + 1]
+
+
+def timed_segments(layout, cmd_t: Sequence[float], cmd_d: Sequence[Sequence[float]],
+                   t0: float, t1: float, arm_m: float
+                   ) -> tuple[list[float], list[tuple[float, float, float]]]:
+    """Hold segments ``(durations s, body wrenches (fx N, fy N, mz N m))`` covering
+    ``[t0, t1]`` (:func:`timed_hold`), as the live filter integrates them."""
+    t, v = timed_hold(layout, cmd_t, cmd_d, t0, t1)
+    w = wrench(v[:-1], arm_m)
+    return np.diff(t).tolist(), [tuple(r) for r in w.tolist()]

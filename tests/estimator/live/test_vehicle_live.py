@@ -124,22 +124,27 @@ def test_live_applies_the_valves_dead_time_and_rise(eight):
 
 def test_timed_segments_carry_the_impulse_of_the_vehicles_input(eight):
     """Over any pose interval the segments' impulse equals the integral of the hold of
-    Vehicle.input_profile (delay and rise) over it, to the rise's exp(-8) cut-off."""
+    Vehicle.input_profile (dead time and rise, as the batch fit and the simulator take
+    them) over it, to the rise's exp(-8) settling before the look-back."""
     timed = dataclasses.replace(eight, valves=Valves(delay_s=0.04, rise_s=0.02))
     cmd_t, duty = make_input("pulses", 6.0, 50.0, n_channels=8)
-    ht, hv = timed.input_profile(cmd_t, duty)
-    hw = wrench(hv, timed.arm_m)
-
-    def impulse(t0, t1):
-        edges = np.clip(np.append(ht[1:], np.inf), t0, t1) - np.clip(ht, t0, t1)
-        return edges @ hw
-
     for t0, t1 in ((0.0, 0.3), (0.49, 0.51), (1.005, 1.02), (2.0, 5.9), (3.3, 3.3 + 1 / 120)):
+        # the reference: the commands with a repeated row acting at t0 and at t1, so that
+        # input_profile's sub-segments start there and clipping them is exact
+        ct, d = list(cmd_t), list(duty)
+        for cut in (t0 - 0.04, t1 - 0.04):
+            k = int(np.searchsorted(ct, cut, "right"))
+            if k and ct[k - 1] != cut:
+                ct.insert(k, cut)
+                d.insert(k, d[k - 1])
+        ht, hv = timed.input_profile(np.array(ct), np.array(d))
+        hw = wrench(hv, timed.arm_m)
+        span = np.clip(np.append(ht[1:], np.inf), t0, t1) - np.clip(ht, t0, t1)
         seg_dt, seg_w = timed_segments(timed, list(cmd_t), [tuple(r) for r in duty], t0, t1,
                                        timed.arm_m)
         assert sum(seg_dt) == pytest.approx(t1 - t0, abs=1e-12)
-        got = np.asarray(seg_dt) @ np.asarray(seg_w)
-        np.testing.assert_allclose(got, impulse(t0, t1), atol=1e-3 * 0.45 * (t1 - t0) + 1e-9)
+        np.testing.assert_allclose(np.asarray(seg_dt) @ np.asarray(seg_w), span @ hw,
+                                   atol=1e-12 + 4e-4 * 0.45 * 0.02)
 
 
 def test_a_vehicle_is_estimated_with_ls_ekf_only(eight):

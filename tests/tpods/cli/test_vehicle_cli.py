@@ -36,8 +36,12 @@ def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
     # estimate live takes a vehicle now (tests/estimator/live/test_vehicle_live.py); its EKF
     # alone is refused as a structure's is
     (("estimate", "live", "--method", "ekf"), "--vehicle is estimated with --method ls-ekf only"),
-    (("run", "plant"), "tpods run plant does not take a vehicle yet"),
-    (("run", "play", "--valves", "x"), "tpods run play does not take a vehicle yet"),
+    # run plant and run play take a vehicle now (tests/tpods/test_plant_vehicle.py): their
+    # checks of a vehicle's options, in one line, before anything starts
+    (("run", "plant", "--thrust-table", str(ROOT / "common" / "data" / "table2_60psi.toml")),
+     "--thrust-table would be ignored"),
+    (("run", "play", "--valves", "x", "--input", "pulses", "--duty-limits", "20,90"),
+     "--input pulses: open duties span 100..100 %, outside --duty-limits 20,90"),
 ])
 def test_commands_without_vehicles_refuse_in_one_line(tpods_exe, args, words):
     r = run_cli(tpods_exe, *args, "--vehicle", str(EIGHT))
