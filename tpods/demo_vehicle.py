@@ -26,8 +26,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from common.errors import UserError
 from common.vehicle import Vehicle
 from common.wire import cmd_key
@@ -92,16 +90,8 @@ def stage_vehicle_run(out: Path, args: argparse.Namespace, vehicle: Vehicle,
                    "--no-progress", *clock, *zargs],
             stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
         phases["start-up"] = time.monotonic() - t_stage
-        phases["played"] = dp.follow_player(procs["play"], args.duration, args.time_scale,
-                                            "vehicle run (lab time)",
-                                            stop_if=lambda: procs["plant"].poll() is not None)
-        if procs["play"].poll() is None:  # the plant died under the player
-            dp.stop(procs["play"], signal.SIGINT)
-            raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
-                            "the player closed the valves")
-        if procs["play"].returncode != 0:
-            raise UserError(f"the player failed (exit {procs['play'].returncode}; see "
-                            f"{d / 'play.log'})")
+        phases["played"] = dp.finish_play(procs, d, args.duration, args.time_scale,
+                                          "vehicle run (lab time)", "the valves")
         t_end = time.monotonic()
         summary = dp.live_summary(procs["live"], d / "live.log")
         phases["estimator's end"] = time.monotonic() - t_end
@@ -109,21 +99,12 @@ def stage_vehicle_run(out: Path, args: argparse.Namespace, vehicle: Vehicle,
         dp.stop(procs["plant"], signal.SIGTERM)  # it writes its truth on the way out
         if procs["plant"].returncode != 0:
             raise UserError(f"the simulated plant failed (see {d / 'plant.log'})")
-        play_meta = json.loads((d / "play" / "run.json").read_text())
-        summary["play"] = {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed",
-                                                         "counts", "timing")}
-        sw = np.loadtxt(d / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
-        summary["switch_lag_ms"] = lag = dp.switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play")
+        summary.update(dp.run_outcome(d))
         summary["timing_s"] = phases
-        dp.print_run_timing("vehicle run", lag, phases, args.time_scale)
+        dp.print_run_timing("vehicle run", summary["switch_lag_ms"], phases, args.time_scale)
         return summary
     finally:
-        for name in ("play", "live", "plant"):  # the player first: it closes the valves
-            if name in procs:
-                dp.stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
-        for fh in logs.values():
-            fh.close()
-        session.close()
+        dp.stop_run(procs, logs, session)
 
 
 def stage_vehicle_batch(out: Path, run_dir: Path) -> dict[str, Any]:
