@@ -54,3 +54,16 @@ def test_a_structure_option_given_a_vehicle_file_reads_it_as_a_vehicle(tpods_exe
                 "--duration", "5", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "run" / "vehicle.toml").is_file()
+
+
+@pytest.mark.parametrize("args", [("estimate", "live"), ("run", "plant"),
+                                  ("run", "play", "--valves", "x")])
+def test_live_commands_refuse_a_structure_with_a_vehicle_module_in_one_line(tpods_exe, tmp_path,
+                                                                             args):
+    (tmp_path / "sat.toml").write_text(EIGHT.read_text())
+    (tmp_path / "s.toml").write_text('name = "s"\n[[modules]]\nname = "sat"\n'
+                                     'position_m = [0.0, 0.0]\nvehicle = "sat.toml"\n')
+    r = run_cli(tpods_exe, *args, "--structure", str(tmp_path / "s.toml"))
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "a structure with a vehicle module is not run live yet" in lines[0]
