@@ -41,7 +41,8 @@ def register(est) -> None:
                         "with --structure: for the modules without their own)")
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default=None,
                    help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
-                        "then the filter restarts from it (default ekf; ls-ekf with --structure)")
+                        "then the filter restarts from it (default ekf; ls-ekf with --structure or "
+                        "--vehicle)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="record a run folder here; a file X.mcap: only the Zenoh streams, in MCAP")
     p.add_argument("--mcap", action="store_true",
