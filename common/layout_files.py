@@ -1,7 +1,8 @@
 """Which thruster layout a file or a run folder holds (issue 24): ``structure.toml`` or
 ``vehicle.toml`` -- :func:`load_layout` (by ``--vehicle`` or by the file's content),
 :func:`as_layout`, :func:`folder_layout` (a run folder's file) and
-:func:`load_structure_only` (for the commands that take no vehicle yet)."""
+:func:`load_structure_only` (for the commands that take no vehicle yet) and
+:func:`load_live_layout` (the live commands: a structure or a vehicle, not both in one)."""
 
 from __future__ import annotations
 
@@ -47,6 +48,18 @@ def folder_layout(folder: str | Path) -> Path | None:
         raise UserError(f"{folder}: holds both structure.toml and vehicle.toml; a run is a "
                         "structure run or a vehicle run: remove one")
     return found[0] if found else None
+
+
+def load_live_layout(path: str | Path) -> Structure | Vehicle:
+    """The structure or vehicle at ``path`` for the live commands (``estimate live``, ``run
+    play``, ``run plant``): a structure with a vehicle module is refused in one line (its
+    modules' streams are 4 duties each; simulate it with ``tpods sim``)."""
+    layout = load_layout(path)
+    if isinstance(layout, Structure) and any(m.vehicle is not None for m in layout.modules):
+        raise UserError(f"{layout.source}: a structure with a vehicle module is not run live yet "
+                        "(every module's command stream is 4 duties); give the vehicle itself "
+                        "with --vehicle, or simulate the structure with tpods sim")
+    return layout
 
 
 def load_structure_only(path: str | Path, command: str, why: str) -> Structure:

@@ -87,6 +87,11 @@ def register(sub) -> None:
                    help="the structure variant (issue 18): two emulated modules on a truss, the "
                         "parts' ground truth from calibrate combine, live and batch estimates of "
                         "mass, Izz and the centre of mass (--mass/--izz: each module's truth)")
+    p.add_argument("--vehicle", default=None, metavar="FILE",
+                   help="the vehicle variant (issue 24): the module run on a vehicle.toml (one "
+                        "emulated N-channel driver, pulses on its valves, its valve timing), "
+                        "live and batch estimates (--mass/--izz: the vehicle's truth); no "
+                        "calibration stages")
     p.add_argument("--no-live", action="store_true",
                    help="with --structure: no live estimator; batch LS on the poses the demo "
                         "records itself and the player's commands")
@@ -96,6 +101,8 @@ def register(sub) -> None:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """``tpods demo``: the stages in order, the summary table, report.md, summary.json."""
+    if args.vehicle is not None:
+        return _vehicle_demo(args)
     if args.no_live and not args.structure:
         raise UserError("--no-live goes with --structure (the plain demo's run is the live run)")
     if args.structure and not args.no_live and args.method != "ls-ekf":
@@ -134,6 +141,37 @@ def cmd_demo(args: argparse.Namespace) -> int:
     with run_status(out / "run.json", "lab-day-demo", seed=args.seed, quick=args.quick,
                     duration_s=args.duration, time_scale=args.time_scale) as meta:
         return _stages(args, out, meta)
+
+
+def _vehicle_demo(args: argparse.Namespace) -> int:
+    """``tpods demo --vehicle F`` (:mod:`tpods.demo_vehicle`): its checks, folder, run.json."""
+    if args.structure or args.no_live:
+        raise UserError("--vehicle is a variant of its own: without --structure and --no-live")
+    if args.method != "ls-ekf":
+        raise UserError("--vehicle is estimated live with --method ls-ekf only (from the "
+                        "vehicle's geometric start the EKF alone diverges)")
+    from common.vehicle import Vehicle
+
+    Vehicle.load(args.vehicle)  # a bad file: one line, before the folder is made
+    if args.quick:
+        args.duration = min(args.duration, 40.0)
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = stream_folder(Path("runs") / f"demo-{stamp}" if args.out is None else args.out,
+                        force=args.force, command="tpods demo")
+    from bench.session import Terminated, sigterm_raises
+    from common.runwriter import run_status
+    from tpods.demo_vehicle import run_vehicle_demo  # lazy: the estimator, Zenoh
+
+    try:
+        with sigterm_raises(), run_status(out / "run.json", "lab-day-demo-vehicle",
+                                          seed=args.seed, quick=args.quick,
+                                          duration_s=args.duration,
+                                          time_scale=args.time_scale) as meta:
+            return run_vehicle_demo(args, out, meta)
+    except Terminated:
+        print("tpods: terminated; the valves closed, the demo's processes stopped",
+              file=sys.stderr)
+        return 143
 
 
 def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:

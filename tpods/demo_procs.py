@@ -1,8 +1,9 @@
-"""The processes of a demo run (``tpods demo`` and ``tpods demo --structure``): the private
+"""The processes of a demo run (``tpods demo``, ``--structure``, ``--vehicle``): the private
 Zenoh network and the arguments its children get, the ``tpods`` executable, waiting for the
 live estimator to listen, playing with a progress bar in lab time, reading the live
-estimator's summary line, stopping a child, and the valve-switch lag of a run (the
-emulation's timing: how late the emulated valves applied the player's commands).
+estimator's summary line, stopping a child (and the whole run: :func:`stop_run`), and the
+valve-switch lag of a run (the emulation's timing: how late the emulated valves applied the
+player's commands; :func:`run_outcome`).
 """
 
 from __future__ import annotations
@@ -201,3 +202,40 @@ def print_run_timing(name: str, lag: dict[str, float | int], phases: dict[str, f
               f"emulated valves switched {lag['mean']:.1f} lab ms late on average (more than "
               f"{lag['warn_ms']:g} ms): the {name}'s physics do not match its recorded "
               "commands and its estimates carry that bias", file=sys.stderr)
+
+
+def finish_play(procs: dict[str, subprocess.Popen], d: Path, duration_s: float,
+                time_scale: float, desc: str, closed: str) -> float:
+    """Follow the ``play`` child in lab time until it ends (or the ``plant`` dies: the
+    player is stopped, ``closed`` says which valves it closed); UserError when the plant
+    stopped or the player failed (their logs in ``d``). Returns the wall time played, s."""
+    played = follow_player(procs["play"], duration_s, time_scale, desc,
+                           stop_if=lambda: procs["plant"].poll() is not None)
+    if procs["play"].poll() is None:  # the plant died under the player
+        stop(procs["play"], signal.SIGINT)
+        raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
+                        f"the player closed {closed}")
+    if procs["play"].returncode != 0:
+        raise child_failed("player", procs["play"], d / "play.log")
+    return played
+
+
+def stop_run(procs: dict[str, subprocess.Popen], logs: dict[str, Any], session) -> None:
+    """The end of a demo run on every path: the player first (SIGINT: it closes the valves
+    and confirms OFF), then the estimator, the plant (its ptys) last; the logs, the session."""
+    for name in ("play", "live", "plant"):
+        if name in procs:
+            stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
+    for fh in logs.values():
+        fh.close()
+    session.close()
+
+
+def run_outcome(d: Path, warn_ms: float = SWITCH_LAG_WARN_MS) -> dict[str, Any]:
+    """After the plant wrote its truth: the player's status (``play``) and the valve-switch
+    lag (``switch_lag_ms``) of the run in ``d``."""
+    play_meta = json.loads((d / "play" / "run.json").read_text())
+    sw = np.loadtxt(d / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
+    return {"play": {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed", "counts",
+                                                   "timing")},
+            "switch_lag_ms": switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play", warn_ms)}

@@ -240,15 +240,8 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
             stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
         t_played = time.monotonic()
         phases["start-up"] = t_played - t_stage
-        phases["played"] = dp.follow_player(procs["play"], args.duration, args.time_scale,
-                                         "structure run (lab time)",
-                                         stop_if=lambda: procs["plant"].poll() is not None)
-        if procs["play"].poll() is None:  # the plant died under the player
-            dp.stop(procs["play"], signal.SIGINT)
-            raise UserError(f"the simulated plant stopped during the run (see {d / 'plant.log'}); "
-                            "the player closed every module's valves")
-        if procs["play"].returncode != 0:
-            raise dp.child_failed("player", procs["play"], d / "play.log")
+        phases["played"] = dp.finish_play(procs, d, args.duration, args.time_scale,
+                                          "structure run (lab time)", "every module's valves")
         summary: dict[str, Any] = {}
         if not args.no_live:
             t_end = time.monotonic()
@@ -262,25 +255,15 @@ def stage_structure_run(out: Path, args: argparse.Namespace, parts: dict[str, An
         dp.stop(procs["plant"], signal.SIGTERM)  # it writes its truth on the way out
         if procs["plant"].returncode != 0:
             raise UserError(f"the simulated plant failed (see {d / 'plant.log'})")
-        play_meta = json.loads((d / "play" / "run.json").read_text())
-        summary["play"] = {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed",
-                                                         "counts", "timing")}
+        outcome = dp.run_outcome(d, dp.STRUCTURE_LAG_WARN_MS)
+        summary["play"] = outcome["play"]
         summary["plant_log"] = (d / "plant.log").read_text().strip().splitlines()[-1:]
-        sw = np.loadtxt(d / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
-        summary["switch_lag_ms"] = lag = dp.switch_lag_ms([(r[0], r[1:]) for r in sw], d / "play",
-                                                        dp.STRUCTURE_LAG_WARN_MS)
+        summary["switch_lag_ms"] = lag = outcome["switch_lag_ms"]
         summary["timing_s"] = phases
         dp.print_run_timing("structure run", lag, phases, args.time_scale)
         return summary
     finally:
-        # the player first (SIGINT: it closes every module's valves and confirms OFF), then
-        # the estimator, the plant (its ptys) last
-        for name in ("play", "live", "plant"):
-            if name in procs:
-                dp.stop(procs[name], signal.SIGINT if name == "play" else signal.SIGTERM)
-        for fh in logs.values():
-            fh.close()
-        session.close()
+        dp.stop_run(procs, logs, session)
 
 
 def _cov2(names: tuple[str, ...], cov: np.ndarray, a: str = "cx", b: str = "cy") -> list[list[float]]:

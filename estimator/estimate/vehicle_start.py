@@ -15,10 +15,7 @@ from collections.abc import Mapping
 from common.errors import UserError
 from common.runfolder import Run
 from estimator.batch.least_squares import estimate_run as least_squares_run
-
-SCAN_MASSES_KG = (0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
-SCAN_SPAN_S = 10.0
-SCAN_ITERATIONS = 15
+from estimator.batch.mass_scan import SCAN_ITERATIONS, SCAN_MASSES_KG, SCAN_SPAN_S
 
 
 def scan_start(run: Run, table, names: tuple[str, ...], fixed: Mapping[str, float],

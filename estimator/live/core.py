@@ -86,7 +86,9 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             ``tpods estimate batch --method ls-ekf`` on a structure run). Only ``ls-ekf``:
             no estimate is made before the LS window's fit (from the structure's
             geometric start the EKF alone diverges; docs/estimators.md). ``table`` is then
-            unused (give the structure its tables).
+            unused (give the structure its tables). A :class:`common.vehicle.Vehicle`
+            (issue 24) is taken the same way, its N duties on the body's one command
+            stream (``config.n_channels`` = N), its valve timing in the hold segments.
     """
 
     def __init__(self, table, config: LiveConfig | None = None, body: str = "tpods1",
@@ -103,10 +105,12 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         n_aligned = self.config.n_channels
         if structure is not None:
             if self.config.method != "ls-ekf":
-                raise UserError("a structure is estimated live with --method ls-ekf only: from "
-                                "its geometric start the EKF alone diverges (docs/estimators.md)")
-            self.merger = ModuleMerger(tuple(m.name for m in structure.modules),
-                                       width=self.config.n_channels)
+                raise UserError(f"a {structure.kind} is estimated live with --method ls-ekf only: "
+                                "from its geometric start the EKF alone diverges "
+                                "(docs/estimators.md)")
+            if structure.kind == "structure":  # a vehicle's N duties come on one stream
+                self.merger = ModuleMerger(tuple(m.name for m in structure.modules),
+                                           width=self.config.n_channels)
             n_aligned = structure.n_channels
             self._init_structure_filter()
         self.publish = publish

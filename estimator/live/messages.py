@@ -108,7 +108,11 @@ class EstimateMessages:
                                      "note": self.thrust_note}
         if self.structure is not None:
             out["structure"] = self.structure.name
-            out["modules"] = [m.name for m in self.structure.modules]
+            if self.structure.kind == "vehicle":
+                out["vehicle"] = self.structure.name
+                out["thrusters"] = [t.name for t in self.structure.thrusters]
+            else:
+                out["modules"] = [m.name for m in self.structure.modules]
             out.update({k: est.get(k) for k in (
                 "com_x_m", "com_x_sigma_m", "com_y_m", "com_y_sigma_m", "com_x_sigma_noise_m",
                 "com_y_sigma_noise_m", "com_x_sigma_thrust_m", "com_y_sigma_thrust_m",

@@ -28,6 +28,7 @@ import numpy as np
 
 from estimator.live import worker as live_worker
 from estimator.live.history import checkpoint_at, history_entry, prune_checkpoints
+from estimator.live.scan_job import scan_ls_job
 
 
 class LsEkfRestart:
@@ -87,19 +88,20 @@ class LsEkfRestart:
         n = int(np.searchsorted(np.asarray(self.hist_t), t0 + self.config.ls_window_s, "right"))
         pose_t = np.asarray(self.hist_t[:n]) - t0
         pose = np.asarray(self.hist_pose[:n])
-        cmd_t, duty = self.aligner.commands()
-        thrust = self._thrust_of(duty)
+        cmd_t, thrust, sens = self._input_rows(*self.aligner.commands())
         kw = self._ls_kwargs()
         self._ls_n = n
         self.phase = "ls-running"
-        sens = self._thrust_sensitivity(duty)
+        job, extra = live_worker.ls_job, ()
+        if getattr(self, "_scan_reach_m", None) is not None:  # a vehicle of unknown mass
+            job, extra = scan_ls_job, (self._scan_reach_m,)
         try:
-            self._ls_future = self._executor().submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
-                                                      thrust, kw, sens)
+            self._ls_future = self._executor().submit(job, pose_t, pose, cmd_t - t0, thrust, kw,
+                                                      sens, *extra)
         except Exception:  # a broken process pool: fall back to a thread
             self._pool = cf.ThreadPoolExecutor(1, thread_name_prefix="live-ls")
-            self._ls_future = self._pool.submit(live_worker.ls_job, pose_t, pose, cmd_t - t0,
-                                                thrust, kw, sens)
+            self._ls_future = self._pool.submit(job, pose_t, pose, cmd_t - t0, thrust, kw, sens,
+                                                *extra)
 
     def _ls_kwargs(self, initial=None) -> dict[str, Any]:
         """Keyword arguments of the batch LS fits of the live estimator (window, end of

@@ -1,4 +1,5 @@
-"""The live filter of a structure (issue 18): mass, Izz, the centre of mass; its report.
+"""The live filter of a structure (issue 18) or a vehicle (issue 24): mass, Izz, the centre
+of mass; its report.
 
 On a structure the live estimator runs the extended filter's model: mass, Izz about the
 centre of mass and the centre of mass (cx, cy) in the tracked frame (a cx or cy that the
@@ -9,6 +10,10 @@ message's centre-of-mass keys (:meth:`StructureFilter._com_keys`) report it.
 
 :class:`StructureFilter` is a part of :class:`estimator.live.core.LiveEstimator` (a mixin):
 it reads the estimator's structure, settings, filter state, hold segments and thrust part.
+A vehicle (:class:`common.vehicle.Vehicle`) takes the same filter: its N duties come on one
+command stream, its valve dead time and rise shape the hold segments
+(:mod:`estimator.live.valve_segments`), and when its [body] gives neither mass nor Izz the
+LS window's fit starts from a mass scan (:mod:`estimator.live.scan_job`).
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import numpy as np
 
 from common.errors import UserError
 from estimator.filters.ekf_kernels import _offset_spec, _predict, _update_offset, filter_plant
+from estimator.live.valve_segments import has_timing, timed_segments
 
 STRUCTURE_NAMES = ("mass", "izz", "cx", "cy")
 """The live estimator's unknowns on a structure (issue 18): mass, Izz about the centre of
@@ -71,6 +77,13 @@ class StructureFilter:
         self._off = _offset_spec(self._plant)
         guess = self.structure.initial_guess()
         self._guess = {k: guess[k] for k in self._names}
+        self._timed = has_timing(self.structure)
+        # a vehicle whose [body] gives neither mass nor Izz: the window fit starts from a
+        # mass scan (the paper's module is no start for a 23 kg satellite)
+        self._scan_reach_m = (self.structure.extent_m()
+                              if self.structure.kind == "vehicle" and body.mass_kg is None
+                              and body.izz_kgm2 is None and not self.structure.is_single_at_origin
+                              else None)
 
     def _prior_vector(self):
         """The [body] priors as ``(zbar, Pbar)`` over ``(x, y, psi, u, v, r, *names)`` for
@@ -91,7 +104,12 @@ class StructureFilter:
     def _step_structure(self, z, P, t_prev, t, meas, use):
         cfg = self.config.ekf
         if t_prev is not None and t > t_prev:
-            seg_dt, seg_w = self._segments(t_prev, t)
+            if self._timed:  # a vehicle's valve dead time and rise
+                a = self.aligner
+                seg_dt, seg_w = timed_segments(self.structure, a._cmd_t, a._cmd_d, t_prev, t,
+                                               cfg.arm_m)
+            else:
+                seg_dt, seg_w = self._segments(t_prev, t)
             with np.errstate(over="ignore", invalid="ignore"):
                 z, P, _ = _predict(z, P, seg_dt, seg_w, self._plant, self._q_nz, cfg.max_step_s,
                                    True)

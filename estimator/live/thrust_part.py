@@ -71,6 +71,17 @@ class ThrustPart:
             return self.structure.virtual_thrust(duty, clamp=True)
         return self.table.thrust_n(duty, clamp=True)
 
+    def _input_rows(self, cmd_t, duty):
+        """``(times, thrusts, sensitivity or None)`` of the batch fits' input: the commands'
+        own rows, or a vehicle's through its valve dead time and rise
+        (:meth:`common.vehicle.Vehicle.input_profile`)."""
+        if self.structure is not None and getattr(self, "_timed", False):
+            t, thrust = self.structure.input_profile(cmd_t, duty, clamp=True)
+            sens = (self.structure.input_sensitivity(cmd_t, duty, clamp=True)[1]
+                    if self._states_uncertainty() else None)
+            return t, thrust, sens
+        return cmd_t, self._thrust_of(duty), self._thrust_sensitivity(duty)
+
     def _set_thrust_rel(self, res, where: str) -> None:
         """Carry a batch fit's thrust part forward as fractions of its m and Izz."""
         st = res.sigma_thrust
@@ -91,8 +102,7 @@ class ThrustPart:
         from estimator.batch.consider import batch_consider
         from estimator.batch.least_squares import batch_ls
 
-        cmd_t, duty = self.aligner.commands()
-        sens = self._thrust_sensitivity(duty)
+        cmd_t, _, sens = self._input_rows(*self.aligner.commands())
         start = {"mass": float(self.z[6]), "izz": float(self.z[7])}
         if self.structure is not None:
             cx, cy, _ = self.com_m()

@@ -65,7 +65,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     stop = stop or threading.Event()
     st = estimator.structure
     k = keys(estimator.body, mocap_prefix, prefix,
-             [m.name for m in st.modules] if st is not None else None)
+             [m.name for m in st.modules] if getattr(st, "modules", None) else None)
     q: queue.SimpleQueue = queue.SimpleQueue()
     now = time.time
     bad: dict[str, int] = {}
@@ -154,7 +154,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
             except queue.Empty:
                 break
             with contextlib.suppress(Exception):
-                d = decode_pose(payload, bad) if kind == 0 else decode_command(payload, bad)
+                d = (decode_pose(payload, bad) if kind == 0
+                     else decode_command(payload, bad, estimator.config.n_channels))
                 if d is not None:
                     (estimator.pose(d, arr) if kind == 0 else estimator.command(d, arr))
         if status == "success":
@@ -178,7 +179,7 @@ def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) 
     c = est.counters
     if e is None and est.structure is not None and est.hist_t:
         span = est.hist_t[-1] - est.hist_t[0]
-        head = (f"structure {est.structure.name}: LS window {span:.1f}/{est.config.ls_window_s:g} s "
+        head = (f"{est.structure.kind} {est.structure.name}: LS window {span:.1f}/{est.config.ls_window_s:g} s "
                 f"| {est.phase}")
     elif e is None:
         head = "waiting for poses and commands"

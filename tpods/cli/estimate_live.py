@@ -30,16 +30,19 @@ def register(est) -> None:
                     "With --out, what it saw is recorded as a run folder for `tpods estimate batch`.")
     p.add_argument("--body", default=None,
                    help="body name: its poses are tpods/mocap/<body>/pose (default tpods1; with "
-                        "--structure the structure's name)")
+                        "--structure or --vehicle its name)")
     add_structure_or_vehicle(p, "structure.toml (issue 18): a rigid body moved by several modules; commands "
                         "from tpods/<module>/cmd of every module in F, merged; estimates mass, Izz "
-                        "about the centre of mass and the centre of mass (ls-ekf only)")
+                        "about the centre of mass and the centre of mass (ls-ekf only)",
+                             "vehicle.toml (issue 24): its N duties d1..dN on tpods/<body>/cmd, its "
+                             "valve delay and rise applied; estimates as --structure (ls-ekf only)")
     p.add_argument("--thrust-table", default=None, metavar="F",
                    help="thrust table TOML, e.g. from `tpods bench fit` (default the paper's Table 2; "
                         "with --structure: for the modules without their own)")
     p.add_argument("--method", choices=("ekf", "ls-ekf"), default=None,
                    help="ekf, or ls-ekf: batch LS on the first --ls-window seconds in the background, "
-                        "then the filter restarts from it (default ekf; ls-ekf with --structure)")
+                        "then the filter restarts from it (default ekf; ls-ekf with --structure or "
+                        "--vehicle)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="record a run folder here; a file X.mcap: only the Zenoh streams, in MCAP")
     p.add_argument("--mcap", action="store_true",
@@ -80,15 +83,14 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     structure = None
     if args.structure is not None:
-        from common.layout_files import load_structure_only
+        from common.layout_files import load_live_layout
 
-        structure = load_structure_only(
-            args.structure, "tpods estimate live",
-            "the live filter merges 4-valve modules' command streams and knows no valve timing; "
-            "record the run and estimate it with tpods estimate batch RUN")
+        structure = load_live_layout(args.structure)
         if args.method == "ekf":
-            raise UserError("--structure is estimated with --method ls-ekf only: from a structure's "
-                            "geometric start the EKF alone diverges (docs/estimators.md)")
+            opt = "--vehicle" if structure.kind == "vehicle" else "--structure"
+            raise UserError(f"{opt} is estimated with --method ls-ekf only: from a "
+                            f"{structure.kind}'s geometric start the EKF alone diverges "
+                            "(docs/estimators.md)")
         args.method = "ls-ekf"
         if args.body is None:
             args.body = structure.name
@@ -100,14 +102,17 @@ def cmd_live(args: argparse.Namespace) -> int:
         raise UserError(f"--ls-window {args.ls_window:g} s is not shorter than --duration "
                         f"{args.duration:g} s: the LS start would never run; give --ls-window "
                         f"below {args.duration:g} s")
+    is_vehicle = structure is not None and structure.kind == "vehicle"
     table = load_thrust_table(args.thrust_table)
     if structure is not None and args.thrust_table is not None:
         structure = structure.with_table(table)
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
-                     publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s)
+                     publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s,
+                     n_channels=structure.n_channels if is_vehicle else 4)
     k = keys(args.body, args.mocap_prefix, args.prefix,
-             [m.name for m in structure.modules] if structure is not None else None)
+             [m.name for m in structure.modules] if structure is not None and not is_vehicle
+             else None)
     rec = log = None
     if args.mcap and args.out is None:
         raise UserError("--mcap records into the --out folder; give --out RUN_DIR (or --out X.mcap)")

@@ -44,12 +44,17 @@ def register(sub) -> None:
     add_structure_or_vehicle(p, "play on a structure (structure.toml): every module's controller from "
                         "--valves NAME=URL,..., each module's commands on tpods/<module>/cmd, one "
                         "commands.csv with 4 columns per module; any controller's lost link "
-                        "closes them all")
+                        "closes them all",
+                             "play on a vehicle (vehicle.toml): one N-channel valve driver at "
+                             "--valves, its N duties d1..dN on tpods/<body>/cmd (body: the "
+                             "vehicle's name), vehicle.toml beside commands.csv; --duty-limits "
+                             "defaults to the vehicle's duty range (on/off valves: 1,100)")
     add_input_choice(p)
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="seconds of input (default 120; a commands.csv input: its whole length, "
                         "cut to S when given)")
-    p.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    p.add_argument("--body", default=None,
+                   help="body name (default tpods1; with --vehicle the vehicle's name)")
     p.add_argument("--out", default=None, metavar="RUN_DIR",
                    help="write commands.csv and run.json here")
     add_force(p)
@@ -89,10 +94,15 @@ def register(sub) -> None:
     s.add_argument("--noise-yaw-deg", type=nonneg_float, default=1.0, help="deg (default 1)")
     s.add_argument("--occlusion", type=fraction, default=0.0, help="fraction of occluded frames")
     add_noise_seed(s)
-    s.add_argument("--body", default="tpods1", help="body name (default tpods1)")
+    s.add_argument("--body", default=None,
+                   help="body name (default tpods1; with --vehicle the vehicle's name)")
     add_structure_or_vehicle(s, "simulate a structure (structure.toml): one emulated controller per module "
                         "(their paths printed as 'valves NAME: PATH'), the truth from its [body] "
-                        "(centre of mass included), poses of its tracked frame")
+                        "(centre of mass included), poses of its tracked frame",
+                             "simulate a vehicle (vehicle.toml): one emulated N-channel valve "
+                             "driver (its path printed as 'valves: PATH'), its thrusters with their "
+                             "valve delay and rise, the truth from its [body] where --mass/--izz "
+                             "are not given, poses of its tracked frame")
     s.add_argument("--mocap", default="zenoh", metavar="zenoh|udp:HOST:PORT",
                    help="publish through the bridge over zenoh (default) or send Tracker UDP")
     s.add_argument("--udp-block-size", type=int, choices=(0, 256, 512, 1024), default=1024,
@@ -151,8 +161,13 @@ def cmd_play(args: argparse.Namespace) -> int:
     from common.plausible import check_duty_range
     from common.zenoh_net import open_session
     from estimator.plant.inputs import make_input
+    from tpods.cli.run_vehicle import DEFAULT_DUTY_LIMITS, split_layout, vehicle_duty_limits
     from tpods.player import cmd_key, play
 
+    structure, vehicle = split_layout(args)
+    if vehicle is not None and args.duty_limits == DEFAULT_DUTY_LIMITS:
+        args.duty_limits = vehicle_duty_limits(vehicle)
+    args.body = args.body or (vehicle.name if vehicle is not None else "tpods1")
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
     if len(lim) == 2:
         check_duty_range(lim[0], lim[1], f"--duty-limits {args.duty_limits}",
@@ -164,23 +179,16 @@ def cmd_play(args: argparse.Namespace) -> int:
     if not args.prefix.strip("/"):
         raise UserError("--prefix must not be empty")
     clock = _clock(args)
-    structure = None
-    if args.structure:
-        from common.layout_files import load_structure_only
-
+    if structure is not None:
         if args.capture is not None:
             raise UserError("--capture is not built for --structure yet (one transcript per "
                             "controller)")
-        structure = load_structure_only(
-            args.structure, "tpods run play",
-            "the valve protocol drives one 4-channel controller per module; simulate it with "
-            "tpods sim --vehicle")
         urls = _module_urls(args.valves, [m.name for m in structure.modules])
         cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
                                  args.omega, n_channels=structure.n_channels)
     else:
         cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
-                                 args.omega)
+                                 args.omega, n_channels=4 if vehicle is None else vehicle.n_channels)
     _check_play_duties(args, duty, lim[0], lim[1])
     if args.capture is True and args.out is None:
         raise UserError("--capture without a folder records into --out: give --out RUN_DIR or --capture DIR")
@@ -194,6 +202,8 @@ def cmd_play(args: argparse.Namespace) -> int:
         capture = cap_dir / "valves.serial.jsonl"
     if structure is not None:
         return _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out)
+    if vehicle is not None and out is not None:
+        vehicle.write(out)  # the folder of a vehicle run (docs/run-format.md)
     key = cmd_key(args.body, args.prefix)
     session = open_session(args)
     try:
@@ -215,7 +225,8 @@ def cmd_play(args: argparse.Namespace) -> int:
                                out_dir=out, watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
                                heartbeat_s=args.heartbeat, progress=not args.no_progress,
                                meta={"input": args.input, "duration_s": float(cmd_t[-1] - cmd_t[0]),
-                                     "cmd_rate_hz": args.cmd_rate})
+                                     "cmd_rate_hz": args.cmd_rate,
+                                     **({"vehicle": vehicle.name} if vehicle is not None else {})})
             except (Terminated, KeyboardInterrupt) as exc:
                 return valves_closed_exit(exc, "valves closed" + (f"; commands in {out}" if out else ""))
         pub.undeclare()
@@ -225,7 +236,8 @@ def cmd_play(args: argparse.Namespace) -> int:
           f"latest send {res.max_late_s * 1e3:.1f} ms behind schedule (lab), "
           f"valves closed (STATE? {' '.join(f'{x:g}' for x in res.final_state or ())})")
     if out:
-        print(f"wrote {out}/commands.csv, run.json")
+        print(f"wrote {out}/commands.csv, " + ("vehicle.toml, " if vehicle is not None else "")
+              + "run.json")
     if capture is not None:
         print(f"wrote {capture} (serial transcript)")
     return 0
@@ -320,19 +332,25 @@ def cmd_plant(args: argparse.Namespace) -> int:
     params = PlantParams(args.mass, args.izz, ct=ct, cr=cr, kb=kb)
     noise = MocapNoise(args.noise_pos, math.radians(args.noise_yaw_deg), args.occlusion)
     stop = threading.Event()
-    structure = None
-    if args.structure:
-        from common.layout_files import load_structure_only
+    from tpods.cli.run_vehicle import split_layout
+
+    structure, vehicle = split_layout(args)
+    args.body = args.body or (vehicle.name if vehicle is not None else "tpods1")
+    if vehicle is not None and args.thrust_table is not None:
+        vehicle.check_table_option()
+        vehicle = vehicle.with_table(table)
+    if structure is not None or vehicle is not None:
         from tpods.plant_loop import StructureThrust, StructureValves
 
-        structure = load_structure_only(
-            args.structure, "tpods run plant",
-            "its emulated controllers are 4-channel modules; simulate it with tpods sim --vehicle")
-        g = structure.initial_guess()  # [body] values where given, else the geometry
+        g = (structure or vehicle).initial_guess()  # [body] values where given, else the geometry
         given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
         params = PlantParams(args.mass if "mass" in given else g["mass"],
                              args.izz if "izz" in given else g["izz"], ct=ct, cr=cr, kb=kb,
                              cx=g["cx"], cy=g["cy"])
+    if vehicle is not None:  # one N-channel driver
+        valves = EmulatedValveController(vehicle.n_channels)
+        ctrls = [valves]
+    elif structure is not None:
         ctrls = [EmulatedValveController(4) for _ in structure.modules]
         valves = StructureValves(ctrls)
         table = StructureThrust(structure)
@@ -355,8 +373,14 @@ def cmd_plant(args: argparse.Namespace) -> int:
         sink = udp_sink(udp_target(args.mocap), args.body, args.udp_block_size or None)
     else:
         raise UserError(f"--mocap must be zenoh or udp:HOST:PORT, got {args.mocap!r}")
-    plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
-                      noise=noise, seed=args.seed)
+    if vehicle is not None:  # its valve dead time and rise too
+        from tpods.plant_vehicle import vehicle_plant
+
+        plant = vehicle_plant(valves, params, vehicle, sink, clock=clock,
+                              pose_rate_hz=args.pose_rate, noise=noise, seed=args.seed)
+    else:
+        plant = PlantLoop(valves, params, table, sink, clock=clock, pose_rate_hz=args.pose_rate,
+                          noise=noise, seed=args.seed)
     def stop_on_error() -> None:  # the plant loop stopped on an error
         if plant.error is not None:
             stop.set()
@@ -368,13 +392,14 @@ def cmd_plant(args: argparse.Namespace) -> int:
             if bridge_thread is not None:
                 bridge_thread.start()
             plant.start()
-            if structure is None:
+            if structure is None:  # a module or a vehicle: one controller
                 print(f"valves: {servers[0].path}", flush=True)
             else:
                 for m, srv in zip(structure.modules, servers, strict=True):
                     print(f"valves {m.name}: {srv.path}", flush=True)
             print(f"plant: m {params.mass_kg:g} kg, Izz {params.izz_kgm2:g} kg m^2"
-                  + (f", centre of mass ({params.cx:g}, {params.cy:g}) m" if structure else "")
+                  + (f", centre of mass ({params.cx:g}, {params.cy:g}) m"
+                     if structure or vehicle else "")
                   + f", {args.pose_rate:g} Hz poses of {args.body} ({args.mocap}); Ctrl-C to stop",
                   file=sys.stderr, flush=True)
             wait_for_stop(stop, args.duration, stop_on_error, every_s=0.2)
@@ -395,7 +420,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
             np.savetxt(d / "truth.csv", np.column_stack([t, s]), delimiter=",",
                        header="t_lab,x,y,psi,u,v,r", comments="", fmt="%.12g")
             with (d / "switches.csv").open("w") as fh:
-                fh.write("t_lab," + ",".join(f"d{i + 1}" for i in range(4 * len(ctrls))) + "\n")
+                fh.write("t_lab," + ",".join(f"d{i + 1}" for i in range(len(valves.duties))) + "\n")
                 for ts, du in plant.switches:
                     fh.write(f"{ts:.9f}," + ",".join(f"{x:g}" for x in du) + "\n")
     print(f"plant: {plant.frames} poses ({plant.occluded} occluded), {len(plant.switches)} valve "

@@ -33,9 +33,15 @@ def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [
-    (("estimate", "live", "--method", "ls-ekf"), "tpods estimate live does not take a vehicle yet"),
-    (("run", "plant"), "tpods run plant does not take a vehicle yet"),
-    (("run", "play", "--valves", "x"), "tpods run play does not take a vehicle yet"),
+    # estimate live takes a vehicle now (tests/estimator/live/test_vehicle_live.py); its EKF
+    # alone is refused as a structure's is
+    (("estimate", "live", "--method", "ekf"), "--vehicle is estimated with --method ls-ekf only"),
+    # run plant and run play take a vehicle now (tests/tpods/test_plant_vehicle.py): their
+    # checks of a vehicle's options, in one line, before anything starts
+    (("run", "plant", "--thrust-table", str(ROOT / "common" / "data" / "table2_60psi.toml")),
+     "--thrust-table would be ignored"),
+    (("run", "play", "--valves", "x", "--input", "pulses", "--duty-limits", "20,90"),
+     "--input pulses: open duties span 100..100 %, outside --duty-limits 20,90"),
 ])
 def test_commands_without_vehicles_refuse_in_one_line(tpods_exe, args, words):
     r = run_cli(tpods_exe, *args, "--vehicle", str(EIGHT))
@@ -48,3 +54,16 @@ def test_a_structure_option_given_a_vehicle_file_reads_it_as_a_vehicle(tpods_exe
                 "--duration", "5", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "run" / "vehicle.toml").is_file()
+
+
+@pytest.mark.parametrize("args", [("estimate", "live"), ("run", "plant"),
+                                  ("run", "play", "--valves", "x")])
+def test_live_commands_refuse_a_structure_with_a_vehicle_module_in_one_line(tpods_exe, tmp_path,
+                                                                             args):
+    (tmp_path / "sat.toml").write_text(EIGHT.read_text())
+    (tmp_path / "s.toml").write_text('name = "s"\n[[modules]]\nname = "sat"\n'
+                                     'position_m = [0.0, 0.0]\nvehicle = "sat.toml"\n')
+    r = run_cli(tpods_exe, *args, "--structure", str(tmp_path / "s.toml"))
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "a structure with a vehicle module is not run live yet" in lines[0]
