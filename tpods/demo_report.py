@@ -238,6 +238,7 @@ def write_summary(out: Path, args, rows, bench, live, batch, timings,
          "calibration": None if cal is None else {
              "factors": cal["factors"], "table": str(cal["table_path"]),
              "switch_lag_ms": cal["live"].get("switch_lag_ms"),
+             "duty_time_error": cal["live"].get("duty_time_error"),
              "run_timing_s": cal["live"].get("timing_s")},
          "time_scale": args.time_scale, "duration_lab_s": args.duration, "timings_s": timings},
         indent=2, default=str) + "\n")

