@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import io
 import subprocess
+import sys
 import warnings
 
 
@@ -41,6 +42,9 @@ def run_in_process(*args: str, cwd=None) -> subprocess.CompletedProcess:
             rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
             if isinstance(exc.code, str):
                 print(exc.code, file=err)
+        finally:
+            if "matplotlib.pyplot" in sys.modules:  # what the process would have ended with
+                sys.modules["matplotlib.pyplot"].close("all")
     for w in caught:
         err.write(warnings.formatwarning(w.message, w.category, w.filename, w.lineno, w.line))
     return subprocess.CompletedProcess(["tpods", *args], rc, out.getvalue(), err.getvalue())
