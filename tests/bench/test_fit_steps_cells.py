@@ -9,7 +9,7 @@ import pytest
 from bench.fit import check_steps, fit_steps
 from common.errors import UserError
 from common.thrust_table import ThrustTable
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 
 def _steps() -> pd.DataFrame:
@@ -60,7 +60,7 @@ def test_bench_fit_cli_one_line(tpods_exe, tmp_path):
     s["thrust_gf"] = s["thrust_gf"].astype(object)
     s.loc[4, "thrust_gf"] = "12,5"
     s.to_csv(run_dir / "steps.csv", index=False)
-    r = run(tpods_exe, "bench", "fit", str(run_dir), "--order", "2")
+    r = run_in_process("bench", "fit", str(run_dir), "--order", "2")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip() == (f"tpods: error: {run_dir / 'steps.csv'}: line 6: column thrust_gf: '12,5' is "
                                 "not a number; delete the line to leave that step out of the fit")

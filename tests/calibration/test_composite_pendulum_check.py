@@ -11,7 +11,7 @@ import pytest
 from calibration.composite import combine, load_parts, plausibility_warnings
 from calibration.pendulum_check import check_series, simulate_series
 from common.errors import UserError
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "calibration" / "examples" / "truss_two_modules.toml"
 RADII = np.arange(0.25, 0.751, 0.05)
@@ -78,7 +78,7 @@ def test_combine_json_carries_the_verdict(tpods_exe, tmp_path):
     _check(tmp_path / "good.json", 1.0)
     f = tmp_path / "parts.toml"
     f.write_text(PARTS.format(top="good.json", own=""))
-    r = run(tpods_exe, "calibrate", "combine", str(f), "--json")
+    r = run_in_process("calibrate", "combine", str(f), "--json")
     assert r.returncode == 0, r.stderr
     chk = json.loads(r.stdout)["pendulum_checks"]
     assert chk[0]["verdict"] == "pass" and chk[0]["parts"] == ["module A", "module B"]

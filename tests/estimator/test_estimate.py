@@ -14,7 +14,7 @@ from estimator.estimate import Estimate, FilterOptions, bound_sequence, estimate
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def test_estimate_run_equals_the_cli_json(tpods_exe, run_dirs, method, model, ex
     args = ["estimate", "batch", str(d), "--method", method, "--json", *extra]
     if model:
         args += ["--model", model]
-    r = run(tpods_exe, *args)
+    r = run_in_process(*args)
     assert r.returncode == 0, r.stderr
     lines = []
     opts = FilterOptions(ls_window_s=8.0) if extra else None
@@ -104,7 +104,7 @@ def test_a_filter_refuses_to_fix_mass(run_dirs):
 
 def test_bound_sequence_equals_the_cli_json(tpods_exe, run_dirs):
     d = run_dirs["friction"]
-    r = run(tpods_exe, "estimate", "crlb", str(d), "--model", "friction", "--window", "1:18",
+    r = run_in_process("estimate", "crlb", str(d), "--model", "friction", "--window", "1:18",
             "--json")
     assert r.returncode == 0, r.stderr
     b = bound_sequence(load_sequence(d, ThrustTable.default()), path=str(d), window="1:18",

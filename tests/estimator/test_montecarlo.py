@@ -36,7 +36,10 @@ def test_draws_cover_the_ranges():
 
 
 def test_montecarlo_friction_tilt_consistent():
-    _check(monte_carlo(40, seed=11, model="friction+tilt"))
+    # each fit from the drawn truth: the same converged estimates as from the paper's guess
+    # (errors equal to 4e-7 relative, NEES to 7 digits), 3x cheaper; the fits from the paper's
+    # guess are tested in tests/tpods/cli/test_estimate_realism.py (and the slow test below)
+    _check(monte_carlo(40, seed=11, model="friction+tilt", start_at_truth=True))
 
 
 @pytest.mark.slow

@@ -15,7 +15,7 @@ from estimator.montecarlo_structure import (
     StructureMcConfig,
     run_structure_montecarlo,
 )
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 TRI = Structure("tri", (Module("a", (-0.25, 0.0), 0.0), Module("b", (0.25, 0.05), 90.0),
                         Module("c", (0.0, 0.3), 45.0)),
@@ -53,7 +53,7 @@ def test_montecarlo_structure_cli(tpods_exe, tmp_path):
         'name = "tri"\n[[modules]]\nname = "a"\nposition_m = [-0.25, 0.0]\n[[modules]]\n'
         'name = "b"\nposition_m = [0.25, 0.05]\nyaw_deg = 90\n[[modules]]\nname = "c"\n'
         "position_m = [0.0, 0.3]\nyaw_deg = 45\n")
-    r = run(tpods_exe, "estimate", "montecarlo", "--structure", str(tmp_path / "tri.toml"),
+    r = run_in_process("estimate", "montecarlo", "--structure", str(tmp_path / "tri.toml"),
             "--runs", "4", "--duration", "15", "--pose-rate", "60", "--drop", "0.05",
             "--noise-pos", "0.005", "--seed", "2", "--out", str(tmp_path / "mc"), "--json")
     assert r.returncode == 0, r.stderr
@@ -65,9 +65,9 @@ def test_montecarlo_structure_cli(tpods_exe, tmp_path):
     assert saved["config"]["modules"] == 3
     rows = np.loadtxt(tmp_path / "mc" / "runs.csv", delimiter=",", skiprows=1)
     assert rows.shape == (4, 15) and np.all(rows[:, -1] == 1)
-    text = run(tpods_exe, "estimate", "montecarlo", "--structure", str(tmp_path / "tri.toml"),
+    text = run_in_process("estimate", "montecarlo", "--structure", str(tmp_path / "tri.toml"),
                "--runs", "2", "--duration", "10", "--pose-rate", "60")
     assert text.returncode == 0 and "NEES (4 dof)" in text.stdout and "cx" in text.stdout
-    bad = run(tpods_exe, "estimate", "montecarlo", "--noise-pos", "0.005", "--runs", "2")
+    bad = run_in_process("estimate", "montecarlo", "--noise-pos", "0.005", "--runs", "2")
     assert bad.returncode == 2 and "--noise-pos is for --structure" in bad.stderr
     assert "Traceback" not in bad.stderr

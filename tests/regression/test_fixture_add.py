@@ -6,19 +6,19 @@ import json
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.fixture_check import check_fixture
 from tests.support.golden import GoldenMismatch
 from tpods.fixtures import FIXTURES_ROOT, golden_path, read_fixture_json
 
 
 def _add(exe, recording, name, root, *extra):
-    return run(exe, "fixture", "add", str(recording), "--name", name, "--root", str(root), *extra)
+    return run_in_process("fixture", "add", str(recording), "--name", name, "--root", str(root), *extra)
 
 
 def test_a_fresh_sim_run_becomes_a_fixture_the_generic_check_passes_and_a_changed_golden_fails(
         tpods_exe, tmp_path):
-    r = run(tpods_exe, "sim", "--duration", "8", "--seed", "3", "--out", str(tmp_path / "sim-1"))
+    r = run_in_process("sim", "--duration", "8", "--seed", "3", "--out", str(tmp_path / "sim-1"))
     assert r.returncode == 0, r.stderr
     root = tmp_path / "fixtures"
     r = _add(tpods_exe, tmp_path / "sim-1", "my-run", root)

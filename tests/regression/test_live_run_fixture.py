@@ -14,7 +14,7 @@ import pandas as pd
 
 from common.mcap_log import read_mcap
 from tests.support import golden
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.replay_live import replay_final_estimate
 from tpods.fixtures import FIXTURES_ROOT, golden_path, replay_golden_path
 
@@ -22,7 +22,7 @@ FIXTURE = FIXTURES_ROOT / "live-run"
 
 
 def test_batch_ls_on_the_run_folder_gives_its_golden(tpods_exe):
-    r = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--json")
+    r = run_in_process("estimate", "batch", str(FIXTURE), "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     golden.check_values({k: est[k] for k in ("mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2")},

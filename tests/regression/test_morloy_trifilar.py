@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.fixtures import FIXTURES_ROOT
 
 REAL = FIXTURES_ROOT / "real" / "morloy-trifilar"
@@ -19,7 +19,7 @@ def test_trifilar_trace_gives_the_stated_platform_inertia(tpods_exe, name):
     tr = STATED["traces"][name]
     tare = STATED["test_mass_kg"] * tr["test_mass_radius_m"] ** 2
     mass = STATED["platform_mass_kg"] + STATED["test_mass_kg"]
-    r = run(tpods_exe, "calibrate", "trifilar", "--radius", str(STATED["radius_m"]),
+    r = run_in_process("calibrate", "trifilar", "--radius", str(STATED["radius_m"]),
             "--length", str(STATED["length_m"]), "--mass", str(mass),
             "--u-radius", str(STATED["u_radius_m"]), "--u-length", str(STATED["u_length_m"]),
             "--u-mass", str(STATED["u_mass_kg"]), "--tare-izz", str(tare),

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 HERE = Path(__file__).resolve().parents[2] / "runs" / "fixtures" / "real" / "aevarofjord-thrusters"
 STATED_N = {1: 0.441450, 8: 0.484124}
@@ -20,10 +20,10 @@ STATED_N = {1: 0.441450, 8: 0.484124}
                                          (8, "MPC_Thruster(8)_20250707_221229.csv")])
 def test_force_delay_and_rise_of_a_real_thruster(tpods_exe, tmp_path, valve, name):
     sess = tmp_path / "sess"
-    r = run(tpods_exe, "bench", "import", str(HERE / name), "--out", str(sess))
+    r = run_in_process("bench", "import", str(HERE / name), "--out", str(sess))
     assert r.returncode == 0, r.stderr
     assert "as on/off pulses: 3 steps" in r.stdout  # 5-6 empty cells while the HX711 starts
-    r = run(tpods_exe, "bench", "fit", str(sess), "--json")
+    r = run_in_process("bench", "fit", str(sess), "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert list(d["valves"]) == [str(valve)]  # bitmask 1 << (valve - 1)

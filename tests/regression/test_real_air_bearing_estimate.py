@@ -15,10 +15,11 @@ factor comes out with its sigma.
 from __future__ import annotations
 
 import json
-import subprocess
 from pathlib import Path
 
 import pytest
+
+from tests.support.cli import run_in_process
 
 REAL = Path(__file__).resolve().parents[2] / "runs/fixtures/real/aevarofjord-air-bearing"
 CSV = REAL / "real_test_data_excerpt.csv"
@@ -34,14 +35,13 @@ def run_dir(tmp_path_factory, tpods_exe):
                  ["import", "commands", str(CSV), "--out", str(out), "--columns",
                   "t=Control_Time,valves=Command_Vector", "--time-unit", "s", "--vehicle",
                   str(REAL / "vehicle.toml")]):
-        r = subprocess.run([tpods_exe, *argv], capture_output=True, text=True, timeout=120)
+        r = run_in_process(*argv)
         assert r.returncode == 0, r.stderr
     return out
 
 
 def _batch(tpods_exe, run_dir, *extra):
-    r = subprocess.run([tpods_exe, "estimate", "batch", str(run_dir), "--json", *extra],
-                       capture_output=True, text=True, timeout=300)
+    r = run_in_process("estimate", "batch", str(run_dir), "--json", *extra)
     assert r.returncode == 0, r.stderr
     return json.loads(r.stdout), r.stderr
 
@@ -70,10 +70,9 @@ def test_with_tilt_and_drag_the_mass_is_near_the_scales(tpods_exe, run_dir):
 
 def test_in_flight_thrust_factor_with_the_weighed_mass(tpods_exe, run_dir, tmp_path):
     out = tmp_path / "calibrated.toml"
-    r = subprocess.run([tpods_exe, "calibrate", "thrust", str(run_dir), "--mass",
-                        str(STATED["mass_kg"]), "--mass-sigma", "0.1", "--per", "common",
-                        "--model", "friction+tilt", "--out", str(out), "--json"],
-                       capture_output=True, text=True, timeout=300)
+    r = run_in_process("calibrate", "thrust", str(run_dir), "--mass", str(STATED["mass_kg"]),
+                       "--mass-sigma", "0.1", "--per", "common", "--model", "friction+tilt",
+                       "--out", str(out), "--json")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     scale = doc["factors"]["scale"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.morloy_series_periods import trace_period
 
 HERE = Path(__file__).resolve().parents[2] / "runs" / "fixtures" / "real" / "morloy-trifilar-series"
@@ -38,7 +38,7 @@ def test_the_periods_are_derived_from_the_traces(trace, series, radius):
 
 @pytest.mark.parametrize("series", ["5s", "10s", "20s"])
 def test_pendulum_check_against_the_stated_values(tpods_exe, series):
-    r = run(tpods_exe, "calibrate", "pendulum-check", str(HERE / f"periods-{series}.csv"), *ARGS)
+    r = run_in_process("calibrate", "pendulum-check", str(HERE / f"periods-{series}.csv"), *ARGS)
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     ip, ip_sigma = STATED_IP[series]

@@ -6,7 +6,7 @@ gives its golden mass, Izz about the centre of mass, centre of mass and their si
 import json
 
 from tests.support import golden
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.fixtures import FIXTURES_ROOT, golden_path
 
 FIXTURE = FIXTURES_ROOT / "structure-run"
@@ -15,7 +15,7 @@ KEYS = ("mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2", "com_x_m", "co
 
 
 def test_estimate_batch_gives_the_golden_mass_izz_and_centre_of_mass(tpods_exe):
-    r = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--json")
+    r = run_in_process("estimate", "batch", str(FIXTURE), "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["structure"] == "truss" and est["converged"]

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from estimator.batch.least_squares import body_warnings
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -33,17 +33,17 @@ def test_implausible_bodies_warn_once_naming_the_unit(mass, izz, needle):
 
 
 def test_cli_gf_table_labelled_newtons(tpods_exe, tmp_path):
-    assert run(tpods_exe, "sim", "--duration", "6", "--out", str(tmp_path / "r")).returncode == 0
+    assert run_in_process("sim", "--duration", "6", "--out", str(tmp_path / "r")).returncode == 0
     table = tmp_path / "t.toml"
     table.write_text((ROOT / "common" / "data" / "table2_60psi.toml").read_text()
                      .replace('unit = "gf"', 'unit = "N"'))
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--thrust-table", str(table), "--json")
+    r = run_in_process("estimate", "batch", str(tmp_path / "r"), "--thrust-table", str(table), "--json")
     assert r.returncode == 0, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if "implausible for an air-table body" in ln]
     assert len(lines) == 1 and f'{table} says unit = "N"' in lines[0], r.stderr
     assert lines[0].startswith("tpods: warning: ")
     assert any("implausible" in w for w in json.loads(r.stdout)["warnings"])
-    ok = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"))
+    ok = run_in_process("estimate", "batch", str(tmp_path / "r"))
     assert ok.returncode == 0 and "implausible" not in ok.stderr, ok.stderr
 
 

@@ -119,7 +119,10 @@ def test_consider_covariance_matches_refits_with_perturbed_tables(kind, model):
 @pytest.mark.parametrize("kind", ["scale_rel", "coefficient covariance"])
 def test_total_sigma_covers_errors_from_a_drawn_thrust_table(kind):
     table = _table(0.01) if kind == "scale_rel" else _table(0.0, 9 * _C)
-    cov = coverage(table, 200, seed=17, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW)
+    # each fit from the drawn m, Izz: the same fractions as from the default guess (every
+    # z within 4e-5 of it, none within 4e-3 of 2), 20-30 % cheaper
+    cov = coverage(table, 200, seed=17, sigma_pos_m=SIG_POS, sigma_yaw_rad=SIG_YAW,
+                   start_at_truth=True)
     assert cov.not_converged == 0
     assert np.all(np.abs(cov.total - 0.95) <= 0.03), cov.total
     assert np.all(cov.noise < 0.85), cov.noise  # the noise sigma alone would not cover these errors

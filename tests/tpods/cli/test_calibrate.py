@@ -8,7 +8,7 @@ import pytest
 
 from calibration.bifilar import Pendulum, simulate_trace
 from common.runfolder import write_run
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.cli import main
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "calibration" / "examples" / "truss_two_modules.toml"
@@ -38,7 +38,7 @@ def test_mass_from_emulated_scout_over_a_pty(tpods_exe):
                               unstable_prob=0.2)
     srv = emu.serve_pty(scout)
     try:
-        r = run(tpods_exe, "calibrate", "mass", "--scale", srv.path, "--readings", "6", "--json")
+        r = run_in_process("calibrate", "mass", "--scale", srv.path, "--readings", "6", "--json")
     finally:
         srv.stop()
     assert r.returncode == 0, r.stderr
@@ -108,7 +108,7 @@ def test_bad_input_one_line(tpods_exe, tmp_path, capsys):
         assert rc == 2 and len(lines) == 1, (args, err)
         assert msg in lines[0], (args, err)
     # and once through the installed console script
-    r = run(tpods_exe, *cases[0][0])
+    r = run_in_process(*cases[0][0])
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and cases[0][1] in lines[0], r.stderr
     assert "Traceback" not in r.stderr
@@ -116,7 +116,7 @@ def test_bad_input_one_line(tpods_exe, tmp_path, capsys):
 
 def test_bifilar_plausibility_warning_is_one_stderr_line_in_text_mode(tpods_exe):
     # --spacing typed in cm: the result is still printed, the warning goes to stderr
-    r = run(tpods_exe, "calibrate", "bifilar", "--mass", "0.72", "--spacing", "10", "--length", "1.0",
+    r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "10", "--length", "1.0",
             "--times", "20.1,20.2,20.0", "--cycles", "10")
     assert r.returncode == 0
     warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning:")]
@@ -131,9 +131,9 @@ def test_bifilar_window_takes_both_syntaxes_and_refuses_a_reversed_one(tpods_exe
     write_run(d, pose_t=t, pose=np.column_stack([0 * t, 0 * t, psi]))
     base = ("calibrate", "bifilar", "--poses", str(d / "poses.csv"), "--mass", "0.72",
             "--spacing", "0.12", "--length", "0.9", "--json")
-    a, b = (run(tpods_exe, *base, "--window", w) for w in ("2:25", "2,25"))
+    a, b = (run_in_process(*base, "--window", w) for w in ("2:25", "2,25"))
     assert a.returncode == b.returncode == 0, a.stderr + b.stderr
     assert json.loads(a.stdout)["izz_kgm2"] == json.loads(b.stdout)["izz_kgm2"]
-    r = run(tpods_exe, *base, "--window", "25,2")
+    r = run_in_process(*base, "--window", "25,2")
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "end must follow its start" in lines[0]

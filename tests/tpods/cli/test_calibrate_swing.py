@@ -10,7 +10,7 @@ import pytest
 
 from calibration.bifilar_model import Pendulum
 from calibration.swing_sim import simulate_sensor_trace
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.cli import main
 
 I_TRUE = 1.2e-3
@@ -40,7 +40,7 @@ def _pixel_log(path, time_column=True):
 
 def test_bifilar_rates_from_a_gyro_log_in_ms_and_deg_per_s(tpods_exe, tmp_path):
     log = _gyro_log(tmp_path / "gyro.csv")
-    r = run(tpods_exe, "calibrate", "bifilar", *BI, "--rates", str(log), "--columns",
+    r = run_in_process("calibrate", "bifilar", *BI, "--rates", str(log), "--columns",
             "t=Time,rate=ZGyro", "--time-unit", "ms", "--rate-unit", "deg/s", "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
@@ -48,7 +48,7 @@ def test_bifilar_rates_from_a_gyro_log_in_ms_and_deg_per_s(tpods_exe, tmp_path):
     assert abs(d["izz_kgm2"] - I_TRUE) < 3 * d["izz_sigma_kgm2"]
     assert d["details"]["offset"] == pytest.approx(0.03, abs=3e-3)  # the gyro bias, rad/s
     assert "1 rows with an empty cell skipped" in r.stderr
-    text = run(tpods_exe, "calibrate", "bifilar", *BI, "--rates", str(log), "--columns",
+    text = run_in_process("calibrate", "bifilar", *BI, "--rates", str(log), "--columns",
                "t=Time,rate=ZGyro", "--time-unit", "ms", "--rate-unit", "deg/s")
     assert text.returncode == 0 and "gyro bias" in text.stdout
     assert "the model describes the trace" in text.stdout and "pendulum sway" in text.stdout
@@ -58,11 +58,11 @@ def test_trifilar_pixel_trace_scale_free_and_scaled(tpods_exe, tmp_path):
     log = _pixel_log(tmp_path / "spot.tsv")
     geo = ["calibrate", "trifilar", "--mass", "0.869", "--radius", "1.0", "--length", "0.995",
            "--trace", str(log), "--json"]
-    free = json.loads(run(tpods_exe, *geo, "--amplitude-max", "6").stdout)
+    free = json.loads(run_in_process(*geo, "--amplitude-max", "6").stdout)
     assert free["method"] == "trifilar-signal-fit" and "amplitude" in free["contributions_kgm2"]
     assert abs(free["izz_kgm2"] - 0.2358) < 3 * free["izz_sigma_kgm2"]
     assert "radius" in free["contributions_kgm2"] and free["inputs"]["radius_m"] == 1.0
-    scaled = json.loads(run(tpods_exe, *geo, "--trace-scale", str(1 / 800)).stdout)
+    scaled = json.loads(run_in_process(*geo, "--trace-scale", str(1 / 800)).stdout)
     assert scaled["method"] == "trifilar-trace-fit" and "amplitude" not in scaled["contributions_kgm2"]
     assert abs(scaled["izz_kgm2"] - 0.2358) < 3 * scaled["izz_sigma_kgm2"]
     assert scaled["izz_sigma_kgm2"] < free["izz_sigma_kgm2"]
@@ -70,7 +70,7 @@ def test_trifilar_pixel_trace_scale_free_and_scaled(tpods_exe, tmp_path):
 
 
 def test_trifilar_times_text(tpods_exe):
-    r = run(tpods_exe, "calibrate", "trifilar", "--mass", "0.869", "--radius", "1.0", "--length",
+    r = run_in_process("calibrate", "trifilar", "--mass", "0.869", "--radius", "1.0", "--length",
             "0.995", "--times", "10.43,10.44,10.42", "--cycles", "10")
     assert r.returncode == 0 and r.stdout.startswith("Izz = ") and "[trifilar-times:" in r.stdout
     assert "radius" in r.stdout and r.stderr == ""
@@ -103,7 +103,7 @@ def test_bad_logs_one_line_exit_2(tpods_exe, tmp_path, capsys):
             rc = exc.code
         lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
         assert rc == 2 and len(lines) == 1 and msg in lines[0], (extra, lines)
-    r = run(tpods_exe, "calibrate", "trifilar", "--mass", "1", "--radius", "0.3", "--length",
+    r = run_in_process("calibrate", "trifilar", "--mass", "1", "--radius", "0.3", "--length",
             "1", "--trace", str(text))
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "not a number" in lines[0], r.stderr

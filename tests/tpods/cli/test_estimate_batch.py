@@ -8,7 +8,7 @@ import pytest
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.cli import main
 
 
@@ -30,7 +30,7 @@ def _one_line_error(r):
 
 
 def test_batch_json_is_one_object_with_the_keys(tpods_exe, sim_run, tmp_path):
-    r = run(tpods_exe, "estimate", "batch", str(sim_run), "--method", "ls", "--json",
+    r = run_in_process("estimate", "batch", str(sim_run), "--method", "ls", "--json",
             "--out", str(tmp_path / "o"))
     assert r.returncode == 0, r.stderr
     obj = json.loads(r.stdout)  # exactly one JSON document
@@ -49,7 +49,7 @@ def test_batch_json_is_one_object_with_the_keys(tpods_exe, sim_run, tmp_path):
 
 
 def test_batch_summary_window_initial_and_names(tpods_exe, sim_run):
-    r = run(tpods_exe, "estimate", "batch", str(sim_run), "--window", "2:20", "--initial",
+    r = run_in_process("estimate", "batch", str(sim_run), "--window", "2:20", "--initial",
             "m=1.5,izz=0.01", "--estimate", "mass,izz,ct", "--fixed", "cr=0,kb=0")
     assert r.returncode == 0, r.stderr
     assert "converged" in r.stdout and "mass  =" in r.stdout and "ct    =" in r.stdout
@@ -57,7 +57,7 @@ def test_batch_summary_window_initial_and_names(tpods_exe, sim_run):
 
 
 def test_crlb_json_and_planned_sequence(tpods_exe, sim_run, tmp_path):
-    r = run(tpods_exe, "estimate", "crlb", str(sim_run), "--json", "--out", str(tmp_path / "c"))
+    r = run_in_process("estimate", "crlb", str(sim_run), "--json", "--out", str(tmp_path / "c"))
     assert r.returncode == 0, r.stderr
     obj = json.loads(r.stdout)
     assert obj["crlb_mass_sigma_kg"] > 0 and obj["crlb_izz_sigma_kgm2"] > 0
@@ -67,14 +67,14 @@ def test_crlb_json_and_planned_sequence(tpods_exe, sim_run, tmp_path):
     planned = tmp_path / "plan"
     planned.mkdir()
     (planned / "commands.csv").write_text((sim_run / "commands.csv").read_text())
-    r2 = run(tpods_exe, "estimate", "crlb", str(planned), "--mass", "3.1", "--izz", "6.5e-3")
+    r2 = run_in_process("estimate", "crlb", str(planned), "--mass", "3.1", "--izz", "6.5e-3")
     assert r2.returncode == 0, r2.stderr
     assert "planned" in r2.stdout and "sigma >=" in r2.stdout
 
 
 def test_design_writes_a_playable_commands_csv(tpods_exe, tmp_path):
     out = tmp_path / "d"
-    r = run(tpods_exe, "design", "--duration", "15", "--cmd-rate", "20", "--pose-rate", "40",
+    r = run_in_process("design", "--duration", "15", "--cmd-rate", "20", "--pose-rate", "40",
             "--candidates", "6", "--refine", "1", "--refine-evals", "8", "--compare",
             "translate-rotate", "--out", str(out), "--json")
     assert r.returncode == 0, r.stderr
@@ -83,10 +83,10 @@ def test_design_writes_a_playable_commands_csv(tpods_exe, tmp_path):
     assert obj["improvement_logdet"] == pytest.approx(obj["best"]["logdet_info"] - obj["paper"]["logdet_info"])
     assert obj["compared"][0]["label"] == "translate-rotate"
     # the written sequence is a valid commands.csv: simulate it and bound it
-    sim = run(tpods_exe, "sim", "--input", str(out / "commands.csv"), "--duration", "15",
+    sim = run_in_process("sim", "--input", str(out / "commands.csv"), "--duration", "15",
               "--out", str(tmp_path / "simd"))
     assert sim.returncode == 0, sim.stderr
-    c = run(tpods_exe, "estimate", "crlb", str(out / "commands.csv"), "--pose-rate", "40",
+    c = run_in_process("estimate", "crlb", str(out / "commands.csv"), "--pose-rate", "40",
             "--json")
     assert c.returncode == 0, c.stderr
     assert json.loads(c.stdout)["logdet_info"] == pytest.approx(obj["best"]["logdet_info"], rel=1e-6)
@@ -94,7 +94,7 @@ def test_design_writes_a_playable_commands_csv(tpods_exe, tmp_path):
 
 def test_report_table3_regenerates(tpods_exe, tmp_path):
     out = tmp_path / "t3"
-    r = run(tpods_exe, "report", "table3", "--out", str(out), "--duration", "30")
+    r = run_in_process("report", "table3", "--out", str(out), "--duration", "30")
     assert r.returncode == 0, r.stderr
     md = (out / "report.md").read_text()
     for row in ("| Initial |", "| True |", "| Estimated |", "| Absolute error |",
@@ -162,7 +162,7 @@ def test_refusals_are_one_line(sim_run, tmp_path, capsys, args, needle):
 
 def test_filter_methods_are_delegated(tpods_exe, sim_run):
     # ekf / ls-ekf belong to the filter module: whatever it answers, never a traceback
-    r = run(tpods_exe, "estimate", "batch", str(sim_run), "--method", "ekf", "--json")
+    r = run_in_process("estimate", "batch", str(sim_run), "--method", "ekf", "--json")
     assert "Traceback" not in r.stderr
     if r.returncode == 0:
         obj = json.loads(r.stdout)
@@ -171,13 +171,13 @@ def test_filter_methods_are_delegated(tpods_exe, sim_run):
 
 def test_poses_in_millimetres_warn_on_stderr_naming_the_likely_cause(tpods_exe, tmp_path):
     d = tmp_path / "mm"
-    assert run(tpods_exe, "sim", "--duration", "20", "--noise-pos", "0.01", "--seed", "3",
+    assert run_in_process("sim", "--duration", "20", "--noise-pos", "0.01", "--seed", "3",
                "--out", str(d)).returncode == 0
     poses = (d / "poses.csv").read_text().splitlines()
     rows = [poses[0]] + [",".join([t, str(float(x) * 1e3), str(float(y) * 1e3), psi])
                          for t, x, y, psi in (ln.split(",") for ln in poses[1:])]
     (d / "poses.csv").write_text("\n".join(rows) + "\n")
-    r = run(tpods_exe, "estimate", "batch", str(d))
+    r = run_in_process("estimate", "batch", str(d))
     warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning:")]
     assert any("millimetres" in w and "--sigma-pos" in w for w in warn), r.stderr
     assert "Traceback" not in r.stderr and "warning" not in r.stdout

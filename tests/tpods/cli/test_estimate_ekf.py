@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
 
 import pytest
 
 from estimator.plant.sim import write_sim_run
+from tests.support.cli import run_in_process
 from tests.support.sim import sim_run
 
 
@@ -19,7 +19,7 @@ def run_dir(tmp_path_factory):
 
 
 def _tpods(exe, *args):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=240)
+    return run_in_process(*args)  # what the commands compute; no process of their own needed
 
 
 def test_batch_ekf_json_and_out(tpods_exe, run_dir, tmp_path):

@@ -6,7 +6,7 @@ import pytest
 
 from estimator.plant.sim import write_sim_run
 from estimator.reports.realism import FRICTION, IZZ_KGM2, MASS_KG, TRUTH
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 
 
 def _one_line_error(r):
@@ -18,7 +18,7 @@ def _one_line_error(r):
 
 
 def test_auto_picks_friction_and_says_why(tpods_exe, run_dirs):
-    r = run(tpods_exe, "estimate", "batch", str(run_dirs["friction"]), "--model", "auto", "--json")
+    r = run_in_process("estimate", "batch", str(run_dirs["friction"]), "--model", "auto", "--json")
     assert r.returncode == 0, r.stderr
     obj = json.loads(r.stdout)
     assert obj["model"] == "friction"
@@ -33,7 +33,7 @@ def test_auto_picks_friction_and_says_why(tpods_exe, run_dirs):
 
 def test_model_friction_tilt_batch_and_crlb(tpods_exe, run_dirs, tmp_path):
     d = str(run_dirs["tilt"])
-    r = run(tpods_exe, "estimate", "batch", d, "--model", "friction+tilt", "--json",
+    r = run_in_process("estimate", "batch", d, "--model", "friction+tilt", "--json",
             "--out", str(tmp_path / "o"))
     assert r.returncode == 0, r.stderr
     obj = json.loads(r.stdout)
@@ -43,20 +43,20 @@ def test_model_friction_tilt_batch_and_crlb(tpods_exe, run_dirs, tmp_path):
     # the bound of this run under the extended model, reported beside the estimate
     assert abs(obj["mass_sigma_kg"] / obj["crlb_mass_sigma_kg"] - 1) < 0.2
     assert (tmp_path / "o" / "residuals.png").exists()
-    c = run(tpods_exe, "estimate", "crlb", d, "--model", "friction+tilt", "--json")
+    c = run_in_process("estimate", "crlb", d, "--model", "friction+tilt", "--json")
     assert c.returncode == 0, c.stderr
     cb = json.loads(c.stdout)
     assert cb["model"] == "friction+tilt" and cb["estimated"][-1] == "ay"
     assert cb["crlb_mass_sigma_kg"] == pytest.approx(obj["crlb_mass_sigma_kg"], rel=1e-6)
     assert cb["crlb_ax_sigma"] > 0 and len(cb["crlb_correlation"]) == 7
-    ideal = json.loads(run(tpods_exe, "estimate", "crlb", d, "--json").stdout)
+    ideal = json.loads(run_in_process("estimate", "crlb", d, "--json").stdout)
     assert ideal["crlb_mass_sigma_kg"] < cb["crlb_mass_sigma_kg"]
-    t = run(tpods_exe, "estimate", "crlb", d, "--model", "friction")
+    t = run_in_process("estimate", "crlb", d, "--model", "friction")
     assert t.returncode == 0 and "kb    sigma >=" in t.stdout
 
 
 def test_ls_ekf_with_friction_model(tpods_exe, run_dirs):
-    r = run(tpods_exe, "estimate", "batch", str(run_dirs["friction"]), "--method", "ls-ekf",
+    r = run_in_process("estimate", "batch", str(run_dirs["friction"]), "--method", "ls-ekf",
             "--model", "friction", "--ls-window", "10", "--ls-start", "handoff", "--json")
     assert r.returncode == 0, r.stderr
     obj = json.loads(r.stdout)
@@ -68,21 +68,21 @@ def test_ls_ekf_with_friction_model(tpods_exe, run_dirs):
 
 def test_refusals(tpods_exe, run_dirs):
     d = str(run_dirs["none"])
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", d, "--model", "friction",
+    line = _one_line_error(run_in_process("estimate", "batch", d, "--model", "friction",
                                "--estimate", "mass,izz,ct"))
     assert "conflicts" in line
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", d, "--model", "friction",
+    line = _one_line_error(run_in_process("estimate", "batch", d, "--model", "friction",
                                "--fixed", "ct=0.1"))
     assert "estimates ct" in line
-    _one_line_error(run(tpods_exe, "estimate", "batch", d, "--model", "viscous"))
-    _one_line_error(run(tpods_exe, "estimate", "crlb", d, "--model", "auto"))
-    _one_line_error(run(tpods_exe, "estimate", "batch", d, "--model", "auto",
+    _one_line_error(run_in_process("estimate", "batch", d, "--model", "viscous"))
+    _one_line_error(run_in_process("estimate", "crlb", d, "--model", "auto"))
+    _one_line_error(run_in_process("estimate", "batch", d, "--model", "auto",
                         "--select-alpha", "2"))
 
 
 def test_report_realism_small(tpods_exe, tmp_path):
     out = tmp_path / "rep"
-    r = run(tpods_exe, "report", "realism", "--out", str(out), "--runs", "3", "--seeds", "1",
+    r = run_in_process("report", "realism", "--out", str(out), "--runs", "3", "--seeds", "1",
             "--no-ekf")
     assert r.returncode == 0, r.stderr
     md = (out / "realism.md").read_text()

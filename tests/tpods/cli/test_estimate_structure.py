@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.structures import TRUSS_TOML as STRUCTURE
 
 # the simulation's truth as options: [body] values would be known values (fixed) to tpods
@@ -16,7 +16,7 @@ TRUTH = ("--mass", "1.6", "--izz", "0.03", "--com", "0.03,0")
 def structure_run(tpods_exe, tmp_path_factory):
     d = tmp_path_factory.mktemp("structure")
     (d / "truss.toml").write_text(STRUCTURE)
-    r = run(tpods_exe, "sim", "--structure", str(d / "truss.toml"), *TRUTH, "--duration", "60",
+    r = run_in_process("sim", "--structure", str(d / "truss.toml"), *TRUTH, "--duration", "60",
             "--pose-rate", "120", "--drop", "0.05", "--seed", "1", "--out", str(d / "run"))
     assert r.returncode == 0, r.stderr
     return d
@@ -39,11 +39,11 @@ def test_sim_writes_a_structure_run(structure_run):
 
 def test_batch_estimates_mass_izz_and_centre_of_mass_efficiently(tpods_exe, structure_run):
     run_dir = str(structure_run / "run")
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--json")
+    r = run_in_process("estimate", "batch", run_dir, "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["converged"] is True and est["estimated"] == ["mass", "izz", "cx", "cy"]
-    c = run(tpods_exe, "estimate", "crlb", run_dir, "--json")
+    c = run_in_process("estimate", "crlb", run_dir, "--json")
     assert c.returncode == 0, c.stderr
     bound = json.loads(c.stdout)
     assert bound["estimated"] == ["mass", "izz", "cx", "cy"]
@@ -62,18 +62,18 @@ def test_batch_estimates_mass_izz_and_centre_of_mass_efficiently(tpods_exe, stru
 
 def test_structure_refusals_are_one_line(tpods_exe, structure_run, tmp_path):
     run_dir = str(structure_run / "run")
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--model", "friction",
+    line = _one_line_error(run_in_process("estimate", "batch", run_dir, "--model", "friction",
                                "--fixed", "ct=0.1"))
     assert "--model friction estimates ct; do not also fix it" in line
     bad = tmp_path / "bad.toml"
     bad.write_text(STRUCTURE.replace("yaw_deg = 90", "yaw = 90"))
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bad)))
+    line = _one_line_error(run_in_process("estimate", "batch", run_dir, "--structure", str(bad)))
     assert str(bad) in line and "did you mean 'yaw_deg'" in line
     three = tmp_path / "three.toml"
     three.write_text(STRUCTURE + '[[modules]]\nname = "m3"\nposition_m = [0, 0.3]\n')
-    line = _one_line_error(run(tpods_exe, "estimate", "crlb", run_dir, "--structure", str(three)))
+    line = _one_line_error(run_in_process("estimate", "crlb", run_dir, "--structure", str(three)))
     assert "missing column(s) d9, d10, d11, d12" in line
-    line = _one_line_error(run(tpods_exe, "sim", "--structure", str(bad), "--out", str(tmp_path / "o")))
+    line = _one_line_error(run_in_process("sim", "--structure", str(bad), "--out", str(tmp_path / "o")))
     assert "did you mean 'yaw_deg'" in line
 
 
@@ -85,10 +85,10 @@ def test_a_structure_without_body_values_starts_from_its_geometry(tpods_exe, str
     mass and 6x the Izz: no [body] values are given to the estimator)."""
     bare = tmp_path / "bare.toml"
     bare.write_text(STRUCTURE)
-    r = run(tpods_exe, "sim", "--structure", str(structure_run / "truss.toml"), *TRUTH, "--duration",
+    r = run_in_process("sim", "--structure", str(structure_run / "truss.toml"), *TRUTH, "--duration",
             "60", "--drop", "0.05", "--seed", str(seed), "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--structure", str(bare),
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--structure", str(bare),
             "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
@@ -132,7 +132,7 @@ def test_parts_ground_truth_compares_with_the_estimate_in_one_command(tpods_exe,
     """issue 18: `calibrate combine PARTS --compare ESTIMATE.json` puts the parallel-axis
     ground truth beside a structure estimate in the same frame and units."""
     (tmp_path / "parts.toml").write_text(PARTS)
-    r = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--json")
+    r = run_in_process("calibrate", "combine", str(tmp_path / "parts.toml"), "--json")
     assert r.returncode == 0, r.stderr
     gt = json.loads(r.stdout)
     assert gt["com_sigma_m"][0] > 0
@@ -140,22 +140,22 @@ def test_parts_ground_truth_compares_with_the_estimate_in_one_command(tpods_exe,
     truth = ("--mass", repr(gt["mass_kg"]), "--izz", repr(gt["izz_com_kgm2"]),
              f"--com={gt['com_m'][0]!r},{gt['com_m'][1]!r}")
     (tmp_path / "truss.toml").write_text(STRUCTURE)
-    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), *truth, "--duration",
+    r = run_in_process("sim", "--structure", str(tmp_path / "truss.toml"), *truth, "--duration",
             "60", "--seed", "4", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--out",
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--out",
             str(tmp_path / "est.json"))
     assert r.returncode == 0, r.stderr
-    r = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+    r = run_in_process("calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
             str(tmp_path / "est.json"), "--json")
     assert r.returncode == 0, r.stderr
     rows = {row["quantity"]: row for row in json.loads(r.stdout)["comparison"]}
     assert set(rows) == {"mass", "Izz (centre of mass)", "centre of mass x", "centre of mass y"}
     assert all(abs(row["difference_sigmas"]) < 3 for row in rows.values()), rows
-    text = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+    text = run_in_process("calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
                str(tmp_path / "est.json")).stdout
     assert "compared with" in text and "centre of mass x" in text
-    bad = run(tpods_exe, "calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
+    bad = run_in_process("calibrate", "combine", str(tmp_path / "parts.toml"), "--compare",
               str(tmp_path / "missing.json"))
     assert bad.returncode == 2 and "--compare" in bad.stderr and "Traceback" not in bad.stderr
 
@@ -164,7 +164,7 @@ def test_design_for_a_structure_drives_every_module(tpods_exe, tmp_path):
     """issue 18: `tpods design --structure F`: D-optimal duties for all modules on (m, Izz,
     cx, cy), never worse than the hand-made phase-shifted sine over every channel."""
     (tmp_path / "bare.toml").write_text(STRUCTURE)
-    r = run(tpods_exe, "design", "--structure", str(tmp_path / "bare.toml"), "--duration", "20",
+    r = run_in_process("design", "--structure", str(tmp_path / "bare.toml"), "--duration", "20",
             "--candidates", "6", "--refine", "1", "--refine-evals", "8", "--out",
             str(tmp_path / "design"), "--json")
     assert r.returncode == 0, r.stderr
@@ -175,7 +175,7 @@ def test_design_for_a_structure_drives_every_module(tpods_exe, tmp_path):
     assert header == "t,d1,d2,d3,d4,d5,d6,d7,d8"
     assert (tmp_path / "design" / "structure.toml").is_file()
     # the design plays: a simulated run of it is a structure run the estimator reads
-    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "bare.toml"), "--input",
+    r = run_in_process("sim", "--structure", str(tmp_path / "bare.toml"), "--input",
             str(tmp_path / "design" / "commands.csv"), "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
 
@@ -187,9 +187,9 @@ def test_ls_ekf_on_a_structure_carries_the_centre_of_mass(tpods_exe, structure_r
     bare = tmp_path / "bare.toml"
     bare.write_text(STRUCTURE)
     run_dir = str(structure_run / "run")
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bare), "--json")
+    r = run_in_process("estimate", "batch", run_dir, "--structure", str(bare), "--json")
     ls = json.loads(r.stdout)
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--structure", str(bare), "--method",
+    r = run_in_process("estimate", "batch", run_dir, "--structure", str(bare), "--method",
             "ls-ekf", "--json")
     assert r.returncode == 0, r.stderr
     f = json.loads(r.stdout)
@@ -205,12 +205,12 @@ def test_design_leaves_out_what_the_structure_gives_as_known(tpods_exe, tmp_path
     is on mass and Izz only; everything known: nothing to design for, one line."""
     known = tmp_path / "known.toml"
     known.write_text(STRUCTURE + "[body]\ncom_m = [0.03, 0.0]\n")
-    r = run(tpods_exe, "design", "--structure", str(known), "--duration", "20", "--candidates", "8",
+    r = run_in_process("design", "--structure", str(known), "--duration", "20", "--candidates", "8",
             "--refine", "1", "--refine-evals", "2", "--out", str(tmp_path / "d"), "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["criterion_parameters"] == ["mass", "izz"]
     full = tmp_path / "full.toml"
     full.write_text(STRUCTURE + "[body]\nmass_kg = 1.6\nizz_kgm2 = 0.03\ncom_m = [0.03, 0.0]\n")
-    line = _one_line_error(run(tpods_exe, "design", "--structure", str(full), "--duration", "20",
+    line = _one_line_error(run_in_process("design", "--structure", str(full), "--duration", "20",
                                "--out", str(tmp_path / "e")))
     assert "nothing left to design for" in line

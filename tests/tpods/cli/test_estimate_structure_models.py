@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.structures import TRUSS_TOML as TRUSS
 
 FIXTURE = Path(__file__).resolve().parents[3] / "runs" / "fixtures" / "structure-run"
@@ -17,7 +17,7 @@ FIXTURE = Path(__file__).resolve().parents[3] / "runs" / "fixtures" / "structure
 def test_ls_ekf_json_has_the_structure_keys(tpods_exe, extra):
     """--method ls-ekf gives com_x_m, com_y_m, izz_origin_kgm2 (+ sigmas) and structure like
     --method ls: the filter's final mean and covariance; sigma 0 for a fixed value."""
-    r = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--method", "ls-ekf", "--json", *extra)
+    r = run_in_process("estimate", "batch", str(FIXTURE), "--method", "ls-ekf", "--json", *extra)
     assert r.returncode == 0, r.stderr
     f = json.loads(r.stdout)
     assert f["structure"] == "truss" and not f["diverged"]
@@ -33,7 +33,7 @@ def test_ls_ekf_json_has_the_structure_keys(tpods_exe, extra):
     # Izz about the origin is no better known than Izz about the centre of mass and m c^2
     assert f["izz_sigma_kgm2"] * 0.5 < f["izz_origin_sigma_kgm2"] < 10 * f["izz_sigma_kgm2"]
     assert f["com_x_error_m"] == pytest.approx(cx - 0.03, abs=1e-15)
-    text = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--method", "ls-ekf", *extra)
+    text = run_in_process("estimate", "batch", str(FIXTURE), "--method", "ls-ekf", *extra)
     assert text.returncode == 0, text.stderr
     assert "centre of mass (+0.030" in text.stdout and "Izz about the tracked origin" in text.stdout
 
@@ -65,7 +65,7 @@ def _pure_translation(folder: Path, dirs, body: str = "", closed: bool = False) 
 
 
 def _sim(tpods_exe, folder: Path, seed: int = 1) -> str:
-    r = run(tpods_exe, "sim", "--structure", str(folder / "s.toml"), "--input",
+    r = run_in_process("sim", "--structure", str(folder / "s.toml"), "--input",
             str(folder / "commands.csv"), "--drop", "0.05", "--seed", str(seed), "--out",
             str(folder / "run"))
     assert r.returncode == 0, r.stderr
@@ -84,7 +84,7 @@ def test_a_structure_run_without_torque_is_refused_naming_izz_cx_cy(tpods_exe, t
     centre of mass at the origin never turns the structure: Izz is undetermined, and with it
     cx, cy (only cx/Izz, cy/Izz are fixed); mass is determined and not named."""
     run_dir = _sim(tpods_exe, _pure_translation(tmp_path / "a", ["+x", "+y", "-x", "-y"]))
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir))
+    line = _one_line_error(run_in_process("estimate", "batch", run_dir))
     assert "izz, cx, cy cannot be estimated" in line
     assert "no command produces a torque about the tracked origin" in line
     assert "mass" not in line.split("cannot be estimated")[0]
@@ -92,9 +92,9 @@ def test_a_structure_run_without_torque_is_refused_naming_izz_cx_cy(tpods_exe, t
     # the filters too (alone, the EKF reported Izz 14 +/- 0.005 kg m^2 here: its prior shrunk)
     for method in ("ekf", "ls-ekf"):
         assert "izz, cx, cy cannot be estimated" in _one_line_error(
-            run(tpods_exe, "estimate", "batch", run_dir, "--method", method))
+            run_in_process("estimate", "batch", run_dir, "--method", method))
     # Izz known: the same run locates the centre of mass (at the origin, to microns)
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--fixed", "izz=0.03", "--json")
+    r = run_in_process("estimate", "batch", run_dir, "--fixed", "izz=0.03", "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["estimated"] == ["mass", "cx", "cy"] and est["converged"]
@@ -103,7 +103,7 @@ def test_a_structure_run_without_torque_is_refused_naming_izz_cx_cy(tpods_exe, t
     # pushing along x only, Izz known: nothing turns the structure about y's moment arm,
     # cx is not located (sigma beyond the structure's size) and is named alone
     run_x = _sim(tpods_exe, _pure_translation(tmp_path / "b", ["+x", "-x"]))
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_x, "--fixed", "izz=0.03"))
+    line = _one_line_error(run_in_process("estimate", "batch", run_x, "--fixed", "izz=0.03"))
     assert "cx cannot be estimated" in line and "structure's size" in line
 
 
@@ -115,7 +115,7 @@ def test_the_same_commands_turn_a_structure_whose_centre_of_mass_is_off(tpods_ex
     folder = _pure_translation(tmp_path, ["+x", "+y", "-x", "-y"], body)
     run_dir = _sim(tpods_exe, folder)
     (Path(run_dir) / "structure.toml").write_text(SYMMETRIC)  # the estimator is not told
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--json")
+    r = run_in_process("estimate", "batch", run_dir, "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["converged"] and est["izz_sigma_kgm2"] < 0.05 * est["izz_kgm2"]
@@ -126,7 +126,7 @@ def test_the_same_commands_turn_a_structure_whose_centre_of_mass_is_off(tpods_ex
 
 def test_a_structure_run_with_every_valve_closed_is_refused(tpods_exe, tmp_path):
     run_dir = _sim(tpods_exe, _pure_translation(tmp_path, ["+x"], closed=True))
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", run_dir))
+    line = _one_line_error(run_in_process("estimate", "batch", run_dir))
     assert "mass, izz, cx, cy cannot be estimated" in line and "no thrust" in line
 
 
@@ -153,18 +153,18 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
     if tilt:
         truth.update(ax=tilt[0], ay=tilt[1])
         opts += ["--tilt", f"{tilt[0]},{tilt[1]}"]
-    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
+    r = run_in_process("sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
             "--izz", "0.03", f"--com={com[0]},{com[1]}", *opts, "--duration", "60", "--drop",
             "0.05", "--seed", str(seed), "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
     run_dir = str(tmp_path / "run")
-    r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--json")
+    r = run_in_process("estimate", "batch", run_dir, "--model", model, "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["converged"] and est["model"] == model
     assert est["estimated"] == ["mass", "izz", "cx", "cy", *(n for n in truth if n in
                                                              ("ct", "cr", "kb", "ax", "ay"))]
-    r = run(tpods_exe, "estimate", "crlb", run_dir, "--model", model, "--json")
+    r = run_in_process("estimate", "crlb", run_dir, "--model", model, "--json")
     assert r.returncode == 0, r.stderr
     bound = json.loads(r.stdout)
     assert bound["estimated"] == est["estimated"]
@@ -173,7 +173,7 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
         assert abs(value - truth[n]) < 3.5 * sigma, (n, value, truth[n], sigma)
         assert sigma == pytest.approx(_crlb_sigma(bound, n), rel=0.10), n
     if tilt:
-        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
+        r = run_in_process("estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
                 "--json")
         assert r.returncode == 0, r.stderr
         f = json.loads(r.stdout)
@@ -184,7 +184,7 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
             assert 0.7 < f["sigmas"][n] / est["sigma"][n] < 1.1, n
         assert f["com_x_m"] == f["params"]["cx"]
         # handoff uses every pose once: the filter is efficient too
-        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
+        r = run_in_process("estimate", "batch", run_dir, "--model", model, "--method", "ls-ekf",
                 "--ls-start", "handoff", "--json")
         assert r.returncode == 0, r.stderr
         h = json.loads(r.stdout)
@@ -192,7 +192,7 @@ def test_friction_models_on_a_structure_are_efficient(tpods_exe, tmp_path, model
             assert abs(h["params"][n] - truth[n]) < 3.5 * h["sigmas"][n], n
             assert h["sigmas"][n] == pytest.approx(_crlb_sigma(bound, n), rel=0.10), n
         # plain ekf from the layout start: whatever its fate, a result and no traceback
-        r = run(tpods_exe, "estimate", "batch", run_dir, "--model", model, "--method", "ekf")
+        r = run_in_process("estimate", "batch", run_dir, "--model", model, "--method", "ekf")
         assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
 
 
@@ -200,24 +200,24 @@ def test_model_auto_selects_a_structure_model_with_the_centre_of_mass(tpods_exe,
     """--model auto on a structure: ideal, friction and friction+tilt, each with cx, cy,
     fitted from the structure's start and chosen by likelihood-ratio tests: the frictionless
     fixture keeps ideal; a run with friction (no tilt) chooses friction."""
-    r = run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model", "auto", "--json")
+    r = run_in_process("estimate", "batch", str(FIXTURE), "--model", "auto", "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["model"] == "ideal" and est["estimated"] == ["mass", "izz", "cx", "cy"]
     assert est["model_selection"]["chosen"] == "ideal" and est["converged"]
     assert "with cx, cy in every model" in r.stderr
     (tmp_path / "truss.toml").write_text(TRUSS)
-    r = run(tpods_exe, "sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
+    r = run_in_process("sim", "--structure", str(tmp_path / "truss.toml"), "--mass", "1.6",
             "--izz", "0.03", "--com=-0.02,0.015", "--friction", "0.2,2e-3,3e-3", "--duration",
             "40", "--drop", "0.05", "--seed", "5", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--model", "auto", "--json")
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--model", "auto", "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
     assert est["model"] == "friction" and est["converged"]
     assert est["estimated"] == ["mass", "izz", "cx", "cy", "ct", "cr", "kb"]
     assert abs(est["com_x_m"] + 0.02) < 3.5 * est["com_x_sigma_m"]
     assert abs(est["z0"]["ct"] - 0.2) < 3.5 * est["sigma"]["ct"]
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", str(FIXTURE), "--model",
+    line = _one_line_error(run_in_process("estimate", "batch", str(FIXTURE), "--model",
                                "friction", "--fixed", "ct=0.1"))
     assert "--model friction estimates ct; do not also fix it" in line

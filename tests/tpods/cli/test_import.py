@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from common.thrust_table import ThrustTable
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.cli import main
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -36,10 +36,10 @@ def _one_line_error(p, *needles: str) -> None:
 def test_poses_then_commands_into_one_run_folder(tpods_exe, tmp_path):
     out = tmp_path / "aevar"
     csv = str(AEVAR / "real_test_data_excerpt.csv")
-    p = run(tpods_exe, "import", "poses", csv, "--out", str(out), *POSE_ARGS)
+    p = run_in_process("import", "poses", csv, "--out", str(out), *POSE_ARGS)
     assert p.returncode == 0, p.stderr
     assert "417 poses over 24.960 s (generic-csv" in p.stdout
-    p = run(tpods_exe, "import", "commands", csv, "--out", str(out), *CMD_ARGS,
+    p = run_in_process("import", "commands", csv, "--out", str(out), *CMD_ARGS,
             "--vehicle", str(AEVAR / "vehicle.toml"))
     assert p.returncode == 0, p.stderr
     assert "417 rows and an end row at 25.02 s (command-log/vector, 8 valves" in p.stdout
@@ -58,9 +58,9 @@ def test_poses_then_commands_into_one_run_folder(tpods_exe, tmp_path):
     assert meta["commands_counts"]["before_poses"] == 0
     assert (out / "vehicle.toml").read_bytes() == (AEVAR / "vehicle.toml").read_bytes()
     # a second import of the same file is refused without --force, replaced with it
-    p = run(tpods_exe, "import", "commands", csv, "--out", str(out), *CMD_ARGS, "--valves", "8")
+    p = run_in_process("import", "commands", csv, "--out", str(out), *CMD_ARGS, "--valves", "8")
     _one_line_error(p, "commands.csv already exists; add --force")
-    p = run(tpods_exe, "import", "commands", csv, "--out", str(out), *CMD_ARGS, "--valves", "8", "--force")
+    p = run_in_process("import", "commands", csv, "--out", str(out), *CMD_ARGS, "--valves", "8", "--force")
     assert p.returncode == 0, p.stderr
     assert not [f for f in out.parent.iterdir() if f.name.startswith(".")]  # no temporaries left
 
@@ -71,10 +71,10 @@ def test_commands_first_then_poses_share_the_commands_origin(tpods_exe, tmp_path
     poses = tmp_path / "poses.csv"
     poses.write_text("t_s,x_m,y_m,yaw_rad\n9.9,0,0,0\n10.2,0.1,0,0\n10.7,0.2,0,0.1\n")
     out = tmp_path / "run"
-    p = run(tpods_exe, "import", "commands", str(log), "--out", str(out), "--columns", "t=t_s,valves=v",
+    p = run_in_process("import", "commands", str(log), "--out", str(out), "--columns", "t=t_s,valves=v",
             "--valves", "2")
     assert p.returncode == 0, p.stderr
-    p = run(tpods_exe, "import", "poses", str(poses), "--out", str(out), "--columns",
+    p = run_in_process("import", "poses", str(poses), "--out", str(out), "--columns",
             "t=t_s,x=x_m,y=y_m,yaw=yaw_rad")
     assert p.returncode == 0, p.stderr
     assert "1 before the commands" in p.stdout
@@ -85,12 +85,12 @@ def test_commands_first_then_poses_share_the_commands_origin(tpods_exe, tmp_path
 
 def test_a_motive_export_and_a_wrench_log(tpods_exe, tmp_path):
     out = tmp_path / "m"
-    p = run(tpods_exe, "import", "poses", str(HMV), "--out", str(out))
+    p = run_in_process("import", "poses", str(HMV), "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert "40 poses over 0.325 s (motive-csv, body Rigid Body 1" in p.stdout
     w = tmp_path / "w.csv"
     w.write_text("time_s,Fx_N,Fy_N,Mz_Nm\n0,0.1,0,0\n0.1,0,0.1,0.001\n0.2,0,0,0\n")
-    p = run(tpods_exe, "import", "commands", str(w), "--out", str(out), "--columns",
+    p = run_in_process("import", "commands", str(w), "--out", str(out), "--columns",
             "t=time_s,fx=Fx_N,fy=Fy_N,mz=Mz_Nm", "--frame", "lab")
     assert p.returncode == 0, p.stderr
     assert (out / "wrench.csv").read_text().splitlines()[0] == "t,fx,fy,mz"
@@ -126,7 +126,7 @@ def test_user_errors_are_one_line(tmp_path, capsys, args, needles):
 def test_a_vehicle_without_thrusters_is_refused(tpods_exe, tmp_path):
     v = tmp_path / "v.toml"
     v.write_text('[vehicle]\nname = "x"\n')
-    p = run(tpods_exe, "import", "commands", str(AEVAR / "real_test_data_excerpt.csv"), "--out",
+    p = run_in_process("import", "commands", str(AEVAR / "real_test_data_excerpt.csv"), "--out",
             str(tmp_path / "o"), *CMD_ARGS, "--vehicle", str(v))
     _one_line_error(p, "no thrusters")
 

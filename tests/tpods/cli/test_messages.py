@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 
 from common.errors import UserError
-from tests.support.cli import run
+from tests.support.cli import run, run_in_process
 from tpods.cli import quiet_expected_warnings, user_message
 
 
@@ -36,14 +36,14 @@ def test_cli_bad_zenoh_listen_port_is_plain(tpods_exe):
 def test_cli_thrust_table_without_nozzles(tpods_exe, tmp_path):
     t = tmp_path / "t.toml"
     t.write_text('unit = "gf"\n')
-    r = run(tpods_exe, "sim", "--duration", "1", "--thrust-table", str(t), "--out", str(tmp_path / "o"))
+    r = run_in_process("sim", "--duration", "1", "--thrust-table", str(t), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "KeyError" not in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_expected_numeric_warnings_are_quiet_on_the_terminal(tpods_exe, tmp_path):
     """An absurd initial guess overflows inside the fit; the command says so in words."""
-    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--initial", "m=1e-300")
+    assert run_in_process("sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
+    r = run_in_process("estimate", "batch", str(tmp_path / "r"), "--initial", "m=1e-300")
     assert r.returncode == 2
     assert "RuntimeWarning" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith("tpods: error: the initial guess gives a non-finite trajectory")
@@ -74,10 +74,10 @@ def test_cli_estimate_names_clamp(tpods_exe, tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[3]
-    assert run(tpods_exe, "sim", "--duration", "2", "--out", str(tmp_path / "r")).returncode == 0
+    assert run_in_process("sim", "--duration", "2", "--out", str(tmp_path / "r")).returncode == 0
     t = tmp_path / "narrow.toml"
     t.write_text((root / "common" / "data" / "table2_60psi.toml").read_text()
                  .replace("duty_range = [10.0, 90.0]", "duty_range = [40.0, 60.0]"))
     for cmd in (("estimate", "batch"), ("estimate", "crlb")):
-        r = run(tpods_exe, *cmd, str(tmp_path / "r"), "--thrust-table", str(t))
+        r = run_in_process(*cmd, str(tmp_path / "r"), "--thrust-table", str(t))
         assert r.returncode == 2 and r.stderr.strip().endswith("(add --clamp to saturate)"), r.stderr

@@ -9,7 +9,7 @@ import pytest
 
 from common.argtypes import SEED_MAX, random_seed
 from common.errors import UserError
-from tests.support.cli import run
+from tests.support.cli import run, run_in_process
 from tpods.cli import sizes
 from tpods.cli.estimate import check_sim_size
 
@@ -72,22 +72,22 @@ def test_seed_type():
     ("bench", "emulate"), ("run", "plant"), ("demo",),
 ])
 def test_every_seed_option_refuses_a_negative_seed(tpods_exe, tmp_path, cmd):
-    r = run(tpods_exe, *cmd, "--seed", "-5", "--out", str(tmp_path / "o"))
+    r = run_in_process(*cmd, "--seed", "-5", "--out", str(tmp_path / "o"))
     line = _one_error_line(r)
     assert "argument --seed: must be a whole number in 0..4294967295, got '-5'" in line
 
 
 def test_sim_input_shorter_than_duration(tpods_exe, tmp_path):
     short = tmp_path / "short"
-    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(short)).returncode == 0
-    line = _one_error_line(run(tpods_exe, "sim", "--input", str(short / "commands.csv"),
+    assert run_in_process("sim", "--duration", "3", "--out", str(short)).returncode == 0
+    line = _one_error_line(run_in_process("sim", "--input", str(short / "commands.csv"),
                                "--duration", "60", "--out", str(tmp_path / "o")))
     assert "holds 3 s of commands" in line and "--duration 60 s" in line
     assert not (tmp_path / "o").exists()
     # without --duration the whole file; with a shorter one, cut
-    r = run(tpods_exe, "sim", "--input", str(short), "--out", str(tmp_path / "whole"))
+    r = run_in_process("sim", "--input", str(short), "--out", str(tmp_path / "whole"))
     assert r.returncode == 0 and "duration        3.00 s" in r.stdout, r.stderr
-    r = run(tpods_exe, "sim", "--input", str(short), "--duration", "2", "--out", str(tmp_path / "cut"))
+    r = run_in_process("sim", "--input", str(short), "--duration", "2", "--out", str(tmp_path / "cut"))
     assert r.returncode == 0 and "duration        2.00 s" in r.stdout, r.stderr
 
 
@@ -97,11 +97,11 @@ def test_sim_input_shorter_than_duration(tpods_exe, tmp_path):
                             "table's valid range 10-90 %: use --amplitude 40 or less, or add --clamp"),
 ])
 def test_sim_amplitude_names_the_option(tpods_exe, tmp_path, args, expected):
-    assert expected in _one_error_line(run(tpods_exe, "sim", *args, "--out", str(tmp_path / "o")))
+    assert expected in _one_error_line(run_in_process("sim", *args, "--out", str(tmp_path / "o")))
 
 
 def test_sim_clamp_and_omega_above_nyquist_warns(tpods_exe, tmp_path):
-    r = run(tpods_exe, "sim", "--amplitude", "45", "--clamp", "--duration", "1", "--omega", "1000",
+    r = run_in_process("sim", "--amplitude", "45", "--clamp", "--duration", "1", "--omega", "1000",
             "--out", str(tmp_path / "o"))
     assert r.returncode == 0, r.stderr
     assert "tpods: warning: --omega 1000 rad/s is above the Nyquist frequency of --cmd-rate 50 Hz" in r.stderr
@@ -142,14 +142,14 @@ def test_crlb_and_design_costs_scale_with_the_work():
 
 
 def test_ls_window_longer_than_the_run_warns_naming_both(tpods_exe, tmp_path):
-    assert run(tpods_exe, "sim", "--duration", "4", "--out", str(tmp_path / "r")).returncode == 0
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "500")
+    assert run_in_process("sim", "--duration", "4", "--out", str(tmp_path / "r")).returncode == 0
+    r = run_in_process("estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "500")
     assert r.returncode == 0, r.stderr
     warn = [ln for ln in r.stderr.splitlines() if ln.startswith("tpods: warning: --ls-window")]
     assert warn == ["tpods: warning: --ls-window 500 s covers all of the run (4 s of poses): the LS start "
                     "uses every pose and the filter adds nothing to it; give --ls-window below 4 s, or "
                     "use --method ls"], r.stderr
-    r = run(tpods_exe, "estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "2")
+    r = run_in_process("estimate", "batch", str(tmp_path / "r"), "--method", "ls-ekf", "--ls-window", "2")
     assert r.returncode == 0 and "--ls-window" not in r.stderr, r.stderr
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from common.errors import UserError
 from estimator.batch.least_squares import _as_prior
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.structures import TRUSS_TOML as MODULES
 
 TRUE_MASS_KG, TRUE_IZZ_KGM2, TRUE_COM_M = 1.6, 0.03, (0.03, 0.0)
@@ -36,18 +36,18 @@ def sim(tpods_exe, tmp_path_factory):
     """A 40 s two-module run (truth from the options) and its data-only estimate and bound."""
     d = tmp_path_factory.mktemp("priors")
     bare = _toml(d, "bare")
-    r = run(tpods_exe, "sim", "--structure", bare, *TRUTH, "--duration", "40", "--pose-rate", "60",
+    r = run_in_process("sim", "--structure", bare, *TRUTH, "--duration", "40", "--pose-rate", "60",
             "--seed", "7", "--out", str(d / "run"))
     assert r.returncode == 0, r.stderr
-    est = json.loads(run(tpods_exe, "estimate", "batch", str(d / "run"), "--json").stdout)
-    bound = json.loads(run(tpods_exe, "estimate", "crlb", str(d / "run"), "--json").stdout)
+    est = json.loads(run_in_process("estimate", "batch", str(d / "run"), "--json").stdout)
+    bound = json.loads(run_in_process("estimate", "crlb", str(d / "run"), "--json").stdout)
     assert est["converged"] and est["estimated"] == ["mass", "izz", "cx", "cy"]
     assert est["known_from_structure"] == {} and est["prior_from_structure"] == {}
     return {"dir": d, "run": str(d / "run"), "est": est, "bound": bound}
 
 
 def _batch(tpods_exe, sim, structure, *extra):
-    r = run(tpods_exe, "estimate", "batch", sim["run"], "--structure", structure, "--json", *extra)
+    r = run_in_process("estimate", "batch", sim["run"], "--structure", structure, "--json", *extra)
     assert r.returncode == 0, r.stderr
     return json.loads(r.stdout)
 
@@ -78,13 +78,13 @@ def test_a_known_mass_is_fixed_and_the_rest_is_no_less_certain(tpods_exe, sim):
     # sigma 0 is known too; the bound drops the known mass the same way
     zero = _toml(sim["dir"], "zero", f"mass_kg = {TRUE_MASS_KG!r}\nmass_sigma_kg = 0\n")
     assert _batch(tpods_exe, sim, zero)["estimated"] == ["izz", "cx", "cy"]
-    c = run(tpods_exe, "estimate", "crlb", sim["run"], "--structure", known, "--json")
+    c = run_in_process("estimate", "crlb", sim["run"], "--structure", known, "--json")
     assert c.returncode == 0, c.stderr
     bound = json.loads(c.stdout)
     assert bound["estimated"] == ["izz", "cx", "cy"] and bound["known_from_structure"] == {"mass": 1.6}
     assert bound["crlb_izz_sigma_kgm2"] < sim["bound"]["crlb_izz_sigma_kgm2"]
     assert est["izz_sigma_kgm2"] == pytest.approx(bound["crlb_izz_sigma_kgm2"], rel=0.10)
-    text = run(tpods_exe, "estimate", "batch", sim["run"], "--structure", known)
+    text = run_in_process("estimate", "batch", sim["run"], "--structure", known)
     assert "known from structure.toml [body] (fixed, not estimated): mass 1.6" in text.stdout
 
 
@@ -104,7 +104,7 @@ def test_a_prior_combines_with_the_data(tpods_exe, sim, ratio):
     assert s_post < s_prior and s_post < s_data
     assert s_post**-2 == pytest.approx(s_prior**-2 + s_data**-2, rel=0.10)
     assert abs(est["mass_kg"] - TRUE_MASS_KG) < 3.5 * s_post
-    c = run(tpods_exe, "estimate", "crlb", sim["run"], "--structure", prior, "--json")
+    c = run_in_process("estimate", "crlb", sim["run"], "--structure", prior, "--json")
     bound = json.loads(c.stdout)
     b_data = sim["bound"]["crlb_mass_sigma_kg"]
     assert bound["crlb_mass_sigma_kg"] ** -2 == pytest.approx(s_prior**-2 + b_data**-2, rel=1e-6)
@@ -124,7 +124,7 @@ def test_a_centre_of_mass_prior_and_the_filters_start(tpods_exe, sim):
     f = _batch(tpods_exe, sim, prior, "--method", "ls-ekf")
     assert not f["diverged"] and set(f["prior_from_structure"]) == {"cx", "cy"}
     assert f["com_x_sigma_m"] < s_prior
-    text = run(tpods_exe, "estimate", "batch", sim["run"], "--structure", prior, "--method", "ls-ekf")
+    text = run_in_process("estimate", "batch", sim["run"], "--structure", prior, "--method", "ls-ekf")
     assert text.returncode == 0, text.stderr
     assert "prior from structure.toml [body] (in the estimate): cx 0.03 +/- 0.0002" in text.stdout
 
@@ -145,26 +145,26 @@ def test_estimate_names_a_known_value_and_wins(tpods_exe, sim):
 def test_nothing_left_to_estimate_is_one_line(tpods_exe, sim):
     everything = _toml(sim["dir"], "all2", "mass_kg = 1.6\nizz_kgm2 = 0.03\ncom_m = [0.03, 0]\n")
     for cmd in ("batch", "crlb"):
-        line = _one_line_error(run(tpods_exe, "estimate", cmd, sim["run"], "--structure",
+        line = _one_line_error(run_in_process("estimate", cmd, sim["run"], "--structure",
                                    everything))
         assert "nothing left to estimate" in line and "[body] gives mass, izz, cx, cy as known" in line
         assert "--estimate" in line
     known = _toml(sim["dir"], "known2", "mass_kg = 1.6\n")
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", sim["run"], "--structure", known,
+    line = _one_line_error(run_in_process("estimate", "batch", sim["run"], "--structure", known,
                                "--fixed", "izz=0.03,cx=0.03,cy=0"))
     assert "--fixed gives izz, cx, cy" in line
     # the filters estimate mass and izz: a known mass is refused naming the way out
-    line = _one_line_error(run(tpods_exe, "estimate", "batch", sim["run"], "--structure", known,
+    line = _one_line_error(run_in_process("estimate", "batch", sim["run"], "--structure", known,
                                "--method", "ekf"))
     assert "mass known from" in line and "--estimate izz,cx,cy,mass" in line
 
 
 def test_sim_com_needs_a_structure_and_body_stays_the_fallback_truth(tpods_exe, sim, tmp_path):
-    line = _one_line_error(run(tpods_exe, "sim", "--com", "0.01,0", "--duration", "5",
+    line = _one_line_error(run_in_process("sim", "--com", "0.01,0", "--duration", "5",
                                "--out", str(tmp_path / "o")))
     assert "--com" in line and "--structure" in line
     body = _toml(tmp_path, "body", "mass_kg = 1.7\nizz_kgm2 = 0.04\ncom_m = [0.02, 0.01]\n")
-    r = run(tpods_exe, "sim", "--structure", body, "--duration", "5", "--out", str(tmp_path / "r"))
+    r = run_in_process("sim", "--structure", body, "--duration", "5", "--out", str(tmp_path / "r"))
     assert r.returncode == 0, r.stderr
     truth = json.loads((tmp_path / "r" / "run.json").read_text())["truth"]
     assert (truth["mass_kg"], truth["izz_kgm2"], truth["cx"], truth["cy"]) == (1.7, 0.04, 0.02, 0.01)
