@@ -35,6 +35,12 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     if worst > 5.0:  # as test_demo_structure.py: the physics no longer match the commands
         pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
                     f"switched {worst:.1f} lab ms after the player's stamps on average")
+    late = max(lag["max"] for lag in lags.values())
+    if late > 100.0:  # one valve change a tenth of a second late (426 ms seen at load 7):
+        # the batch fit of the run diverged on it while the check at the plant's switch times
+        # found the truth
+        pytest.skip(f"this machine is too loaded to judge the estimators: an emulated valve "
+                    f"switched {late:.0f} lab ms after the player's stamp")
     # issue 17: the calibration finds the weak thruster, and after it the batch estimate's
     # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
     factors = {f["name"]: f for f in s["calibration"]["factors"]}

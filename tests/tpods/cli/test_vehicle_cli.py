@@ -63,7 +63,7 @@ def test_live_commands_refuse_a_structure_with_a_vehicle_module_in_one_line(tpod
     (tmp_path / "sat.toml").write_text(EIGHT.read_text())
     (tmp_path / "s.toml").write_text('name = "s"\n[[modules]]\nname = "sat"\n'
                                      'position_m = [0.0, 0.0]\nvehicle = "sat.toml"\n')
-    r = run_cli(tpods_exe, *args, "--structure", str(tmp_path / "s.toml"))
+    r = run_in_process(*args, "--structure", str(tmp_path / "s.toml"))
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert "a structure with a vehicle module is not run live yet" in lines[0]
