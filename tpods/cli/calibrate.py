@@ -18,7 +18,7 @@ from tpods.cli.calibrate_thrust import (
     print_json_indented,
     register_thrust,
 )
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 
 def register(sub) -> None:
@@ -42,8 +42,8 @@ _print_json = print_json_indented
 
 
 def _register_mass(cal) -> None:
-    p = cal.add_parser(
-        "mass", help="mass from N stable balance readings, with a GUM uncertainty",
+    p = command(
+        cal, "mass", cmd_mass, help="mass from N stable balance readings, with a GUM uncertainty",
         description="Mean, standard deviation and combined standard uncertainty (repeatability "
                     "s/sqrt(N) and the balance's +-accuracy as a rectangular bound, a/sqrt(3)) of "
                     "N stable readings, in kg. Give exactly one source: --scale, --readings-from "
@@ -75,7 +75,6 @@ def _register_mass(cal) -> None:
                         "(docs/recordings.md) into FILE.jsonl, or DIR/scale.serial.jsonl; replay it "
                         "with --scale replay://PATH")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=cmd_mass)
 
 
 def _scale_readings(args) -> tuple[list[float], int]:
@@ -165,8 +164,9 @@ def cmd_mass(args: argparse.Namespace) -> int:
 
 
 def _register_combine(cal) -> None:
-    p = cal.add_parser(
-        "combine", help="mass and Izz of a structure from its parts (parallel-axis theorem)",
+    p = command(
+        cal, "combine", cmd_combine,
+        help="mass and Izz of a structure from its parts (parallel-axis theorem)",
         description="Combine parts (mass, Izz about own centre, position in the plane) from a "
                     "PARTS.toml into the structure's mass, centre of mass and Izz about a point "
                     "(see calibration/examples/truss_two_modules.toml).")
@@ -179,7 +179,6 @@ def _register_combine(cal) -> None:
                         "estimate.json): mass, Izz about the centre of mass, the centre of mass; "
                         "the parts' positions must be in the tracked frame of the run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=cmd_combine)
 
 
 def cmd_combine(args: argparse.Namespace) -> int:

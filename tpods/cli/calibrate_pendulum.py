@@ -13,12 +13,14 @@ from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
 from common.outputs import result_output
 from tpods.cli.options import add_json_flag, add_result_out
+from tpods.cli.parser import command
 
 
 def register_pendulum_check(cal) -> None:
     """Add ``pendulum-check`` to the ``calibrate`` group."""
-    p = cal.add_parser(
-        "pendulum-check", help="the pendulum's own calibration: a known test mass swung at "
+    p = command(
+        cal, "pendulum-check", cmd_pendulum_check,
+        help="the pendulum's own calibration: a known test mass swung at "
                                "several radii must add m r^2",
         description="Fit I = I0 + m_t r^2 (weighted least squares) to a series of swings with a "
                     "known test mass at known radii and judge the pendulum: the fitted test mass "
@@ -50,7 +52,6 @@ def register_pendulum_check(cal) -> None:
     p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
     add_json_flag(p)
     add_result_out(p, "result.json and check.png", "result")
-    p.set_defaults(func=cmd_pendulum_check)
 
 
 def _geometry(args: argparse.Namespace):

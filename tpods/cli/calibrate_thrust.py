@@ -13,6 +13,7 @@ from common.argtypes import nonneg_float, positive_float, time_window
 from common.errors import UserError
 from common.outputs import add_force, result_output
 from tpods.cli.options import add_noise_sigmas
+from tpods.cli.parser import command
 
 
 def print_json_indented(obj) -> None:
@@ -25,8 +26,9 @@ _print_json = print_json_indented
 
 
 def register_thrust(cal) -> None:
-    p = cal.add_parser(
-        "thrust", help="in-situ thrust calibration from a run of a body of known mass and Izz",
+    p = command(
+        cal, "thrust", cmd_thrust,
+        help="in-situ thrust calibration from a run of a body of known mass and Izz",
         description="Estimate per-thruster efficiencies and/or per-nozzle-count scale factors of "
                     "a thrust table from a run of a body whose mass and Izz are known (balance "
                     "and bifilar pendulum), with the initial state (and friction/tilt with "
@@ -76,7 +78,6 @@ def register_thrust(cal) -> None:
                         "thrust_table.toml and calibration.json")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_force(p)
-    p.set_defaults(func=cmd_thrust)
 
 
 def cmd_thrust(args: argparse.Namespace) -> int:

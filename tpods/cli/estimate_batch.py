@@ -44,6 +44,7 @@ from tpods.cli.options import (
     add_structure_or_vehicle,
     add_thrust_table,
 )
+from tpods.cli.parser import command
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -85,8 +86,9 @@ def name_list(text: str) -> tuple[str, ...]:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    p = est.add_parser(
-        "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
+    p = command(
+        est, "batch", cmd_batch,
+        help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
         description="Estimate the initial state, mass and Izz of a run folder. --method ls is the "
                     "paper's Algorithm 1 (batch nonlinear least squares); ekf and ls-ekf run the "
                     "filters. Default initial guess: m = 1 kg, Izz = 0.005 kg m^2, pose from the "
@@ -120,10 +122,10 @@ def register(sub, est, rep) -> None:
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
-    p.set_defaults(func=cmd_batch)
 
-    c = est.add_parser(
-        "crlb", help="Cramér-Rao bound on mass and Izz for a recorded or planned command sequence",
+    c = command(
+        est, "crlb", cmd_crlb,
+        help="Cramér-Rao bound on mass and Izz for a recorded or planned command sequence",
         description="Fisher information and Cramér-Rao bound of mass and Izz, the initial state "
                     "marginalised (Schur complement). RUN_DIR is a run folder, or a folder or "
                     "commands.csv holding only commands (poses are then planned at --pose-rate). "
@@ -144,10 +146,10 @@ def register(sub, est, rep) -> None:
     add_json_flag(c)
     add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
-    c.set_defaults(func=cmd_crlb)
 
-    r = rep.add_parser(
-        "table3", help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)",
+    r = command(
+        rep, "table3", cmd_table3,
+        help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)",
         description="Simulate both input cases of the paper's Table 3, estimate mass and Izz by "
                     "batch least squares from m = 1, Izz = 0.005, compute the CRLB of each case "
                     "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
@@ -156,7 +158,6 @@ def register(sub, est, rep) -> None:
     add_sim_duration(r)
     add_noise_seed(r)
     add_thrust_table(r)
-    r.set_defaults(func=cmd_table3)
 
 
 def _common_model_options(p) -> None:

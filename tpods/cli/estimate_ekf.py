@@ -31,6 +31,7 @@ from tpods.cli.options import (
     add_sim_duration,
     add_structure_or_vehicle,
 )
+from tpods.cli.parser import command
 
 
 def _state_values(what: str):
@@ -175,8 +176,8 @@ def report_filter(est, args) -> int:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    p = est.add_parser(
-        "montecarlo", help="Monte Carlo consistency of the EKF (Figs. 9, 10)",
+    p = command(
+        est, "montecarlo", cmd_montecarlo, help="Monte Carlo consistency of the EKF (Figs. 9, 10)",
         description="Draw m and Izz uniformly within +/- SPREAD of 2.268 kg and 3.78e-3 kg m^2, "
                     "simulate each run with 1 cm / 1 deg pose noise and filter it; all runs are "
                     "vectorised. Reports bias, sample std against filter sigma, average NEES "
@@ -215,10 +216,10 @@ def register(sub, est, rep) -> None:
     g.add_argument("--noise-yaw-deg", type=positive_float, default=None, metavar="DEG",
                    help="yaw noise sigma, deg (default 1)")
     _filter_options(p, "no-process-noise")
-    p.set_defaults(func=cmd_montecarlo)
 
-    r = rep.add_parser(
-        "ekf", help="EKF and LS+EKF RMSE beside the paper's (120 s synthetic scenario)",
+    r = command(
+        rep, "ekf", cmd_report_ekf,
+        help="EKF and LS+EKF RMSE beside the paper's (120 s synthetic scenario)",
         description="Simulate the paper's 120 s phase-sine scenario for several noise seeds, run "
                     "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
                     "ekf_report.json and Fig. 7/8-style plots.")
@@ -227,10 +228,10 @@ def register(sub, est, rep) -> None:
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
     add_json_flag(r)
-    r.set_defaults(func=cmd_report_ekf)
 
-    r = rep.add_parser(
-        "sweep", help="every estimator on many simulated runs unlike the paper's (issue 17)",
+    r = command(
+        rep, "sweep", cmd_report_sweep,
+        help="every estimator on many simulated runs unlike the paper's (issue 17)",
         description="Draw RUNS cases (0.3-8 kg, Izz 5e-4-5e-2 kg m^2, 20-120 s, 0-30 %% drops, "
                     "0.5-5 mm / 0.2-2 deg poses, phase-sine or translate-rotate), simulate each, "
                     "estimate it with ls, ekf (default start) and ls-ekf as 'estimate batch' "
@@ -244,7 +245,6 @@ def register(sub, est, rep) -> None:
     r.add_argument("--workers", type=int_at_least(1), default=1,
                    help="processes (default 1; the cases are independent)")
     r.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    r.set_defaults(func=cmd_report_sweep)
 
 
 def check_montecarlo_size(args: argparse.Namespace) -> None:

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 
 def register(sub) -> None:
     """Add ``tpods fixture`` to the `tpods` parser."""
     g = group(sub, "fixture", "recorded fixtures of the regression tests (runs/fixtures/)")
-    p = g.add_parser(
-        "add", help="copy a recording into runs/fixtures/NAME and compute its goldens",
+    p = command(
+        g, "add", cmd_add, help="copy a recording into runs/fixtures/NAME and compute its goldens",
         description="Copy a recording into runs/fixtures/NAME (or --root DIR/NAME): a run folder "
                     "(poses.csv, commands.csv; with structure.toml a structure run), a bifilar "
                     "swing (poses.csv, bifilar.json), a bench session (*.serial.jsonl with its "
@@ -24,7 +24,6 @@ def register(sub) -> None:
     p.add_argument("--root", default=None, metavar="DIR",
                    help="fixtures folder (default runs/fixtures of this checkout)")
     p.add_argument("--force", action="store_true", help="replace a fixture of that name")
-    p.set_defaults(func=cmd_add)
     ls = g.add_parser("list", help="the fixtures and their kinds",
                       description="List the fixtures (folders with fixture.json) and their kinds.")
     ls.add_argument("--root", default=None, metavar="DIR",

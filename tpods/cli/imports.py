@@ -22,7 +22,7 @@ from typing import Any
 
 from common.errors import UserError
 from common.outputs import add_force
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
 
@@ -30,8 +30,9 @@ _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
 def register(sub) -> None:
     """Add the ``tpods import`` group."""
     g = group(sub, "import", "other labs' recordings (Vicon, Motive, CSV logs) as a run folder")
-    p = g.add_parser(
-        "poses", help="a Vicon/Motive export or any CSV as poses.csv of a run folder",
+    p = command(
+        g, "poses", cmd_import_poses,
+        help="a Vicon/Motive export or any CSV as poses.csv of a run folder",
         description="Read a pose recording and write RUN/poses.csv (t,x,y,psi in s, m, rad; t from "
                     "the first kept frame) and RUN/run.json (kind import-poses, the source, the "
                     "counts of skipped frames). Vicon Tracker (Objects) and Nexus (Segments) CSV "
@@ -61,10 +62,10 @@ def register(sub) -> None:
                    help="the rotation convention when the file does not say and the body tilts: "
                         "euler-xyz|helical (Vicon RX,RY,RZ), intrinsic|extrinsic (Motive Euler)")
     add_force(p, "RUN/poses.csv")
-    p.set_defaults(func=cmd_import_poses)
 
-    c = g.add_parser(
-        "commands", help="a valve or force log as commands.csv or wrench.csv of a run folder",
+    c = command(
+        g, "commands", cmd_import_commands,
+        help="a valve or force log as commands.csv or wrench.csv of a run folder",
         description="Read a command log and write RUN/commands.csv (t,d1..dN: duty percent, an "
                     "on/off valve 0 or 100, in the vehicle's thruster order) or RUN/wrench.csv "
                     "(t,fx,fy,mz in N, N m; its frame in run.json), each row held until the next; "
@@ -91,20 +92,15 @@ def register(sub) -> None:
     c.add_argument("--units", default=None, metavar="FORCE,MOMENT",
                    help="wrench units the column names do not state: N|mN and Nm|mNm")
     add_force(c, "RUN/commands.csv (wrench.csv)")
-    c.set_defaults(func=cmd_import_commands)
 
 
 # ----------------------------------------------------------------------------- shared
 
 
 def _read_text(path: str) -> str:
-    p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    from common.tomlfile import read_bytes
+
+    raw = read_bytes(path, "file", "it")
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         return raw.decode("utf-16")
     try:

@@ -14,7 +14,7 @@ from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_quiet
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 from tpods.cli.stopping import wait_for_stop, zenoh_session
 
 
@@ -22,8 +22,8 @@ def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
 
-    p = g.add_parser(
-        "bridge", help="publish mocap poses on Zenoh",
+    p = command(
+        g, "bridge", cmd_bridge, help="publish mocap poses on Zenoh",
         description="Publish rigid-body poses on tpods/mocap/<body>/pose (JSON, schema "
                     "tpods.pose/1), statistics on tpods/mocap/stats every second.")
     p.add_argument("--source", default="vicon-udp",
@@ -65,10 +65,9 @@ def register(sub) -> None:
                         "replay/sim; default 0)")
     p.add_argument("--quiet", action="store_true", help="no console line of statistics")
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_bridge)
 
-    r = g.add_parser(
-        "record", help="record poses from Zenoh into run folders",
+    r = command(
+        g, "record", cmd_record, help="record poses from Zenoh into run folders",
         description="Write OUT/<body>/poses.csv (t,x,y,psi) and OUT/<body>/samples.csv, "
                     "flushed as samples arrive; with --mcap also OUT/recording.mcap (every "
                     "message on the key, one channel per Zenoh key); --out X.mcap writes only "
@@ -85,7 +84,6 @@ def register(sub) -> None:
                    help="host time of t = 0 for live sources (default: first sample)")
     add_quiet(r)
     add_zenoh_options(r)
-    r.set_defaults(func=cmd_record)
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:

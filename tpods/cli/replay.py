@@ -11,13 +11,14 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_quiet
+from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session
 
 
 def register(sub) -> None:
     """Add ``tpods replay`` to the `tpods` parser."""
-    p = sub.add_parser(
-        "replay", help="publish an MCAP recording back onto Zenoh with its timing",
+    p = command(
+        sub, "replay", cmd_replay, help="publish an MCAP recording back onto Zenoh with its timing",
         description="Publish every message of an MCAP file (from `tpods mocap record`, "
                     "`tpods estimate live --mcap` or `tpods export mcap`) on the Zenoh key it was "
                     "recorded from, payload unchanged, at the recorded pace. A file cut by a kill "
@@ -33,7 +34,6 @@ def register(sub) -> None:
                         "publishing (default 0)")
     add_quiet(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_replay)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

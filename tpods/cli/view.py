@@ -12,6 +12,7 @@ from common.errors import UserError
 from common.outputs import add_force
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_key_prefixes, add_quiet, check_key_prefixes
+from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
@@ -30,8 +31,8 @@ def _port(text: str) -> int:
 
 def register(sub) -> None:
     """Add ``tpods view`` to the `tpods` parser."""
-    p = sub.add_parser(
-        "view", help="serve the live poses, duties and estimates to Foxglove",
+    p = command(
+        sub, "view", cmd_view, help="serve the live poses, duties and estimates to Foxglove",
         description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
                     "them over the Foxglove WebSocket protocol: open Foxglove (desktop app or "
                     "app.foxglove.dev), connect to ws://localhost:8765 and load "
@@ -53,7 +54,6 @@ def register(sub) -> None:
     add_force(p, "--write-layout")
     add_quiet(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args: argparse.Namespace) -> int:
