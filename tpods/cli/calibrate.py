@@ -43,11 +43,7 @@ _print_json = print_json_indented
 
 def _register_mass(cal) -> None:
     p = command(
-        cal, "mass", cmd_mass, help="mass from N stable balance readings, with a GUM uncertainty",
-        description="Mean, standard deviation and combined standard uncertainty (repeatability "
-                    "s/sqrt(N) and the balance's +-accuracy as a rectangular bound, a/sqrt(3)) of "
-                    "N stable readings, in kg. Give exactly one source: --scale, --readings-from "
-                    "or --values.")
+        cal, "mass", cmd_mass, help="mass from N stable balance readings, with a GUM uncertainty")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scale", metavar="URL",
                      help="serial port or pyserial URL of an OHAUS Scout balance")
@@ -125,6 +121,10 @@ def _mass_capture(target: str | None):
 
 
 def cmd_mass(args: argparse.Namespace) -> int:
+    """Mean, standard deviation and combined standard uncertainty (repeatability s/sqrt(N) and the
+    balance's +-accuracy as a rectangular bound, a/sqrt(3)) of N stable readings, in kg. Give
+    exactly one source: --scale, --readings-from or --values."""
+
     from calibration.mass import mass_from_readings, parse_readings_text, to_kg
 
     to_kg(1.0, args.unit)  # validates --unit
@@ -166,10 +166,7 @@ def cmd_mass(args: argparse.Namespace) -> int:
 def _register_combine(cal) -> None:
     p = command(
         cal, "combine", cmd_combine,
-        help="mass and Izz of a structure from its parts (parallel-axis theorem)",
-        description="Combine parts (mass, Izz about own centre, position in the plane) from a "
-                    "PARTS.toml into the structure's mass, centre of mass and Izz about a point "
-                    "(see calibration/examples/truss_two_modules.toml).")
+        help="mass and Izz of a structure from its parts (parallel-axis theorem)")
     p.add_argument("parts", metavar="PARTS.toml")
     p.add_argument("--about", type=float_list(2), default=None, metavar="X,Y",
                    help="report Izz about this point, m (default: the file's 'about', else the "
@@ -182,6 +179,10 @@ def _register_combine(cal) -> None:
 
 
 def cmd_combine(args: argparse.Namespace) -> int:
+    """Combine parts (mass, Izz about own centre, position in the plane) from a PARTS.toml into the
+    structure's mass, centre of mass and Izz about a point (see
+    calibration/examples/truss_two_modules.toml)."""
+
     from calibration.composite import combine, load_parts, plausibility_warnings
 
     parts, about = load_parts(args.parts)

@@ -37,12 +37,7 @@ def register(sub) -> None:
     """Add ``tpods design`` to the `tpods` parser."""
     d = command(
         sub, "design", cmd_design,
-        help="D-optimal input design (phase-shifted sines) under a workspace bound",
-        description="Compare input sequences by the D-optimal criterion (log det of the Fisher "
-                    "information of mass and Izz, initial state marginalised) and search the "
-                    "phase-shifted-sine family (amplitude, frequency, phases; duties inside the "
-                    "table's valid range) for the best one whose predicted trajectory stays on the "
-                    "table. Writes the best sequence as commands.csv.")
+        help="D-optimal input design (phase-shifted sines) under a workspace bound")
     add_sim_duration(d)
     add_cmd_rate(d)
     add_pose_rate(d)
@@ -111,6 +106,11 @@ def _check_design_size(args: argparse.Namespace) -> None:
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    """Compare input sequences by the D-optimal criterion (log det of the Fisher information of
+    mass and Izz, initial state marginalised) and search the phase-shifted-sine family
+    (amplitude, frequency, phases; duties inside the table's valid range) for the best one whose
+    predicted trajectory stays on the table. Writes the best sequence as commands.csv."""
+
     from tqdm import tqdm
 
     from common.thrust_table import load_thrust_table

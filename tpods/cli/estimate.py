@@ -40,10 +40,7 @@ def register(sub) -> None:
 
 
 def register_sim(sub) -> None:
-    p = command(
-        sub, "sim", cmd_sim, help="simulate a TPODS run and write a run folder",
-        description="Simulate the planar TPODS plant under held thruster commands and write a run "
-                    "folder (commands.csv, poses.csv, truth.csv, run.json).")
+    p = command(sub, "sim", cmd_sim, help="simulate a TPODS run and write a run folder")
     add_input_choice(p)
     p.add_argument("--duration", type=positive_float, default=None,
                    help="seconds (default 120; a commands.csv input: its whole length)")
@@ -78,6 +75,9 @@ def register_sim(sub) -> None:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    """Simulate the planar TPODS plant under held thruster commands and write a run folder
+    (commands.csv, poses.csv, truth.csv, run.json)."""
+
     from common.thrust_table import load_thrust_table
     from estimator.plant.inputs import DEFAULT_DURATION_S, INPUT_NAMES, make_input
     from estimator.plant.model import PlantParams

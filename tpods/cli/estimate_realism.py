@@ -99,13 +99,7 @@ def register(sub, est, rep) -> None:
     r = command(
         rep, "realism", cmd_report_realism,
         help="friction, yaw bias and tilt estimated jointly vs the ideal model "
-                        "(simulated 14 s translate-rotate runs of a 0.72 kg module)",
-        description="Simulate the paper's experiment (0.72 kg module, 14 s translate-then-rotate "
-                    "input, 120 Hz poses) with friction, a yaw bias and a small tilt, and compare "
-                    "the ideal model, the ideal model with friction hand-set to a wrong value and "
-                    "the jointly estimated models, beside the paper's experimental RMSE; model "
-                    "selection, residual whiteness, identifiability (correlations) and a Monte "
-                    "Carlo over friction, bias and tilt values.")
+             "(simulated 14 s translate-rotate runs of a 0.72 kg module)")
     add_report_out(r)
     r.add_argument("--runs", type=int, default=40,
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
@@ -117,6 +111,12 @@ def register(sub, est, rep) -> None:
 
 
 def cmd_report_realism(args: argparse.Namespace) -> int:
+    """Simulate the paper's experiment (0.72 kg module, 14 s translate-then-rotate input, 120 Hz
+    poses) with friction, a yaw bias and a small tilt, and compare the ideal model, the ideal
+    model with friction hand-set to a wrong value and the jointly estimated models, beside the
+    paper's experimental RMSE; model selection, residual whiteness, identifiability
+    (correlations) and a Monte Carlo over friction, bias and tilt values."""
+
     from estimator.reports.realism import write_report
 
     out_folder = ResultFolder(args.out, force=args.force, command="tpods report realism")

@@ -16,12 +16,7 @@ def register(sub) -> None:
     g = group(sub, "export", "convert recordings to other formats")
     p = command(
         g, "mcap", cmd_export_mcap,
-        help="a run folder as an MCAP file of the Zenoh messages it stands for",
-        description="Write poses.csv (one tpods.pose/1 message per row on "
-                    "<mocap-prefix>/<body>/pose), commands.csv (tpods.cmd/1 on <prefix>/<body>/cmd), "
-                    "estimates.csv (tpods.estimate/1 on <prefix>/<body>/estimate) and truth.csv "
-                    "(tpods.truth/1 on <prefix>/<body>/truth) where present, in time order, with "
-                    "their JSON schemas. `tpods replay` publishes the file.")
+        help="a run folder as an MCAP file of the Zenoh messages it stands for")
     p.add_argument("run", metavar="RUN_DIR", help="the run folder")
     p.add_argument("--out", required=True, metavar="FILE.mcap", help="the MCAP file to write")
     add_force(p)
@@ -34,6 +29,11 @@ def register(sub) -> None:
 
 
 def cmd_export_mcap(args: argparse.Namespace) -> int:
+    """Write poses.csv (one tpods.pose/1 message per row on <mocap-prefix>/<body>/pose),
+    commands.csv (tpods.cmd/1 on <prefix>/<body>/cmd), estimates.csv (tpods.estimate/1 on
+    <prefix>/<body>/estimate) and truth.csv (tpods.truth/1 on <prefix>/<body>/truth) where
+    present, in time order, with their JSON schemas. `tpods replay` publishes the file."""
+
     from common.mcap_export import export_run
     from common.outputs import ResultFile, is_mcap
 

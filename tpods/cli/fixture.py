@@ -11,14 +11,7 @@ def register(sub) -> None:
     """Add ``tpods fixture`` to the `tpods` parser."""
     g = group(sub, "fixture", "recorded fixtures of the regression tests (runs/fixtures/)")
     p = command(
-        g, "add", cmd_add, help="copy a recording into runs/fixtures/NAME and compute its goldens",
-        description="Copy a recording into runs/fixtures/NAME (or --root DIR/NAME): a run folder "
-                    "(poses.csv, commands.csv; with structure.toml a structure run), a bifilar "
-                    "swing (poses.csv, bifilar.json), a bench session (*.serial.jsonl with its "
-                    "run.json or session.json), a .pcap or a .mcap file. Writes README.md, "
-                    "fixture.json (the kind) and golden/values.json, computed with the functions "
-                    "the regression tests use (tests/regression/test_fixtures_generic.py replays "
-                    "every fixture against its golden).")
+        g, "add", cmd_add, help="copy a recording into runs/fixtures/NAME and compute its goldens")
     p.add_argument("recording", metavar="RECORDING", help="the run folder, session folder or file")
     p.add_argument("--name", required=True, help="the fixture's folder name")
     p.add_argument("--root", default=None, metavar="DIR",
@@ -32,6 +25,13 @@ def register(sub) -> None:
 
 
 def cmd_add(args: argparse.Namespace) -> int:
+    """Copy a recording into runs/fixtures/NAME (or --root DIR/NAME): a run folder (poses.csv,
+    commands.csv; with structure.toml a structure run), a bifilar swing (poses.csv,
+    bifilar.json), a bench session (*.serial.jsonl with its run.json or session.json), a .pcap
+    or a .mcap file. Writes README.md, fixture.json (the kind) and golden/values.json, computed
+    with the functions the regression tests use (tests/regression/test_fixtures_generic.py
+    replays every fixture against its golden)."""
+
     from tpods import fixtures
 
     root = args.root or fixtures.FIXTURES_ROOT

@@ -32,13 +32,7 @@ def _port(text: str) -> int:
 def register(sub) -> None:
     """Add ``tpods view`` to the `tpods` parser."""
     p = command(
-        sub, "view", cmd_view, help="serve the live poses, duties and estimates to Foxglove",
-        description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
-                    "them over the Foxglove WebSocket protocol: open Foxglove (desktop app or "
-                    "app.foxglove.dev), connect to ws://localhost:8765 and load "
-                    "docs/foxglove/tpods_layout.json. Channels per body: /tpods/<body>/frame "
-                    "(foxglove.FrameTransform), pose, duty, estimate (with the 1-sigma band), "
-                    "health; /tpods/clock (lab time of the last pose). Ctrl-C ends it.")
+        sub, "view", cmd_view, help="serve the live poses, duties and estimates to Foxglove")
     p.add_argument("--host", default=DEFAULT_HOST,
                    help=f"address to serve on (default {DEFAULT_HOST}; 0.0.0.0 for other hosts)")
     p.add_argument("--port", type=_port, default=DEFAULT_PORT,
@@ -57,6 +51,12 @@ def register(sub) -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
+    """Subscribe to the poses, valve commands and live estimates on Zenoh and serve them over the
+    Foxglove WebSocket protocol: open Foxglove (desktop app or app.foxglove.dev), connect to
+    ws://localhost:8765 and load docs/foxglove/tpods_layout.json. Channels per body:
+    /tpods/<body>/frame (foxglove.FrameTransform), pose, duty, estimate (with the 1-sigma band),
+    health; /tpods/clock (lab time of the last pose). Ctrl-C ends it."""
+
     check_key_prefixes(args)
     if args.body is not None and not all(b.strip() for b in args.body):
         raise UserError("--body must not be empty")
