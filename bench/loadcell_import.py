@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from common.csvlines import read_csv_lines
+from common.csvlines import cell_number, read_csv_lines
 from common.errors import UserError
 from common.thrust_table import GF_TO_N
 
@@ -76,16 +76,6 @@ def parse_columns(text: str | None) -> dict[str, str]:
     return cols
 
 
-def _number(cell: str, where: str) -> float:
-    try:
-        v = float(cell)
-    except ValueError:
-        v = math.nan
-    if not math.isfinite(v):
-        raise UserError(f"{where}: {cell!r} is not a number")
-    return v
-
-
 def parse_valves(cell: str, fmt: str, where: str) -> list[float]:
     """One row's valve cell as each valve's duty in percent (index 0 = valve 1)."""
     c = cell.strip()
@@ -101,7 +91,7 @@ def parse_valves(cell: str, fmt: str, where: str) -> list[float]:
     items = [x for x in re.split(r"[\s,;]+", c.strip("[]() ")) if x]
     if not items:
         raise UserError(f"{where}: empty valve cell")
-    vals = [_number(x, where) for x in items]
+    vals = [cell_number(x, where) for x in items]
     if fmt == "vector":
         if any(v not in (0.0, 1.0) for v in vals):
             raise UserError(f"{where}: {cell!r}: a valve vector holds 0 or 1 per valve")
@@ -150,10 +140,10 @@ def read_log(path: str | Path, columns: dict[str, str] | None = None, force_unit
         if ph and TARE.search(ph):
             n_tare += 1
             continue
-        ti = _number(row[idx["t"]].strip(), where.format(cols["t"])) * TIME_UNITS[time_unit]
+        ti = cell_number(row[idx["t"]].strip(), where.format(cols["t"])) * TIME_UNITS[time_unit]
         d = parse_valves(row[idx["valves"]], valves_as, where.format(cols["valves"]))
         cell = row[idx["force"]].strip()
-        f = math.nan if cell == "" else _number(cell, where.format(cols["force"])) * FORCE_UNITS[force_unit]
+        f = math.nan if cell == "" else cell_number(cell, where.format(cols["force"])) * FORCE_UNITS[force_unit]
         n_empty += cell == ""
         if t and ti <= t[-1]:
             raise UserError(f"{where.format(cols['t'])}: time {ti:g} s does not increase "

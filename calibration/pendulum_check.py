@@ -234,7 +234,7 @@ def read_series(path) -> dict[str, np.ndarray]:
     missing column or a cell that is not a finite number is a UserError naming the line."""
     from pathlib import Path
 
-    from common.csvlines import read_csv_lines
+    from common.csvlines import cell_number, read_csv_lines
 
     p = Path(path)
     numbered = read_csv_lines(p)
@@ -260,13 +260,7 @@ def read_series(path) -> dict[str, np.ndarray]:
             raise UserError(f"{p}: line {lineno}: {len(row)} cells for {len(header)} columns")
         for c in wanted:
             cell = row[header.index(c)].strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                v = math.nan
-            if not math.isfinite(v):
-                raise UserError(f"{p}: line {lineno}: column {c}: {cell!r} is not a finite number")
-            out[c].append(v)
+            out[c].append(cell_number(cell, f"{p}: line {lineno}: column {c}", "a finite number"))
     return {c: np.array(v) for c, v in out.items()}
 
 

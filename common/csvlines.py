@@ -2,12 +2,14 @@
 test-mass series of ``calibrate pendulum-check`` and the load-cell logs of ``bench import``.
 
 Blank lines and lines starting with ``#`` are skipped; a UTF-8 byte-order mark is read past;
-the delimiter is a comma, or a tab when the header has tabs and no comma.
+the delimiter is a comma, or a tab when the header has tabs and no comma. A cell is read as
+a number by :func:`cell_number`.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 from common.errors import UserError
@@ -33,3 +35,14 @@ def read_csv_lines(path: str | Path) -> list[tuple[int, list[str]]]:
     delim = "\t" if "\t" in head and "," not in head else ","
     cells = csv.reader([ln for _, ln in lines], delimiter=delim)
     return [(i, row) for (i, _), row in zip(lines, cells, strict=True)]
+
+
+def cell_number(cell: str, where: str, what: str = "a number") -> float:
+    """The cell as a finite float; else a UserError ``<where>: '<cell>' is not <what>``."""
+    try:
+        v = float(cell)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise UserError(f"{where}: {cell!r} is not {what}")
+    return v

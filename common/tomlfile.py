@@ -1,5 +1,6 @@
 """Reading the toolkit's TOML input files (thrust tables, structure.toml, vehicle.toml,
-PARTS.toml): the file itself (:func:`read_toml`), the numbers in it (:func:`toml_number`,
+PARTS.toml): the file itself (:func:`read_toml`; its bytes, :func:`read_bytes`, serve
+the other text inputs too), the numbers in it (:func:`toml_number`,
 :func:`toml_pair`) and its keys (:func:`check_keys`, with a did-you-mean), each problem a
 :class:`~common.errors.UserError` of one line that names the file.
 """
@@ -16,17 +17,25 @@ from typing import Any
 from common.errors import UserError
 
 
+def read_bytes(path: str | Path, what: str, it: str | None = None) -> bytes:
+    """The bytes of the input file ``path``; a missing or unreadable one is a UserError
+    ``<path>: <what> not found`` or ``<path>: cannot read <it> (<why>)`` (``it``: "the
+    <what>" unless given)."""
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{path}: {what} not found") from None
+    except OSError as exc:
+        why = exc.strerror or exc
+        raise UserError(f"{path}: cannot read {it or 'the ' + what} ({why})") from None
+
+
 def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     """The TOML document in ``path`` (``what``: "thrust table", "structure file", ... in
     the messages). A UTF-8 byte order mark (Windows Notepad, PowerShell) is skipped; CRLF
     line ends are TOML; UTF-16 or other non-UTF-8 text is refused naming the line."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"{path}: {what} not found") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    raw = read_bytes(path, what)
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise UserError(f"{path}: UTF-16 text; TOML must be UTF-8 (save it as UTF-8)")
     try:

@@ -13,18 +13,14 @@ from pathlib import Path
 from common.argtypes import nonneg_float
 from common.errors import UserError
 from common.outputs import ResultFolder, add_force, result_output
+from tpods.cli.parser import command
 
 
 def register_import(g) -> None:
     """Add ``import`` to the ``bench`` group."""
-    p = g.add_parser(
-        "import", help="a load-cell CSV log (HX711 and the like) as a session bench fit reads",
-        description="Read a CSV log of another thrust bench (time, force or mass reading, valve "
-                    "state, optional phase) into a session folder (raw.csv, steps.csv, run.json) "
-                    "that `tpods bench fit` fits: on/off pulses (force per valve and per count, "
-                    "dead time and rise) or duty steps (polynomials per nozzle count). Rows are "
-                    "cut where the valve state changes; empty force cells and tare phases are "
-                    "skipped and counted.")
+    p = command(
+        g, "import", cmd_import,
+        help="a load-cell CSV log (HX711 and the like) as a session bench fit reads")
     p.add_argument("file", metavar="FILE", help="the log (CSV, or tab-separated)")
     p.add_argument("--out", required=True, metavar="SESSION", help="session folder to write")
     p.add_argument("--columns", default=None, metavar="t=COL,force=COL,valves=COL[,phase=COL]",
@@ -42,10 +38,15 @@ def register_import(g) -> None:
     p.add_argument("--zero-settle", type=nonneg_float, default=1.0, metavar="S",
                    help="readings after the valves close left out of the zero, s (default 1)")
     add_force(p)
-    p.set_defaults(func=cmd_import)
 
 
 def cmd_import(args: argparse.Namespace) -> int:
+    """Read a CSV log of another thrust bench (time, force or mass reading, valve state, optional
+    phase) into a session folder (raw.csv, steps.csv, run.json) that `tpods bench fit` fits:
+    on/off pulses (force per valve and per count, dead time and rise) or duty steps (polynomials
+    per nozzle count). Rows are cut where the valve state changes; empty force cells and tare
+    phases are skipped and counted."""
+
     from bench.loadcell_import import parse_columns, read_log, session_meta
     from bench.session import summarize_steps
     from common.runwriter import run_header, write_json_atomic

@@ -18,7 +18,7 @@ from tpods.cli.calibrate_thrust import (
     print_json_indented,
     register_thrust,
 )
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 
 def register(sub) -> None:
@@ -42,12 +42,8 @@ _print_json = print_json_indented
 
 
 def _register_mass(cal) -> None:
-    p = cal.add_parser(
-        "mass", help="mass from N stable balance readings, with a GUM uncertainty",
-        description="Mean, standard deviation and combined standard uncertainty (repeatability "
-                    "s/sqrt(N) and the balance's +-accuracy as a rectangular bound, a/sqrt(3)) of "
-                    "N stable readings, in kg. Give exactly one source: --scale, --readings-from "
-                    "or --values.")
+    p = command(
+        cal, "mass", cmd_mass, help="mass from N stable balance readings, with a GUM uncertainty")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scale", metavar="URL",
                      help="serial port or pyserial URL of an OHAUS Scout balance")
@@ -75,7 +71,6 @@ def _register_mass(cal) -> None:
                         "(docs/recordings.md) into FILE.jsonl, or DIR/scale.serial.jsonl; replay it "
                         "with --scale replay://PATH")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=cmd_mass)
 
 
 def _scale_readings(args) -> tuple[list[float], int]:
@@ -126,6 +121,10 @@ def _mass_capture(target: str | None):
 
 
 def cmd_mass(args: argparse.Namespace) -> int:
+    """Mean, standard deviation and combined standard uncertainty (repeatability s/sqrt(N) and the
+    balance's +-accuracy as a rectangular bound, a/sqrt(3)) of N stable readings, in kg. Give
+    exactly one source: --scale, --readings-from or --values."""
+
     from calibration.mass import mass_from_readings, parse_readings_text, to_kg
 
     to_kg(1.0, args.unit)  # validates --unit
@@ -165,11 +164,9 @@ def cmd_mass(args: argparse.Namespace) -> int:
 
 
 def _register_combine(cal) -> None:
-    p = cal.add_parser(
-        "combine", help="mass and Izz of a structure from its parts (parallel-axis theorem)",
-        description="Combine parts (mass, Izz about own centre, position in the plane) from a "
-                    "PARTS.toml into the structure's mass, centre of mass and Izz about a point "
-                    "(see calibration/examples/truss_two_modules.toml).")
+    p = command(
+        cal, "combine", cmd_combine,
+        help="mass and Izz of a structure from its parts (parallel-axis theorem)")
     p.add_argument("parts", metavar="PARTS.toml")
     p.add_argument("--about", type=float_list(2), default=None, metavar="X,Y",
                    help="report Izz about this point, m (default: the file's 'about', else the "
@@ -179,10 +176,13 @@ def _register_combine(cal) -> None:
                         "estimate.json): mass, Izz about the centre of mass, the centre of mass; "
                         "the parts' positions must be in the tracked frame of the run")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=cmd_combine)
 
 
 def cmd_combine(args: argparse.Namespace) -> int:
+    """Combine parts (mass, Izz about own centre, position in the plane) from a PARTS.toml into the
+    structure's mass, centre of mass and Izz about a point (see
+    calibration/examples/truss_two_modules.toml)."""
+
     from calibration.composite import combine, load_parts, plausibility_warnings
 
     parts, about = load_parts(args.parts)

@@ -13,19 +13,15 @@ from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
 from common.outputs import result_output
 from tpods.cli.options import add_json_flag, add_result_out
+from tpods.cli.parser import command
 
 
 def register_pendulum_check(cal) -> None:
     """Add ``pendulum-check`` to the ``calibrate`` group."""
-    p = cal.add_parser(
-        "pendulum-check", help="the pendulum's own calibration: a known test mass swung at "
-                               "several radii must add m r^2",
-        description="Fit I = I0 + m_t r^2 (weighted least squares) to a series of swings with a "
-                    "known test mass at known radii and judge the pendulum: the fitted test mass "
-                    "against the known one in sigmas, the chi-square of the fit and its p-value. "
-                    "SERIES.csv has one row per swing: radius_m with izz_kgm2,izz_sigma_kgm2, or "
-                    "with period_s,period_sigma_s and the pendulum's geometry (--string-radius "
-                    "or --spacing, --length, --mass); radius_sigma_m is optional.")
+    p = command(
+        cal, "pendulum-check", cmd_pendulum_check,
+        help="the pendulum's own calibration: a known test mass swung at "
+             "several radii must add m r^2")
     p.add_argument("series", metavar="SERIES.csv", help="one row per swing (see above)")
     p.add_argument("--test-mass-kg", type=positive_float, required=True, metavar="KG",
                    help="the known test mass, kg")
@@ -50,7 +46,6 @@ def register_pendulum_check(cal) -> None:
     p.add_argument("--u-g", type=nonneg_float, default=0.0, help="uncertainty of g (default 0)")
     add_json_flag(p)
     add_result_out(p, "result.json and check.png", "result")
-    p.set_defaults(func=cmd_pendulum_check)
 
 
 def _geometry(args: argparse.Namespace):
@@ -92,6 +87,12 @@ def check_from_args(args: argparse.Namespace):
 
 
 def cmd_pendulum_check(args: argparse.Namespace) -> int:
+    """Fit I = I0 + m_t r^2 (weighted least squares) to a series of swings with a known test mass
+    at known radii and judge the pendulum: the fitted test mass against the known one in sigmas,
+    the chi-square of the fit and its p-value. SERIES.csv has one row per swing: radius_m with
+    izz_kgm2,izz_sigma_kgm2, or with period_s,period_sigma_s and the pendulum's geometry
+    (--string-radius or --spacing, --length, --mass); radius_sigma_m is optional."""
+
     out = result_output(args.out, "result.json", force=args.force,
                         command="tpods calibrate pendulum-check")
     res = check_from_args(args)

@@ -40,15 +40,9 @@ def register_bifilar(cal) -> None:
                     "budget per input. --poses: fit the nonlinear large-angle model with viscous "
                     "and quadratic damping to the recorded yaw; Eq. 19 on the trace's period and "
                     "the amplitude correction are reported beside it.", epilog=NEW_INPUTS)
-    p.add_argument("--mass", type=positive_float, required=True, metavar="KG", help="body mass, kg")
-    p.add_argument("--spacing", type=positive_float, required=True, metavar="D_M",
-                   help="horizontal separation D of the strings, m")
-    p.add_argument("--length", type=positive_float, required=True, metavar="H_M",
-                   help="unsupported vertical length h of the strings, m")
-    src = _sources(p)
-    p.add_argument("--u-spacing", type=nonneg_float, default=1e-3, metavar="M",
-                   help="standard uncertainty of D, m (default 0.001)")
-    _rest(p, src, "kind_bifilar")
+    _pendulum_options(p, "body mass, kg",
+                      ("--spacing", "D_M", "horizontal separation D of the strings, m"),
+                      ("H_M", "unsupported vertical length h of the strings, m"), "kind_bifilar")
 
 
 def register_trifilar(cal) -> None:
@@ -61,16 +55,25 @@ def register_trifilar(cal) -> None:
                     "per input (R, L, m, T, g). --poses, --rates, --trace: the large-angle model "
                     "(the trifilar lifts its body as a bifilar of spacing 2R does) fitted as for "
                     "'tpods calibrate bifilar'.", epilog=NEW_INPUTS)
-    p.add_argument("--mass", type=positive_float, required=True, metavar="KG",
-                   help="mass of everything that swings (platform and body), kg")
-    p.add_argument("--radius", type=positive_float, required=True, metavar="R_M",
-                   help="radius R of the string attachments from the centre, m")
-    p.add_argument("--length", type=positive_float, required=True, metavar="L_M",
-                   help="vertical length L of the strings, m")
+    _pendulum_options(p, "mass of everything that swings (platform and body), kg",
+                      ("--radius", "R_M", "radius R of the string attachments from the centre, m"),
+                      ("L_M", "vertical length L of the strings, m"), "kind_trifilar")
+
+
+def _pendulum_options(p, mass_help: str, size: tuple[str, str, str], length: tuple[str, str],
+                      kind: str) -> None:
+    """A pendulum's options in their --help order: --mass, its size (``size``: the option,
+    metavar and help of --spacing D or --radius R), --length (``length``: metavar, help), the
+    sources, the size's uncertainty (--u-spacing or --u-radius), then the rest."""
+    opt, metavar, size_help = size
+    p.add_argument("--mass", type=positive_float, required=True, metavar="KG", help=mass_help)
+    p.add_argument(opt, type=positive_float, required=True, metavar=metavar, help=size_help)
+    p.add_argument("--length", type=positive_float, required=True, metavar=length[0],
+                   help=length[1])
     src = _sources(p)
-    p.add_argument("--u-radius", type=nonneg_float, default=1e-3, metavar="M",
-                   help="standard uncertainty of R, m (default 0.001)")
-    _rest(p, src, "kind_trifilar")
+    p.add_argument(f"--u-{opt[2:]}", type=nonneg_float, default=1e-3, metavar="M",
+                   help=f"standard uncertainty of {metavar[0]}, m (default 0.001)")
+    _rest(p, src, kind)
 
 
 def _sources(p):

@@ -13,6 +13,7 @@ from common.argtypes import nonneg_float, positive_float, time_window
 from common.errors import UserError
 from common.outputs import add_force, result_output
 from tpods.cli.options import add_noise_sigmas
+from tpods.cli.parser import command
 
 
 def print_json_indented(obj) -> None:
@@ -25,22 +26,9 @@ _print_json = print_json_indented
 
 
 def register_thrust(cal) -> None:
-    p = cal.add_parser(
-        "thrust", help="in-situ thrust calibration from a run of a body of known mass and Izz",
-        description="Estimate per-thruster efficiencies and/or per-nozzle-count scale factors of "
-                    "a thrust table from a run of a body whose mass and Izz are known (balance "
-                    "and bifilar pendulum), with the initial state (and friction/tilt with "
-                    "--model), and write a new table: the original coefficients, plus "
-                    "[calibration] with the factors and their covariance (measurement noise, "
-                    "the known values' uncertainty and the table's own, propagated). Every "
-                    "estimator reads it and carries its uncertainty. A run that cannot separate "
-                    "the factors (a thruster never opened; --per both on a run with one nozzle "
-                    "count, such as the phase-shifted sine) is refused; 'tpods design --for "
-                    "thrust-calibration' designs one that can. Without --izz, Izz is estimated "
-                    "with the factors (only the mass known), with its total sigma; a run that "
-                    "does not inform both (no rotation, or no net force) is refused. A factor "
-                    "near zero or negative names a dead or reversed thruster (and no table is "
-                    "written for a non-positive one).")
+    p = command(
+        cal, "thrust", cmd_thrust,
+        help="in-situ thrust calibration from a run of a body of known mass and Izz")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run folder of the known body")
     p.add_argument("--mass", type=positive_float, required=True, metavar="KG",
                    help="known mass of the body, kg")
@@ -79,10 +67,21 @@ def register_thrust(cal) -> None:
                         "thrust_table.toml and calibration.json")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_force(p)
-    p.set_defaults(func=cmd_thrust)
 
 
 def cmd_thrust(args: argparse.Namespace) -> int:
+    """Estimate per-thruster efficiencies and/or per-nozzle-count scale factors of a thrust table
+    from a run of a body whose mass and Izz are known (balance and bifilar pendulum), with the
+    initial state (and friction/tilt with --model), and write a new table: the original
+    coefficients, plus [calibration] with the factors and their covariance (measurement noise,
+    the known values' uncertainty and the table's own, propagated). Every estimator reads it and
+    carries its uncertainty. A run that cannot separate the factors (a thruster never opened;
+    --per both on a run with one nozzle count, such as the phase-shifted sine) is refused;
+    'tpods design --for thrust-calibration' designs one that can. Without --izz, Izz is
+    estimated with the factors (only the mass known), with its total sigma; a run that does not
+    inform both (no rotation, or no net force) is refused. A factor near zero or negative names
+    a dead or reversed thruster (and no table is written for a non-positive one)."""
+
     import numpy as np
 
     from common.argtypes import vehicle_file

@@ -30,17 +30,14 @@ from tpods.cli.options import (
     add_structure_or_vehicle,
     add_thrust_table,
 )
+from tpods.cli.parser import command
 
 
 def register(sub) -> None:
     """Add ``tpods design`` to the `tpods` parser."""
-    d = sub.add_parser(
-        "design", help="D-optimal input design (phase-shifted sines) under a workspace bound",
-        description="Compare input sequences by the D-optimal criterion (log det of the Fisher "
-                    "information of mass and Izz, initial state marginalised) and search the "
-                    "phase-shifted-sine family (amplitude, frequency, phases; duties inside the "
-                    "table's valid range) for the best one whose predicted trajectory stays on the "
-                    "table. Writes the best sequence as commands.csv.")
+    d = command(
+        sub, "design", cmd_design,
+        help="D-optimal input design (phase-shifted sines) under a workspace bound")
     add_sim_duration(d)
     add_cmd_rate(d)
     add_pose_rate(d)
@@ -79,7 +76,6 @@ def register(sub) -> None:
     add_structure_or_vehicle(d, "design for a structure (structure.toml): every module's duties "
                         "together, D-optimal on m, Izz, cx, cy; --mass/--izz and the centre of "
                         "mass default to the file's [body] values or its geometry")
-    d.set_defaults(func=cmd_design)
 
 
 def _check_design_size(args: argparse.Namespace) -> None:
@@ -110,6 +106,11 @@ def _check_design_size(args: argparse.Namespace) -> None:
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    """Compare input sequences by the D-optimal criterion (log det of the Fisher information of
+    mass and Izz, initial state marginalised) and search the phase-shifted-sine family
+    (amplitude, frequency, phases; duties inside the table's valid range) for the best one whose
+    predicted trajectory stays on the table. Writes the best sequence as commands.csv."""
+
     from tqdm import tqdm
 
     from common.thrust_table import load_thrust_table

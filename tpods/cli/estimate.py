@@ -19,6 +19,7 @@ from tpods.cli.options import (
     add_structure_or_vehicle,
     add_thrust_table,
 )
+from tpods.cli.parser import command, group
 
 
 def register(sub) -> None:
@@ -27,7 +28,6 @@ def register(sub) -> None:
     from tpods.cli.estimate_ekf import register as register_ekf
     from tpods.cli.estimate_live import register as register_live
     from tpods.cli.estimate_realism import register as register_realism  # issue 9: report realism
-    from tpods.cli.parser import group
 
     register_sim(sub)
     est = group(sub, "estimate", "estimate mass and Izz from a run (batch, filters, bounds)")
@@ -40,10 +40,7 @@ def register(sub) -> None:
 
 
 def register_sim(sub) -> None:
-    p = sub.add_parser(
-        "sim", help="simulate a TPODS run and write a run folder",
-        description="Simulate the planar TPODS plant under held thruster commands and write a run "
-                    "folder (commands.csv, poses.csv, truth.csv, run.json).")
+    p = command(sub, "sim", cmd_sim, help="simulate a TPODS run and write a run folder")
     add_input_choice(p)
     p.add_argument("--duration", type=positive_float, default=None,
                    help="seconds (default 120; a commands.csv input: its whole length)")
@@ -75,10 +72,12 @@ def register_sim(sub) -> None:
     add_random_seed(p)
     p.add_argument("--out", required=True, help="run folder to write")
     add_force(p)
-    p.set_defaults(func=cmd_sim)
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    """Simulate the planar TPODS plant under held thruster commands and write a run folder
+    (commands.csv, poses.csv, truth.csv, run.json)."""
+
     from common.thrust_table import load_thrust_table
     from estimator.plant.inputs import DEFAULT_DURATION_S, INPUT_NAMES, make_input
     from estimator.plant.model import PlantParams

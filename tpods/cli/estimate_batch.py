@@ -44,6 +44,7 @@ from tpods.cli.options import (
     add_structure_or_vehicle,
     add_thrust_table,
 )
+from tpods.cli.parser import command
 
 _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
                  "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
@@ -96,12 +97,9 @@ def batch_name_list(text: str) -> tuple[str, ...]:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    p = est.add_parser(
-        "batch", help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)",
-        description="Estimate the initial state, mass and Izz of a run folder. --method ls is the "
-                    "paper's Algorithm 1 (batch nonlinear least squares); ekf and ls-ekf run the "
-                    "filters. Default initial guess: m = 1 kg, Izz = 0.005 kg m^2, pose from the "
-                    "first measurement, velocities zero; default prior diffuse.")
+    p = command(
+        est, "batch", cmd_batch,
+        help="estimate mass and Izz from a run (batch least squares, EKF, LS+EKF)")
     p.add_argument("run_dir", metavar="RUN_DIR", help="run folder (commands.csv, poses.csv)")
     p.add_argument("--method", choices=("ls", "ekf", "ls-ekf"), default="ls",
                    help="estimator (default ls)")
@@ -133,15 +131,10 @@ def register(sub, est, rep) -> None:
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
-    p.set_defaults(func=cmd_batch)
 
-    c = est.add_parser(
-        "crlb", help="Cramér-Rao bound on mass and Izz for a recorded or planned command sequence",
-        description="Fisher information and Cramér-Rao bound of mass and Izz, the initial state "
-                    "marginalised (Schur complement). RUN_DIR is a run folder, or a folder or "
-                    "commands.csv holding only commands (poses are then planned at --pose-rate). "
-                    "The plant is the run's truth when run.json has one, else --mass/--izz "
-                    "(default the paper's 2.268 kg, 3.78e-3 kg m^2).")
+    c = command(
+        est, "crlb", cmd_crlb,
+        help="Cramér-Rao bound on mass and Izz for a recorded or planned command sequence")
     c.add_argument("run_dir", metavar="RUN_DIR", help="run folder, or commands-only folder/CSV")
     _common_model_options(c)
     c.add_argument("--mass", type=MASS_KG, default=None, help="assumed mass, kg")
@@ -157,19 +150,14 @@ def register(sub, est, rep) -> None:
     add_json_flag(c)
     add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
-    c.set_defaults(func=cmd_crlb)
 
-    r = rep.add_parser(
-        "table3", help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)",
-        description="Simulate both input cases of the paper's Table 3, estimate mass and Izz by "
-                    "batch least squares from m = 1, Izz = 0.005, compute the CRLB of each case "
-                    "and write report.md, table3.json and figures (Fig. 5 residuals, Fig. 6 "
-                    "sensitivities) beside the paper's numbers.")
+    r = command(
+        rep, "table3", cmd_table3,
+        help="reproduce the paper's Table 3 (orbit follower vs phase-shifted sine)")
     add_report_out(r)
     add_sim_duration(r)
     add_noise_seed(r)
     add_thrust_table(r)
-    r.set_defaults(func=cmd_table3)
 
 
 def _common_model_options(p) -> None:
@@ -180,6 +168,11 @@ def _common_model_options(p) -> None:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
+    """Estimate the initial state, mass and Izz of a run folder. --method ls is the paper's
+    Algorithm 1 (batch nonlinear least squares); ekf and ls-ekf run the filters. Default initial
+    guess: m = 1 kg, Izz = 0.005 kg m^2, pose from the first measurement, velocities zero;
+    default prior diffuse."""
+
     from estimator.estimate import estimate_run
 
     if args.delay_scan and args.method != "ls":
@@ -308,6 +301,11 @@ def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
 
 
 def cmd_crlb(args: argparse.Namespace) -> int:
+    """Fisher information and Cramér-Rao bound of mass and Izz, the initial state marginalised
+    (Schur complement). RUN_DIR is a run folder, or a folder or commands.csv holding only
+    commands (poses are then planned at --pose-rate). The plant is the run's truth when run.json
+    has one, else --mass/--izz (default the paper's 2.268 kg, 3.78e-3 kg m^2)."""
+
     from common.thrust_table import load_thrust_table
     from estimator.estimate import bound_sequence, load_sequence
 
@@ -405,6 +403,10 @@ def _check_crlb_size(args: argparse.Namespace, seq=None) -> None:
 
 
 def cmd_table3(args: argparse.Namespace) -> int:
+    """Simulate both input cases of the paper's Table 3, estimate mass and Izz by batch least
+    squares from m = 1, Izz = 0.005, compute the CRLB of each case and write report.md,
+    table3.json and figures (Fig. 5 residuals, Fig. 6 sensitivities) beside the paper's numbers."""
+
     from common.thrust_table import load_thrust_table
     from estimator.reports.table3 import write_table3
 

@@ -31,6 +31,7 @@ from tpods.cli.options import (
     add_sim_duration,
     add_structure_or_vehicle,
 )
+from tpods.cli.parser import command
 
 
 def _state_values(what: str):
@@ -175,15 +176,8 @@ def report_filter(est, args) -> int:
 
 def register(sub, est, rep) -> None:
     """Add this module's commands: ``sub`` top level, ``est`` under estimate, ``rep`` under report."""
-    p = est.add_parser(
-        "montecarlo", help="Monte Carlo consistency of the EKF (Figs. 9, 10)",
-        description="Draw m and Izz uniformly within +/- SPREAD of 2.268 kg and 3.78e-3 kg m^2, "
-                    "simulate each run with 1 cm / 1 deg pose noise and filter it; all runs are "
-                    "vectorised. Reports bias, sample std against filter sigma, average NEES "
-                    "with its 95 % chi-square bounds and the fraction of final errors inside "
-                    "3 sigma. The default filter is the paper's without process noise (the "
-                    "simulated parameters are constant); the filter starts at the nominal "
-                    "values with the uniform draw's standard deviation.")
+    p = command(
+        est, "montecarlo", cmd_montecarlo, help="Monte Carlo consistency of the EKF (Figs. 9, 10)")
     p.add_argument("--runs", type=int_at_least(2), default=500, help="number of runs (default 500)")
     p.add_argument("--spread", type=fraction, default=0.5,
                    help="relative half-width of the uniform m, Izz draw (default 0.5)")
@@ -215,28 +209,19 @@ def register(sub, est, rep) -> None:
     g.add_argument("--noise-yaw-deg", type=positive_float, default=None, metavar="DEG",
                    help="yaw noise sigma, deg (default 1)")
     _filter_options(p, "no-process-noise")
-    p.set_defaults(func=cmd_montecarlo)
 
-    r = rep.add_parser(
-        "ekf", help="EKF and LS+EKF RMSE beside the paper's (120 s synthetic scenario)",
-        description="Simulate the paper's 120 s phase-sine scenario for several noise seeds, run "
-                    "the EKF, the paper's LS+EKF and the handoff variant, and write report.md, "
-                    "ekf_report.json and Fig. 7/8-style plots.")
+    r = command(
+        rep, "ekf", cmd_report_ekf,
+        help="EKF and LS+EKF RMSE beside the paper's (120 s synthetic scenario)")
     add_report_out(r)
     add_sim_duration(r)
     r.add_argument("--seeds", type=int, default=5, help="number of noise seeds (default 5)")
     r.add_argument("--ls-window", type=positive_float, default=20.0, help="seconds (default 20)")
     add_json_flag(r)
-    r.set_defaults(func=cmd_report_ekf)
 
-    r = rep.add_parser(
-        "sweep", help="every estimator on many simulated runs unlike the paper's (issue 17)",
-        description="Draw RUNS cases (0.3-8 kg, Izz 5e-4-5e-2 kg m^2, 20-120 s, 0-30 %% drops, "
-                    "0.5-5 mm / 0.2-2 deg poses, phase-sine or translate-rotate), simulate each, "
-                    "estimate it with ls, ekf (default start) and ls-ekf as 'estimate batch' "
-                    "does (true noise given), and write report.md (the table) and sweep.json "
-                    "(every run). Target: final errors within 4 sigma in >= 99 %% of runs, none "
-                    "beyond 6 sigma without a flag.")
+    r = command(
+        rep, "sweep", cmd_report_sweep,
+        help="every estimator on many simulated runs unlike the paper's (issue 17)")
     add_report_out(r)
     r.add_argument("--runs", type=int_at_least(1), default=300, help="cases (default 300)")
     r.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")
@@ -244,7 +229,6 @@ def register(sub, est, rep) -> None:
     r.add_argument("--workers", type=int_at_least(1), default=1,
                    help="processes (default 1; the cases are independent)")
     r.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    r.set_defaults(func=cmd_report_sweep)
 
 
 def check_montecarlo_size(args: argparse.Namespace) -> None:
@@ -275,6 +259,13 @@ def _run_study(run, cfg, stopped_at):
 
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
+    """Draw m and Izz uniformly within +/- SPREAD of 2.268 kg and 3.78e-3 kg m^2, simulate each run
+    with 1 cm / 1 deg pose noise and filter it; all runs are vectorised. Reports bias, sample
+    std against filter sigma, average NEES with its 95 % chi-square bounds and the fraction of
+    final errors inside 3 sigma. The default filter is the paper's without process noise (the
+    simulated parameters are constant); the filter starts at the nominal values with the uniform
+    draw's standard deviation."""
+
     check_montecarlo_size(args)
     if args.structure is not None:
         return _montecarlo_structure(args)
@@ -389,6 +380,10 @@ def _montecarlo_structure(args: argparse.Namespace) -> int:
 
 
 def cmd_report_ekf(args: argparse.Namespace) -> int:
+    """Simulate the paper's 120 s phase-sine scenario for several noise seeds, run the EKF, the
+    paper's LS+EKF and the handoff variant, and write report.md, ekf_report.json and Fig.
+    7/8-style plots."""
+
     from tqdm import tqdm
 
     from estimator.reports.ekf import build_report, summary_lines
@@ -417,6 +412,12 @@ def cmd_report_ekf(args: argparse.Namespace) -> int:
 
 
 def cmd_report_sweep(args: argparse.Namespace) -> int:
+    """Draw RUNS cases (0.3-8 kg, Izz 5e-4-5e-2 kg m^2, 20-120 s, 0-30 %% drops, 0.5-5 mm / 0.2-2
+    deg poses, phase-sine or translate-rotate), simulate each, estimate it with ls, ekf (default
+    start) and ls-ekf as 'estimate batch' does (true noise given), and write report.md (the
+    table) and sweep.json (every run). Target: final errors within 4 sigma in >= 99 %% of runs,
+    none beyond 6 sigma without a flag."""
+
     from tqdm import tqdm
 
     from estimator.reports.sweep import run_sweep

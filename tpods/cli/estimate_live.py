@@ -17,13 +17,14 @@ from common.zenoh_net import add_zenoh_options
 from tpods.cli.estimate_ekf import add_batch_options
 from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
 from tpods.cli.options import add_key_prefixes, add_structure_or_vehicle
+from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session
 
 
 def register(est) -> None:
     """Add ``live`` to the ``tpods estimate`` group."""
-    p = est.add_parser(
-        "live", help="estimate mass and Izz live from Zenoh poses and commands",
+    p = command(
+        est, "live", cmd_live, help="estimate mass and Izz live from Zenoh poses and commands",
         description="Subscribe to tpods/mocap/<body>/pose and tpods/<body>/cmd, align them (commands "
                     "are a zero-order hold; a pose waits up to --max-wait-ms for a late command), "
                     "run the EKF (or LS then EKF) pose by pose and publish tpods/<body>/estimate. "
@@ -67,7 +68,6 @@ def register(est) -> None:
     p.add_argument("--quiet", action="store_true", help="no live console line")
     add_batch_options(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_live)
 
 
 def cmd_live(args: argparse.Namespace) -> int:

@@ -22,6 +22,7 @@ from common.outputs import ResultFolder
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
 from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget, write_json
 from tpods.cli.options import add_report_out
+from tpods.cli.parser import command
 
 
 def add_model_option(p, auto: bool = True) -> None:
@@ -95,15 +96,10 @@ def register(sub, est, rep) -> None:
     """Add ``tpods report realism``."""
     from common.argtypes import positive_float
 
-    r = rep.add_parser(
-        "realism", help="friction, yaw bias and tilt estimated jointly vs the ideal model "
-                        "(simulated 14 s translate-rotate runs of a 0.72 kg module)",
-        description="Simulate the paper's experiment (0.72 kg module, 14 s translate-then-rotate "
-                    "input, 120 Hz poses) with friction, a yaw bias and a small tilt, and compare "
-                    "the ideal model, the ideal model with friction hand-set to a wrong value and "
-                    "the jointly estimated models, beside the paper's experimental RMSE; model "
-                    "selection, residual whiteness, identifiability (correlations) and a Monte "
-                    "Carlo over friction, bias and tilt values.")
+    r = command(
+        rep, "realism", cmd_report_realism,
+        help="friction, yaw bias and tilt estimated jointly vs the ideal model "
+             "(simulated 14 s translate-rotate runs of a 0.72 kg module)")
     add_report_out(r)
     r.add_argument("--runs", type=int, default=40,
                    help="Monte Carlo runs over friction/bias/tilt values (default 40)")
@@ -112,10 +108,15 @@ def register(sub, est, rep) -> None:
     r.add_argument("--seed", type=random_seed, default=0, help="base random seed (default 0)")
     r.add_argument("--duration", type=positive_float, default=14.0, help="seconds (default 14)")
     r.add_argument("--no-ekf", action="store_true", help="skip the extended-state LS+EKF rows")
-    r.set_defaults(func=cmd_report_realism)
 
 
 def cmd_report_realism(args: argparse.Namespace) -> int:
+    """Simulate the paper's experiment (0.72 kg module, 14 s translate-then-rotate input, 120 Hz
+    poses) with friction, a yaw bias and a small tilt, and compare the ideal model, the ideal
+    model with friction hand-set to a wrong value and the jointly estimated models, beside the
+    paper's experimental RMSE; model selection, residual whiteness, identifiability
+    (correlations) and a Monte Carlo over friction, bias and tilt values."""
+
     from estimator.reports.realism import write_report
 
     out_folder = ResultFolder(args.out, force=args.force, command="tpods report realism")

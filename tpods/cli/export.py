@@ -8,19 +8,15 @@ from pathlib import Path
 from common.errors import UserError
 from common.outputs import add_force
 from tpods.cli.options import add_key_prefixes, check_key_prefixes
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 
 def register(sub) -> None:
     """Add the ``tpods export`` group."""
     g = group(sub, "export", "convert recordings to other formats")
-    p = g.add_parser(
-        "mcap", help="a run folder as an MCAP file of the Zenoh messages it stands for",
-        description="Write poses.csv (one tpods.pose/1 message per row on "
-                    "<mocap-prefix>/<body>/pose), commands.csv (tpods.cmd/1 on <prefix>/<body>/cmd), "
-                    "estimates.csv (tpods.estimate/1 on <prefix>/<body>/estimate) and truth.csv "
-                    "(tpods.truth/1 on <prefix>/<body>/truth) where present, in time order, with "
-                    "their JSON schemas. `tpods replay` publishes the file.")
+    p = command(
+        g, "mcap", cmd_export_mcap,
+        help="a run folder as an MCAP file of the Zenoh messages it stands for")
     p.add_argument("run", metavar="RUN_DIR", help="the run folder")
     p.add_argument("--out", required=True, metavar="FILE.mcap", help="the MCAP file to write")
     add_force(p)
@@ -30,10 +26,14 @@ def register(sub) -> None:
     add_key_prefixes(p, "command/estimate/truth")
     p.add_argument("--t0", type=float, default=None, metavar="EPOCH_S",
                    help="host time of the run's t = 0 (default: run.json t0_lab, else 0: run time)")
-    p.set_defaults(func=cmd_export_mcap)
 
 
 def cmd_export_mcap(args: argparse.Namespace) -> int:
+    """Write poses.csv (one tpods.pose/1 message per row on <mocap-prefix>/<body>/pose),
+    commands.csv (tpods.cmd/1 on <prefix>/<body>/cmd), estimates.csv (tpods.estimate/1 on
+    <prefix>/<body>/estimate) and truth.csv (tpods.truth/1 on <prefix>/<body>/truth) where
+    present, in time order, with their JSON schemas. `tpods replay` publishes the file."""
+
     from common.mcap_export import export_run
     from common.outputs import ResultFile, is_mcap
 

@@ -22,7 +22,7 @@ from typing import Any
 
 from common.errors import UserError
 from common.outputs import add_force
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 
 _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
 
@@ -30,14 +30,9 @@ _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
 def register(sub) -> None:
     """Add the ``tpods import`` group."""
     g = group(sub, "import", "other labs' recordings (Vicon, Motive, CSV logs) as a run folder")
-    p = g.add_parser(
-        "poses", help="a Vicon/Motive export or any CSV as poses.csv of a run folder",
-        description="Read a pose recording and write RUN/poses.csv (t,x,y,psi in s, m, rad; t from "
-                    "the first kept frame) and RUN/run.json (kind import-poses, the source, the "
-                    "counts of skipped frames). Vicon Tracker (Objects) and Nexus (Segments) CSV "
-                    "exports and OptiTrack Motive CSV exports are recognised from their header; "
-                    "any other CSV is read through --columns and --units. Occluded frames (empty "
-                    "or NaN cells) are skipped and counted; a bad cell is one error naming it.")
+    p = command(
+        g, "poses", cmd_import_poses,
+        help="a Vicon/Motive export or any CSV as poses.csv of a run folder")
     p.add_argument("file", metavar="FILE", help="the export or CSV file")
     p.add_argument("--out", required=True, metavar="RUN", help="the run folder (created, or one that "
                    "already holds the commands of the same recording)")
@@ -61,17 +56,10 @@ def register(sub) -> None:
                    help="the rotation convention when the file does not say and the body tilts: "
                         "euler-xyz|helical (Vicon RX,RY,RZ), intrinsic|extrinsic (Motive Euler)")
     add_force(p, "RUN/poses.csv")
-    p.set_defaults(func=cmd_import_poses)
 
-    c = g.add_parser(
-        "commands", help="a valve or force log as commands.csv or wrench.csv of a run folder",
-        description="Read a command log and write RUN/commands.csv (t,d1..dN: duty percent, an "
-                    "on/off valve 0 or 100, in the vehicle's thruster order) or RUN/wrench.csv "
-                    "(t,fx,fy,mz in N, N m; its frame in run.json), each row held until the next; "
-                    "an end row one median step after the last. Valve states are read as vectors "
-                    "\"[1, 0, ...]\", integer or hex bitmasks (bit i = valve i+1), bit strings, "
-                    "per-valve on/off or duty columns. Times share the poses' origin when RUN "
-                    "already holds the poses of the same recording.")
+    c = command(
+        g, "commands", cmd_import_commands,
+        help="a valve or force log as commands.csv or wrench.csv of a run folder")
     c.add_argument("file", metavar="FILE", help="the log (CSV with a header line)")
     c.add_argument("--out", required=True, metavar="RUN", help="the run folder")
     who = c.add_mutually_exclusive_group()
@@ -91,20 +79,15 @@ def register(sub) -> None:
     c.add_argument("--units", default=None, metavar="FORCE,MOMENT",
                    help="wrench units the column names do not state: N|mN and Nm|mNm")
     add_force(c, "RUN/commands.csv (wrench.csv)")
-    c.set_defaults(func=cmd_import_commands)
 
 
 # ----------------------------------------------------------------------------- shared
 
 
 def _read_text(path: str) -> str:
-    p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    from common.tomlfile import read_bytes
+
+    raw = read_bytes(path, "file", "it")
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         return raw.decode("utf-16")
     try:
@@ -161,6 +144,12 @@ def _origin(meta: dict[str, Any] | None, run: Path, other: str) -> float | None:
 
 
 def cmd_import_poses(args: argparse.Namespace) -> int:
+    """Read a pose recording and write RUN/poses.csv (t,x,y,psi in s, m, rad; t from the first kept
+    frame) and RUN/run.json (kind import-poses, the source, the counts of skipped frames). Vicon
+    Tracker (Objects) and Nexus (Segments) CSV exports and OptiTrack Motive CSV exports are
+    recognised from their header; any other CSV is read through --columns and --units. Occluded
+    frames (empty or NaN cells) are skipped and counted; a bad cell is one error naming it."""
+
     import numpy as np
 
     from common.runfolder import POSE_COLUMNS
@@ -235,6 +224,13 @@ def _copy_vehicle(src: str, run: Path, force: bool) -> None:
 
 
 def cmd_import_commands(args: argparse.Namespace) -> int:
+    """Read a command log and write RUN/commands.csv (t,d1..dN: duty percent, an on/off valve 0 or
+    100, in the vehicle's thruster order) or RUN/wrench.csv (t,fx,fy,mz in N, N m; its frame in
+    run.json), each row held until the next; an end row one median step after the last. Valve
+    states are read as vectors "[1, 0, ...]", integer or hex bitmasks (bit i = valve i+1), bit
+    strings, per-valve on/off or duty columns. Times share the poses' origin when RUN already
+    holds the poses of the same recording."""
+
     from common.runwriter import command_columns, run_header, write_json_atomic
     from mocap_bridge.exports.command_log import command_keys, read_command_log, shift_to_origin
     from mocap_bridge.exports.generic_csv import parse_column_map

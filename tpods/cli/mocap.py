@@ -14,7 +14,7 @@ from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_quiet
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 from tpods.cli.stopping import wait_for_stop, zenoh_session
 
 
@@ -22,10 +22,7 @@ def register(sub) -> None:
     """Add this package's commands to the `tpods` parser."""
     g = group(sub, "mocap", "motion-capture poses onto Zenoh: bridge and recorder")
 
-    p = g.add_parser(
-        "bridge", help="publish mocap poses on Zenoh",
-        description="Publish rigid-body poses on tpods/mocap/<body>/pose (JSON, schema "
-                    "tpods.pose/1), statistics on tpods/mocap/stats every second.")
+    p = command(g, "bridge", cmd_bridge, help="publish mocap poses on Zenoh")
     p.add_argument("--source", default="vicon-udp",
                    help="vicon-udp[:PORT] (Tracker UDP stream, default port 51001), "
                         "vicon-sdk:HOST[:PORT] (DataStream SDK), replay:RUN_DIR (run folder or "
@@ -65,14 +62,8 @@ def register(sub) -> None:
                         "replay/sim; default 0)")
     p.add_argument("--quiet", action="store_true", help="no console line of statistics")
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_bridge)
 
-    r = g.add_parser(
-        "record", help="record poses from Zenoh into run folders",
-        description="Write OUT/<body>/poses.csv (t,x,y,psi) and OUT/<body>/samples.csv, "
-                    "flushed as samples arrive; with --mcap also OUT/recording.mcap (every "
-                    "message on the key, one channel per Zenoh key); --out X.mcap writes only "
-                    "that MCAP file.")
+    r = command(g, "record", cmd_record, help="record poses from Zenoh into run folders")
     r.add_argument("--key", default="tpods/mocap/**", help="key expression (default tpods/mocap/**)")
     r.add_argument("--out", required=True, metavar="RUN_DIR",
                    help="output folder, or a file X.mcap (only the MCAP recording)")
@@ -85,10 +76,12 @@ def register(sub) -> None:
                    help="host time of t = 0 for live sources (default: first sample)")
     add_quiet(r)
     add_zenoh_options(r)
-    r.set_defaults(func=cmd_record)
 
 
 def cmd_bridge(args: argparse.Namespace) -> int:
+    """Publish rigid-body poses on tpods/mocap/<body>/pose (JSON, schema tpods.pose/1), statistics
+    on tpods/mocap/stats every second."""
+
     from mocap_bridge.bridge import Bridge
     from mocap_bridge.pose import AxisMap
     from mocap_bridge.sources import open_source
@@ -175,6 +168,10 @@ def nothing_published(kind: str, arg: str, name: str, counters: dict) -> str:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    """Write OUT/<body>/poses.csv (t,x,y,psi) and OUT/<body>/samples.csv, flushed as samples
+    arrive; with --mcap also OUT/recording.mcap (every message on the key, one channel per Zenoh
+    key); --out X.mcap writes only that MCAP file."""
+
     from common.mcap_log import McapLog
     from common.outputs import is_mcap, stream_file
     from common.plausible import check_finite_time

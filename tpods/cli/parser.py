@@ -1,13 +1,18 @@
-"""The ``tpods`` argument parser class and its command groups.
+"""The ``tpods`` argument parser class, its command groups and their commands.
 
 :class:`Parser` makes every argparse error one line (``tpods: error: ...``, exit 2);
-:func:`group` adds a command group (``tpods NAME SUBCOMMAND``). The command modules
-import these from here, so that none of them imports the package that registers them.
+:func:`group` adds a command group (``tpods NAME SUBCOMMAND``), :func:`command` one
+command of a group with the function it runs (whose docstring is the command's description).
+The command modules import these from here, so that none of them imports the package that
+registers them.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
+from collections.abc import Callable
+from typing import Any
 
 
 class Parser(argparse.ArgumentParser):
@@ -24,3 +29,16 @@ def group(sub, name: str, help_text: str) -> argparse._SubParsersAction:
     p.set_defaults(func=None, parser=p)
     g = p.add_subparsers(dest=f"{name}_command", metavar="SUBCOMMAND", parser_class=Parser)
     return g
+
+
+def command(g: argparse._SubParsersAction, name: str, func: Callable[[argparse.Namespace], Any],
+            help: str, description: str | None = None, **kwargs: Any) -> argparse.ArgumentParser:
+    """Add the command ``name`` to the group ``g`` that runs ``func(args)``; return its
+    parser, to add the options to. ``help`` is its line in the group's list; ``description``,
+    the top of its --help, is by default ``func``'s docstring (one text for both; argparse
+    folds its line breaks); ``kwargs`` as for ``add_parser`` (``epilog``)."""
+    if description is None:
+        description = inspect.cleandoc(func.__doc__ or "")
+    p = g.add_parser(name, help=help, description=description, **kwargs)
+    p.set_defaults(func=func)
+    return p

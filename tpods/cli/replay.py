@@ -11,17 +11,14 @@ from common.argtypes import nonneg_float
 from common.console import Console
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_quiet
+from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session
 
 
 def register(sub) -> None:
     """Add ``tpods replay`` to the `tpods` parser."""
-    p = sub.add_parser(
-        "replay", help="publish an MCAP recording back onto Zenoh with its timing",
-        description="Publish every message of an MCAP file (from `tpods mocap record`, "
-                    "`tpods estimate live --mcap` or `tpods export mcap`) on the Zenoh key it was "
-                    "recorded from, payload unchanged, at the recorded pace. A file cut by a kill "
-                    "(no summary) is replayed up to its last complete chunk.")
+    p = command(
+        sub, "replay", cmd_replay, help="publish an MCAP recording back onto Zenoh with its timing")
     p.add_argument("file", metavar="FILE.mcap", help="the recording")
     p.add_argument("--speed", type=nonneg_float, default=1.0, metavar="X",
                    help="1 recorded pace, 2 twice as fast, 0 as fast as possible (default 1)")
@@ -33,10 +30,14 @@ def register(sub) -> None:
                         "publishing (default 0)")
     add_quiet(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_replay)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    """Publish every message of an MCAP file (from `tpods mocap record`, `tpods estimate live
+    --mcap` or `tpods export mcap`) on the Zenoh key it was recorded from, payload unchanged, at
+    the recorded pace. A file cut by a kill (no summary) is replayed up to its last complete
+    chunk."""
+
     from common.mcap_log import iter_messages
     from common.mcap_replay import remapper, replay
 

@@ -24,7 +24,7 @@ from tpods.cli.options import (
     add_structure_or_vehicle,
     add_watchdog_ms,
 )
-from tpods.cli.parser import group
+from tpods.cli.parser import command, group
 from tpods.cli.stopping import stop_on_signals, valves_closed_exit, wait_for_stop
 
 
@@ -32,8 +32,8 @@ def register(sub) -> None:
     """Add the ``run`` group to the `tpods` parser."""
     g = group(sub, "run", "run a module: play an input on its valves, simulate a module")
 
-    p = g.add_parser(
-        "play", help="play an input sequence on a module's valves",
+    p = command(
+        g, "play", cmd_play, help="play an input sequence on a module's valves",
         description="Send an input sequence to a protocol-v1 valve controller, publish each command "
                     "on tpods/<body>/cmd (JSON, schema tpods.cmd/1) and record commands.csv. The "
                     "controller watchdog is armed and fed; every valve is closed (OFF confirmed by "
@@ -74,10 +74,9 @@ def register(sub) -> None:
                         "(valves.serial.jsonl, docs/recordings.md) into the --out folder, or into DIR")
     add_no_progress(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_play)
 
-    s = g.add_parser(
-        "plant", help="serve a simulated module behind an emulated valve controller",
+    s = command(
+        g, "plant", cmd_plant, help="serve a simulated module behind an emulated valve controller",
         description="Serve an emulated protocol-v1 valve controller on a pty (prints its path) and "
                     "simulate the module it drives: poses with mocap noise published on "
                     "tpods/mocap/<body>/pose through the bridge, or sent as Vicon Tracker UDP "
@@ -116,7 +115,6 @@ def register(sub) -> None:
     add_force(s, "--truth-out")
     _clock_options(s)
     add_zenoh_options(s)
-    s.set_defaults(func=cmd_plant)
 
 
 def _clock_options(p: argparse.ArgumentParser) -> None:

@@ -12,6 +12,7 @@ from common.errors import UserError
 from common.outputs import add_force
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import add_key_prefixes, add_quiet, check_key_prefixes
+from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session
 
 DEFAULT_HOST = "127.0.0.1"  # = tpods.viewer.DEFAULT_HOST (not imported: it loads foxglove)
@@ -30,14 +31,8 @@ def _port(text: str) -> int:
 
 def register(sub) -> None:
     """Add ``tpods view`` to the `tpods` parser."""
-    p = sub.add_parser(
-        "view", help="serve the live poses, duties and estimates to Foxglove",
-        description="Subscribe to the poses, valve commands and live estimates on Zenoh and serve "
-                    "them over the Foxglove WebSocket protocol: open Foxglove (desktop app or "
-                    "app.foxglove.dev), connect to ws://localhost:8765 and load "
-                    "docs/foxglove/tpods_layout.json. Channels per body: /tpods/<body>/frame "
-                    "(foxglove.FrameTransform), pose, duty, estimate (with the 1-sigma band), "
-                    "health; /tpods/clock (lab time of the last pose). Ctrl-C ends it.")
+    p = command(
+        sub, "view", cmd_view, help="serve the live poses, duties and estimates to Foxglove")
     p.add_argument("--host", default=DEFAULT_HOST,
                    help=f"address to serve on (default {DEFAULT_HOST}; 0.0.0.0 for other hosts)")
     p.add_argument("--port", type=_port, default=DEFAULT_PORT,
@@ -53,10 +48,15 @@ def register(sub) -> None:
     add_force(p, "--write-layout")
     add_quiet(p)
     add_zenoh_options(p)
-    p.set_defaults(func=cmd_view)
 
 
 def cmd_view(args: argparse.Namespace) -> int:
+    """Subscribe to the poses, valve commands and live estimates on Zenoh and serve them over the
+    Foxglove WebSocket protocol: open Foxglove (desktop app or app.foxglove.dev), connect to
+    ws://localhost:8765 and load docs/foxglove/tpods_layout.json. Channels per body:
+    /tpods/<body>/frame (foxglove.FrameTransform), pose, duty, estimate (with the 1-sigma band),
+    health; /tpods/clock (lab time of the last pose). Ctrl-C ends it."""
+
     check_key_prefixes(args)
     if args.body is not None and not all(b.strip() for b in args.body):
         raise UserError("--body must not be empty")
