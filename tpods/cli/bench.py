@@ -170,7 +170,9 @@ def cmd_characterize(args: argparse.Namespace) -> int:
         sigterm_raises,
     )
     from bench.valves import ValveController
+    from tpods.cli.options import DEFAULT_DUTY_LIMITS
 
+    args.duty_limits = args.duty_limits or DEFAULT_DUTY_LIMITS
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
     if len(lim) != 2:
         raise UserError(f"--duty-limits must be LOW,HIGH, got {args.duty_limits!r}")

@@ -163,8 +163,9 @@ def cmd_play(args: argparse.Namespace) -> int:
     from tpods.player import cmd_key, play
 
     structure, vehicle = split_layout(args)
-    if vehicle is not None and args.duty_limits == DEFAULT_DUTY_LIMITS:
-        args.duty_limits = vehicle_duty_limits(vehicle)
+    if args.duty_limits is None:
+        args.duty_limits = (DEFAULT_DUTY_LIMITS if vehicle is None
+                            else vehicle_duty_limits(vehicle))
     args.body = args.body or (vehicle.name if vehicle is not None else "tpods1")
     lim = parse_duty_steps(args.duty_limits.replace(":", ","))
     if len(lim) == 2:

@@ -8,8 +8,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-DEFAULT_DUTY_LIMITS = "10,90"
-"""``--duty-limits``' default (:func:`tpods.cli.options.add_duty_limits`): a module's table."""
+from tpods.cli.options import DEFAULT_DUTY_LIMITS  # noqa: F401  (re-exported: run.py)
 
 
 def split_layout(args: argparse.Namespace) -> tuple[Any, Any]:

@@ -42,6 +42,9 @@ def test_sim_and_estimate_batch_on_the_command_line(tpods_exe, tmp_path):
      "--thrust-table would be ignored"),
     (("run", "play", "--valves", "x", "--input", "pulses", "--duty-limits", "20,90"),
      "--input pulses: open duties span 100..100 %, outside --duty-limits 20,90"),
+    # a module's default typed out is the user's choice, not the vehicle's default
+    (("run", "play", "--valves", "x", "--input", "pulses", "--duty-limits", "10,90"),
+     "--input pulses: open duties span 100..100 %, outside --duty-limits 10,90"),
 ])
 def test_commands_without_vehicles_refuse_in_one_line(tpods_exe, args, words):
     r = run_in_process(*args, "--vehicle", str(EIGHT))
