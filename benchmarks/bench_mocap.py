@@ -73,6 +73,16 @@ def steal_pct(before: tuple[int, int] | None, after: tuple[int, int] | None) -> 
     return 100.0 * (after[0] - before[0]) / (after[1] - before[1])
 
 
+def run_delay_s() -> float | None:
+    """Time the calling thread has spent runnable but not running (waiting for a CPU), s,
+    from ``/proc/thread-self/schedstat``; None where unavailable."""
+    try:
+        with open("/proc/thread-self/schedstat") as f:
+            return int(f.read().split()[1]) * 1e-9
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _free_port(kind=socket.SOCK_STREAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
@@ -108,10 +118,11 @@ def _bridge_proc(port: int, ep: str, ready, stop, out, capture: str | None = Non
     ready.set()
     stop_ev = threading.Event()
     threading.Thread(target=lambda: (stop.wait(), stop_ev.set()), daemon=True).start()
-    t0 = time.process_time()
+    t0, q0 = time.process_time(), run_delay_s()
     bridge.run(src, stop=stop_ev)
-    cpu = time.process_time() - t0
-    out.put({"matched": ok, "cpu_s": cpu, **bridge.stats.totals(), **src.counters})
+    cpu, q1 = time.process_time() - t0, run_delay_s()
+    runq = None if q0 is None or q1 is None else q1 - q0
+    out.put({"matched": ok, "cpu_s": cpu, "runq_s": runq, **bridge.stats.totals(), **src.counters})
     src.close()
     session.close()
 
@@ -440,6 +451,8 @@ def run() -> list[dict]:
     ok_rate = lost == 0 and sent_rate >= 0.98 * TARGET_POSES_S
     each = ", ".join(f"{_p(r['lat_ms'], 99):.2f}{'' if r['steal_pct'] < QUIET_STEAL_PCT else '*'}"
                      for r in runs)
+    runq = ", ".join("?" if r["bstats"].get("runq_s") is None else f"{r['bstats']['runq_s'] * 1e3:.0f}"
+                     for r in runs)
     steals = ", ".join(f"{r['steal_pct']:.1f}" for r in runs)
     if len(quiet) >= MIN_QUIET:
         ok_lat: bool | None = bool(p99 < TARGET_P99_MS)
@@ -462,7 +475,8 @@ def run() -> list[dict]:
          "ok": ok_lat,
          "target": f"< {TARGET_P99_MS} ms at p99, UDP send to subscriber ({judged_txt}; p50 "
                    f"{p50:.2f} ms, UDP->bridge p99 {udp99:.2f} ms); p99 of each run: {each} ms "
-                   f"(* = host steal >= {QUIET_STEAL_PCT} %; steal %: {steals}); reference = raw "
+                   f"(* = host steal >= {QUIET_STEAL_PCT} %; steal %: {steals}); queue wait (the "
+                   f"bridge thread runnable, not running) per run: {runq} ms; reference = raw "
                    f"zenoh put p99 paced at {offered:.0f}/s ({raw_paced['received']}/"
                    f"{raw_paced['sent']})", **w.timed()},
     ]

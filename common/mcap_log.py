@@ -12,8 +12,15 @@ message must replay as it came).
   ``publish_time``: the message's own time where it has one (a pose's capture time ``t``,
   a command's ``t``, an estimate's ``t_pub``; any other payload's ``t``), else the
   receive time; ``sequence``: the message's number on its channel (from 1).
+- **Off the receiving thread.** :meth:`McapLog.write` only appends the payload and its
+  receive time to a queue (no parsing, no lock, no file work: it runs in Zenoh callbacks
+  and, for a session's own publications, inside ``put``); a background thread parses,
+  adds and flushes. The queue is bounded without dropping anything: past
+  ``max_pending`` messages the writing thread does the work itself (:meth:`McapLog.drain`).
+  :meth:`McapLog.flush` and :meth:`McapLog.close` write everything queued first. With
+  ``flush_every_s=0`` (no background thread) every write is written at once.
 - **Written to survive a kill.** The file is chunked (LZ4) with small chunks: a chunk is
-  closed and handed to the operating system every ``flush_every_s`` (0.05 s) by a
+  closed and handed to the operating system every ``flush_every_s`` (0.05 s) by the
   background thread, and whenever it grows past ``chunk_size``. SIGKILL then loses at
   most the messages of the last ~0.05 s (tested: at most 0.1 s); the file has no summary
   or footer, which the ``mcap`` library's seeking reader needs: :func:`read_messages`
@@ -32,6 +39,7 @@ import math
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +60,11 @@ RAW_ENCODING = "application/octet-stream"
 """Message encoding of the channel that keeps a key's payloads that are not JSON objects."""
 FLUSH_EVERY_S = 0.05
 CHUNK_SIZE = 64 * 1024
+MAX_PENDING = 20_000
+"""Messages queued for the background writer before :meth:`McapLog.write` writes them itself."""
+WRITE_SLICE = 64
+"""Messages the background writer adds between two yields of the GIL (latency of the
+threads that receive and publish)."""
 LIBRARY = f"tpods {__version__}"
 
 _OWN_TIME = {SCHEMA: "t", CMD_SCHEMA: "t", EST_SCHEMA: "t_pub"}
@@ -88,7 +101,7 @@ class McapLog:
 
     def __init__(self, path: str | Path, *, meta: dict[str, Any] | None = None,
                  flush_every_s: float = FLUSH_EVERY_S, chunk_size: int = CHUNK_SIZE,
-                 stream: IO[bytes] | None = None) -> None:
+                 stream: IO[bytes] | None = None, max_pending: int = MAX_PENDING) -> None:
         self.path = Path(path)
         if stream is None:
             try:
@@ -112,6 +125,8 @@ class McapLog:
         self._dirty = False
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._pending: deque[tuple[str, bytes, int, int | None]] = deque()
+        self._max_pending = max(1, int(max_pending))
         self._flusher = None
         if flush_every_s > 0:
             self._flusher = threading.Thread(target=self._flush_loop, args=(flush_every_s,),
@@ -148,10 +163,37 @@ class McapLog:
 
     def write(self, key: str, payload: bytes | bytearray | memoryview, log_time_ns: int | None = None,
               publish_time_ns: int | None = None) -> None:
-        """Log one message of ``key``; ``log_time_ns``: its receive time (default: now)."""
+        """Log one message of ``key``; ``log_time_ns``: its receive time (default: now).
+
+        Queues it for the background writer (see the module doc); never drops it."""
         if log_time_ns is None:
             log_time_ns = time.time_ns()
-        data = bytes(payload)
+        self._pending.append((key, bytes(payload), log_time_ns, publish_time_ns))  # atomic
+        if self._flusher is None or len(self._pending) >= self._max_pending:
+            self.drain()
+
+    def drain(self, limit: int | None = None, count_errors: bool = False) -> int:
+        """Add up to ``limit`` (default: all) queued messages to the file, in arrival order;
+        returns how many. A message the file refuses (disk full, file closed) raises, or
+        with ``count_errors`` counts as ``write_errors`` (the background writer)."""
+        n = 0
+        pending = self._pending
+        with self._lock:
+            while pending and (limit is None or n < limit):
+                key, data, log_ns, pub_ns = pending.popleft()
+                n += 1
+                if self.closed:
+                    continue
+                try:
+                    self._add(key, data, log_ns, pub_ns)
+                except (OSError, ValueError):
+                    if not count_errors:
+                        raise
+                    self.counters["write_errors"] = self.counters.get("write_errors", 0) + 1
+        return n
+
+    def _add(self, key: str, data: bytes, log_time_ns: int, publish_time_ns: int | None) -> None:
+        """Parse and add one message (under the lock)."""
         try:
             d = json.loads(data)
         except (ValueError, UnicodeDecodeError):
@@ -162,20 +204,19 @@ class McapLog:
             publish_time_ns = own_time_ns(d) if d is not None else None
             if publish_time_ns is None:
                 publish_time_ns = log_time_ns
-        with self._lock:
-            if self.closed:
-                return
-            cid = self._channel(str(key), d)
-            seq = self._seq[cid] = self._seq.get(cid, 0) + 1
-            self._w.add_message(cid, log_time=log_time_ns, data=data,
-                                publish_time=publish_time_ns, sequence=seq & 0xFFFFFFFF)
-            self.counters["messages"] += 1
-            if d is None:
-                self.counters["raw"] += 1
-            self._dirty = True
+        cid = self._channel(str(key), d)
+        seq = self._seq[cid] = self._seq.get(cid, 0) + 1
+        self._w.add_message(cid, log_time=log_time_ns, data=data,
+                            publish_time=publish_time_ns, sequence=seq & 0xFFFFFFFF)
+        self.counters["messages"] += 1
+        if d is None:
+            self.counters["raw"] += 1
+        self._dirty = True
 
     def flush(self) -> None:
-        """Close the chunk in progress and hand everything to the operating system."""
+        """Write what is queued, close the chunk in progress and hand everything to the
+        operating system."""
+        self.drain()
         with self._lock:
             if not self.closed and self._dirty:
                 self._w.flush()
@@ -184,6 +225,10 @@ class McapLog:
     def _flush_loop(self, every: float) -> None:
         while not self._stop.wait(every):
             try:
+                # in slices, yielding the GIL between them: a receiving thread waits at
+                # most one slice (~0.5 ms), not the whole batch
+                while self.drain(WRITE_SLICE, count_errors=True) == WRITE_SLICE:
+                    time.sleep(0)
                 self.flush()
             except (OSError, ValueError):  # disk full, file closed: the writer sees it next
                 return
@@ -193,6 +238,8 @@ class McapLog:
         self._stop.set()
         if self._flusher is not None and self._flusher is not threading.current_thread():
             self._flusher.join(timeout=5.0)
+        with contextlib.suppress(OSError, ValueError):
+            self.drain()  # everything received is written before the end
         with self._lock:
             if self.closed:
                 return

@@ -294,6 +294,8 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             self.counters.updates += 1
             n += 1
             self._after_update(p.t, len(self.hist_t) - 1)
+            if self.config.publish_rate_hz == 0:
+                self._publish(now)  # the estimate out first, the run folder's rows after it
             if self.recorder is not None:
                 self.recorder.pose(p.t, p.x, p.y, p.yaw)
                 com = None
@@ -305,8 +307,6 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
                 self.recorder.estimate(p.t, p.frame, self.phase, self.z,
                                        np.sqrt(np.maximum(self.P.diagonal(), 0.0)),
                                        self.thrust_rel, com)
-            if self.config.publish_rate_hz == 0:
-                self._publish(now)
         if self.config.method == "ls-ekf":
             self._ls_tick()
         if n and self.config.publish_rate_hz > 0 and now - self._last_pub >= 1.0 / self.config.publish_rate_hz:

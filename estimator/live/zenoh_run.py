@@ -8,6 +8,7 @@ keys of :func:`keys`) until stopped; :func:`console_line` is its one-line status
 from __future__ import annotations
 
 import contextlib
+import gc
 import math
 import queue
 import threading
@@ -60,7 +61,10 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
 
     Zenoh callbacks only queue the payloads with their arrival time; this thread
     decodes, aligns, filters and publishes, sleeping until the next message or the
-    next pose's wait deadline.
+    next pose's wait deadline. The objects of the start-up (modules, session, filter)
+    are frozen out of the garbage collector while it runs (``gc.freeze``): a collection
+    of the oldest generation then scans only what the run made, not the whole program
+    (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26).
     """
     stop = stop or threading.Event()
     st = estimator.structure
@@ -76,6 +80,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     def on_cmd(sample) -> None:
         q.put((1, sample.payload.to_bytes(), now()))
 
+    gc.collect()  # before subscribing: nothing is received during this collection
+    gc.freeze()
     pub = session.declare_publisher(k["estimate"], encoding=zenoh.Encoding(ENCODING),
                                     express=True)
 
@@ -164,6 +170,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
             with contextlib.suppress(Exception):
                 estimator.process(math.inf)
         estimator.close_pool()
+        gc.unfreeze()
         with contextlib.suppress(Exception):
             pub.undeclare()
         estimator.publish_bytes = None

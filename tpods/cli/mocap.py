@@ -238,6 +238,7 @@ def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
             wait_for_stop(stop, args.duration, lambda: console.show(
                 f"record: {log.counters['messages']} messages on {len(log.topics)} keys"))
             sub.undeclare()
+        log.drain(count_errors=True)  # what is still queued for the background writer counts too
         status = "incomplete" if log.counters.get("write_errors") else \
             "complete" if log.counters["messages"] else "failed"
     finally:
