@@ -34,6 +34,7 @@ from bench.valves import ValveController
 from calibration.bifilar import swing_and_estimate
 from calibration.mass import mass_from_readings, take_readings
 from calibration.plots import plot_trace_fit
+from common.gcpause import frozen_heap
 from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
@@ -180,7 +181,7 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
     try:
         module = SimulatedModule(session, params, plant_table(), clock=clock, body=BODY,
                                  noise=MocapNoise(0.01, math.radians(1.0)), seed=args.seed)
-        with module:
+        with frozen_heap(), module:  # the plant runs in this process: no long GC pause
             logs["live"] = (d / "live.log").open("w")
             procs["live"] = subprocess.Popen(
                 exe + ["estimate", "live", "--body", BODY, "--thrust-table", str(table_path),

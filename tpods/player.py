@@ -36,6 +36,7 @@ from tqdm import tqdm
 
 from bench.session import Terminated, ended_by
 from common.errors import UserError
+from common.gcpause import frozen_heap
 from common.runwriter import (  # CommandLog: also tpods.player.CommandLog
     CommandLog,
     run_header,
@@ -176,6 +177,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
 
     try:
         with contextlib.ExitStack() as stack:  # on exit every controller is closed, confirmed
+            stack.enter_context(frozen_heap())  # no long GC pause between two commands
             for _, v in mods:
                 guards.append(stack.enter_context(v.safe(watchdog_ms)))
             for _, v in mods:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from common.argtypes import fraction, nonneg_float, positive_float
 from common.errors import UserError
+from common.gcpause import frozen_heap
 from common.outputs import add_force, optional_folder, stream_folder
 from common.zenoh_net import add_zenoh_options
 from tpods.cli.options import (
@@ -387,7 +388,8 @@ def cmd_plant(args: argparse.Namespace) -> int:
     sys.setswitchinterval(2e-4)  # the emulated controller reacts within a fraction of a ms
     servers = [serve_pty(c) for c in ctrls]
     try:
-        with stop_on_signals(stop):  # until --duration, Ctrl-C/SIGTERM or a plant error
+        # until --duration, Ctrl-C/SIGTERM or a plant error; no long GC pause meanwhile
+        with stop_on_signals(stop), frozen_heap():
             if bridge_thread is not None:
                 bridge_thread.start()
             plant.start()
