@@ -16,6 +16,7 @@ from estimator.batch.least_squares import estimate_run as least_squares_run
 from estimator.batch.misfit import misfit_warnings
 from estimator.batch.misfit import summary as misfit_summary
 from estimator.batch.model_select import ModelSelection
+from estimator.batch.physical_signs import result_sign_warnings
 from estimator.batch.structure_degenerate import refuse_undetermined
 from estimator.estimate.knowledge import BodyKnowledge
 from estimator.estimate.options import EstimateOptions, Inputs, _windowed, as_window
@@ -70,6 +71,7 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
         # the model's misfit: residuals far above the noise, or structured (issue 24, item 7)
         res.warnings += misfit_warnings(res.residuals, sigma_pos_m, sigma_yaw_rad,
                                         what="the batch fit")
+    res.warnings += result_sign_warnings(res)  # negative damping: said, not clamped
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
