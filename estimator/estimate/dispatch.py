@@ -31,6 +31,7 @@ from estimator.estimate.options import (
 )
 from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _is_structure_run, _structure_of, _with_structure
+from estimator.estimate.vehicle_start import vehicle_scan
 from estimator.plant.model import STATE_NAMES
 from estimator.plant.parameter_sets import (
     DEFAULT_MODEL,
@@ -62,12 +63,16 @@ def _select_structure_model(inputs: tuple[Run, ThrustTable], *, window, clamp, n
     wrun = _windowed(run, as_window(window))
     cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
     extra = tuple(n for n in names if n not in ("mass", "izz"))
+    # the candidates start where the final fit would: a vehicle's scan, else its geometry
+    scanned = vehicle_scan(wrun, table, names, fixed, initial, clamp=clamp,
+                           sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     start = {**{k: v for k, v in run.structure.initial_guess().items() if k in names},
-             **initial}
+             **(scanned[0] if scanned else initial)}
     selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=alpha,
                              fixed={k: v for k, v in fixed.items() if k not in names},
                              initial=start, extra_names=extra, sigma_pos_m=sigma_pos_m,
-                             sigma_yaw_rad=sigma_yaw_rad)
+                             sigma_yaw_rad=sigma_yaw_rad, warm=scanned is not None,
+                             start_label=scanned[1] if scanned else "the structure's start")
     chosen = selection.chosen
     if log is not None:
         log(f"model selection on {wrun.path} (--model auto, with {', '.join(extra)} in every "
