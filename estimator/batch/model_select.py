@@ -188,6 +188,8 @@ class ModelSelection:
                          f"{f.aic:10.1f} {f.bic:10.1f} {f.reduced_chi2:8.3f}  "
                          + ", ".join(f"{p:.2g}" for p in f.lb_p)
                          + ("" if r.converged else "  (not converged)"))
+        lines.extend(f"  start of {m}: {f.start}" for m, f in self.fits.items()
+                     if f.start != "default start")
         for t in self.tests:
             lines.append(f"  LR {t.small} -> {t.big}: {t.stat:.1f} on {t.df} df"
                          + (f" (/ {t.scale:.2f} noise scale)" if t.scale > 1.05 else "")
@@ -333,7 +335,7 @@ def _fit_warm(pose_t, pose, cmd_t, thrust_n, models: Sequence[str], *, fixed, in
         tries: list[tuple[Any, str, dict]] = []
         if prev is not None and set(prev.names) < set(names):
             tries.append((_nested_start(prev, names, fx),
-                          f"warm: the {prev.model} optimum", {**kw, "horizon0_s": None}))
+                          f"warm start at the {prev.model} optimum", {**kw, "horizon0_s": None}))
         tries.append(({k: v for k, v in (initial or {}).items() if k not in fx}, start_label, kw))
         fit, error = None, None
         for init, label, kwi in tries:

@@ -96,7 +96,7 @@ def test_auto_says_the_mass_depends_on_the_model(tpods_exe, run_dir):
     est, err = _batch(tpods_exe, run_dir, "--model", "auto")
     fits = est["model_selection"]["fits"]
     assert fits["ideal"]["start"].startswith("started from a scan")
-    assert fits["friction"]["start"] == "warm: the ideal optimum"
+    assert fits["friction"]["start"] == "warm start at the ideal optimum"
     assert fits["ideal"]["converged"] and abs(fits["ideal"]["mass_kg"] - 35.26) < 0.5
     # the unphysical sign of the final fit (cr < 0 by many sigma) is said, not clamped
     assert est["params"]["cr"] < 0

@@ -70,7 +70,7 @@ def test_simulated_vehicle_models_agree_and_nothing_is_said(tpods_exe, tmp_path)
     est = json.loads(r.stdout)
     fits = est["model_selection"]["fits"]
     assert fits["ideal"]["start"].startswith("started from a scan")
-    assert fits["friction+tilt"]["start"] == "warm: the friction optimum"
+    assert fits["friction+tilt"]["start"] == "warm start at the friction optimum"
     spread_doc = est["model_spread"]
     assert spread_doc["counted"] == ["ideal", "friction", "friction+tilt"]
     lo, hi = spread_doc["mass_kg_range"]
