@@ -193,9 +193,12 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
             run, table = inputs()
             wrun = _windowed(run, as_window(window))
             cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+            # the candidates start where the final fit would: the caller's start, if any
             selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=select_alpha,
                                      fixed=dict(fixed), sigma_pos_m=sigma_pos_m,
-                                     sigma_yaw_rad=sigma_yaw_rad)
+                                     sigma_yaw_rad=sigma_yaw_rad, initial=dict(initial),
+                                     start_label="the caller's start (--initial)" if initial
+                                     else "default start")
             model = selection.chosen
             if log is not None:
                 log(f"model selection on {wrun.path} (--model auto):")
