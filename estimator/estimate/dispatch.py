@@ -80,7 +80,10 @@ def _select_structure_model(inputs: tuple[Run, ThrustTable], *, window, clamp, n
         for line in selection.table_lines():
             log(line)
     names, fixed = with_model(chosen, names, fixed)
-    initial, note = _start_at(selection.fits[chosen], dict(initial), None)
+    # the final fit starts where its candidate ended (converged) or began (the scan: not
+    # scanned again for the chosen model's names)
+    initial, note = _start_at(selection.fits[chosen], dict(scanned[0] if scanned else initial),
+                              scanned[1] if scanned else None)
     return selection, chosen, names, fixed, initial, note
 
 
