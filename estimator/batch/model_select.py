@@ -188,6 +188,8 @@ class ModelSelection:
                          f"{f.aic:10.1f} {f.bic:10.1f} {f.reduced_chi2:8.3f}  "
                          + ", ".join(f"{p:.2g}" for p in f.lb_p)
                          + ("" if r.converged else "  (not converged)"))
+        lines.extend(f"  start of {m}: {f.start}" for m, f in self.fits.items()
+                     if f.start != "default start")
         for t in self.tests:
             lines.append(f"  LR {t.small} -> {t.big}: {t.stat:.1f} on {t.df} df"
                          + (f" (/ {t.scale:.2f} noise scale)" if t.scale > 1.05 else "")
@@ -258,13 +260,22 @@ def fit_models(pose_t, pose, cmd_t, thrust_n, models: Sequence[str] = tuple(MODE
                initial: Mapping[str, float] | None = None,
                sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0),
                lags: int = DEFAULT_LAGS, extra_names: Sequence[str] = (),
+               warm: bool = False, start_label: str = "default start",
                **kwargs) -> dict[str, ModelFit]:
     """Fit each model by batch least squares and diagnose it.
 
     ``fixed`` holds known values of parameters a model does not estimate (e.g. ``arm``);
     entries a model estimates are dropped for that model. ``extra_names`` are estimated in
     every model besides its own (a structure's cx, cy). Other keywords go to batch_ls.
+    ``warm``: each larger model starts at the last converged smaller model's optimum (its
+    extra parameters at their fixed values), and from ``initial`` only if that fails;
+    otherwise from ``initial`` and from the nested start when that does better.
+    ``start_label`` names ``initial`` in each fit's ``start``.
     """
+    if warm:
+        return _fit_warm(pose_t, pose, cmd_t, thrust_n, models, fixed=fixed, initial=initial,
+                         sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, lags=lags,
+                         extra_names=extra_names, start_label=start_label, **kwargs)
     from estimator.batch.least_squares import batch_ls
 
     out: dict[str, ModelFit] = {}
@@ -297,6 +308,49 @@ def fit_models(pose_t, pose, cmd_t, thrust_n, models: Sequence[str] = tuple(MODE
             if alt is not None and (fit is None or (alt.result.converged and (
                     not fit.result.converged or alt.chi2 < fit.chi2))):
                 fit = alt
+        if fit is None:
+            raise UserError(f"the {m} fit failed: {error}")
+        if fit.start == "default start":
+            fit.start = start_label
+        out[m] = fit
+        if fit.result.converged:
+            prev = fit
+    return out
+
+
+def _fit_warm(pose_t, pose, cmd_t, thrust_n, models: Sequence[str], *, fixed, initial,
+              sigma_pos_m: float, sigma_yaw_rad: float, lags: int, extra_names: Sequence[str],
+              start_label: str, **kwargs) -> dict[str, ModelFit]:
+    """:func:`fit_models` with ``warm``: the smallest model from ``initial``, each larger
+    one first from the last converged smaller model's optimum."""
+    from estimator.batch.least_squares import batch_ls
+
+    out: dict[str, ModelFit] = {}
+    prev: ModelFit | None = None
+    for m in models:
+        names = MODELS[m] + tuple(n for n in extra_names if n not in MODELS[m])
+        fx = fixed_for(m, {k: v for k, v in (fixed or {}).items() if k not in names})
+        kw = dict(names=names, fixed=fx, sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad,
+                  **kwargs)
+        tries: list[tuple[Any, str, dict]] = []
+        if prev is not None and set(prev.names) < set(names):
+            tries.append((_nested_start(prev, names, fx),
+                          f"warm start at the {prev.model} optimum", {**kw, "horizon0_s": None}))
+        tries.append(({k: v for k, v in (initial or {}).items() if k not in fx}, start_label, kw))
+        fit, error = None, None
+        for init, label, kwi in tries:
+            try:
+                alt = diagnose(m, batch_ls(pose_t, pose, cmd_t, thrust_n, initial=init, **kwi),
+                               sigma_pos_m, sigma_yaw_rad, lags)
+            except UserError as exc:
+                error = error or exc
+                continue
+            alt.start = label
+            if fit is None or (alt.result.converged and (
+                    not fit.result.converged or alt.chi2 < fit.chi2)):
+                fit = alt
+            if fit.result.converged:
+                break
         if fit is None:
             raise UserError(f"the {m} fit failed: {error}")
         out[m] = fit

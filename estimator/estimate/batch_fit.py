@@ -16,12 +16,15 @@ from estimator.batch.least_squares import estimate_run as least_squares_run
 from estimator.batch.misfit import misfit_warnings
 from estimator.batch.misfit import summary as misfit_summary
 from estimator.batch.model_select import ModelSelection
+from estimator.batch.model_spread import candidate_rows
+from estimator.batch.model_spread import spread as model_spread
+from estimator.batch.physical_signs import result_sign_warnings
 from estimator.batch.structure_degenerate import refuse_undetermined
 from estimator.estimate.knowledge import BodyKnowledge
 from estimator.estimate.options import EstimateOptions, Inputs, _windowed, as_window
 from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _structure_consider, structure_keys
-from estimator.estimate.vehicle_start import scan_start
+from estimator.estimate.vehicle_start import vehicle_scan
 
 
 def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelection | None,
@@ -38,13 +41,11 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
     prior = None
     if run.structure is not None:
         body = run.structure.body
-        if (run.structure.kind == "vehicle" and not run.structure.is_single_at_origin
-                and body.mass_kg is None and body.izz_kgm2 is None):
-            # a vehicle (not today's module) that says nothing of its mass: scan for a start
-            scanned = scan_start(_windowed(run, window), table, names, fixed, initial, clamp=clamp,
-                                 sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
-            if scanned is not None:
-                initial, note = scanned[0], note or scanned[1]
+        # a vehicle (not today's module) that says nothing of its mass: scan for a start
+        scanned = vehicle_scan(_windowed(run, window), table, names, fixed, initial, clamp=clamp,
+                               sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
+        if scanned is not None:
+            initial, note = scanned[0], note or scanned[1]
         # a structure's start: its geometry (or its [body] values), not the paper's module
         guess = {k: v for k, v in run.structure.initial_guess().items()
                  if k in names and k not in initial}
@@ -70,6 +71,14 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
         # the model's misfit: residuals far above the noise, or structured (issue 24, item 7)
         res.warnings += misfit_warnings(res.residuals, sigma_pos_m, sigma_yaw_rad,
                                         what="the batch fit")
+    res.warnings += result_sign_warnings(res)  # negative damping: said, not clamped
+    spread_doc = None
+    if selection is not None and {"mass", "izz"} <= set(res.names):
+        # the model uncertainty: the answer's mass and Izz across the candidate models
+        spread_doc, spread_warn = model_spread(
+            candidate_rows(selection.fits, res, model),
+            {"mass_kg": res.mass_sigma_kg, "izz_kgm2": res.izz_sigma_kgm2})
+        res.warnings += spread_warn
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
@@ -87,6 +96,8 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
         out["start"] = note
     if selection is not None:
         out["model_selection"] = selection.to_dict()
+    if spread_doc is not None:
+        out["model_spread"] = spread_doc
     wrun = _windowed(run, window)
     est = Estimate("ls", model, wrun, out, batch=res, selection=selection, start_note=note)
     try:

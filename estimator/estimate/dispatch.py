@@ -31,6 +31,7 @@ from estimator.estimate.options import (
 )
 from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _is_structure_run, _structure_of, _with_structure
+from estimator.estimate.vehicle_start import vehicle_scan
 from estimator.plant.model import STATE_NAMES
 from estimator.plant.parameter_sets import (
     DEFAULT_MODEL,
@@ -62,12 +63,16 @@ def _select_structure_model(inputs: tuple[Run, ThrustTable], *, window, clamp, n
     wrun = _windowed(run, as_window(window))
     cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
     extra = tuple(n for n in names if n not in ("mass", "izz"))
+    # the candidates start where the final fit would: a vehicle's scan, else its geometry
+    scanned = vehicle_scan(wrun, table, names, fixed, initial, clamp=clamp,
+                           sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad)
     start = {**{k: v for k, v in run.structure.initial_guess().items() if k in names},
-             **initial}
+             **(scanned[0] if scanned else initial)}
     selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=alpha,
                              fixed={k: v for k, v in fixed.items() if k not in names},
                              initial=start, extra_names=extra, sigma_pos_m=sigma_pos_m,
-                             sigma_yaw_rad=sigma_yaw_rad)
+                             sigma_yaw_rad=sigma_yaw_rad, warm=scanned is not None,
+                             start_label=scanned[1] if scanned else "the structure's start")
     chosen = selection.chosen
     if log is not None:
         log(f"model selection on {wrun.path} (--model auto, with {', '.join(extra)} in every "
@@ -75,7 +80,10 @@ def _select_structure_model(inputs: tuple[Run, ThrustTable], *, window, clamp, n
         for line in selection.table_lines():
             log(line)
     names, fixed = with_model(chosen, names, fixed)
-    initial, note = _start_at(selection.fits[chosen], dict(initial), None)
+    # the final fit starts where its candidate ended (converged) or began (the scan: not
+    # scanned again for the chosen model's names)
+    initial, note = _start_at(selection.fits[chosen], dict(scanned[0] if scanned else initial),
+                              scanned[1] if scanned else None)
     return selection, chosen, names, fixed, initial, note
 
 
@@ -188,9 +196,12 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
             run, table = inputs()
             wrun = _windowed(run, as_window(window))
             cmd_t, thrust = wrun.thrust_profile(table, clamp=clamp)
+            # the candidates start where the final fit would: the caller's start, if any
             selection = select_model(wrun.pose_t, wrun.pose, cmd_t, thrust, alpha=select_alpha,
                                      fixed=dict(fixed), sigma_pos_m=sigma_pos_m,
-                                     sigma_yaw_rad=sigma_yaw_rad)
+                                     sigma_yaw_rad=sigma_yaw_rad, initial=dict(initial),
+                                     start_label="the caller's start (--initial)" if initial
+                                     else "default start")
             model = selection.chosen
             if log is not None:
                 log(f"model selection on {wrun.path} (--model auto):")

@@ -19,6 +19,7 @@ from common.thrust_table import ThrustTable, load_thrust_table
 from common.vehicle import Vehicle
 from estimator.batch.input_params import crlb_input_params, fit_input_params
 from estimator.batch.misfit import misfit_warnings
+from estimator.batch.physical_signs import result_sign_warnings
 from estimator.estimate.options import EstimateOptions, _windowed, as_window
 from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _with_structure
@@ -65,6 +66,7 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
                            sigma_yaw_rad=o.sigma_yaw_rad, max_iter=max(o.max_iter, 30))
     res.warnings += misfit_warnings(res.residuals, o.sigma_pos_m, o.sigma_yaw_rad,
                                     what="the batch fit")
+    res.warnings += result_sign_warnings(res)  # a negative drop or damping: said, not clamped
     res.thrust_note = ("sigma = measurement noise, jointly with the estimated valve delay and "
                        "supply drop (the valves' force_sigma_n not included)")
     if log is not None:

@@ -50,3 +50,18 @@ def scan_start(run: Run, table, names: tuple[str, ...], fixed: Mapping[str, floa
     return start, (f"started from a scan of the first {window[1] - window[0]:.3g} s (masses "
                    f"{SCAN_MASSES_KG[0]:g}..{SCAN_MASSES_KG[-1]:g} kg): mass {start['mass']:.4g}, "
                    f"izz {start['izz']:.4g}")
+
+
+def vehicle_scan(run: Run, table, names: tuple[str, ...], fixed: Mapping[str, float],
+                 initial: Mapping[str, float], *, clamp: bool = False,
+                 sigma_pos_m: float = 0.01, sigma_yaw_rad: float = math.radians(1.0)
+                 ) -> tuple[dict[str, float], str] | None:
+    """:func:`scan_start` for a run whose structure is a vehicle (not today's module at the
+    origin) whose [body] gives neither mass nor Izz; None for every other run. The one
+    rule shared by the final fit and ``--model auto``'s candidates."""
+    s = run.structure
+    if (s is None or s.kind != "vehicle" or s.is_single_at_origin
+            or s.body.mass_kg is not None or s.body.izz_kgm2 is not None):
+        return None
+    return scan_start(run, table, names, fixed, initial, clamp=clamp, sigma_pos_m=sigma_pos_m,
+                      sigma_yaw_rad=sigma_yaw_rad)

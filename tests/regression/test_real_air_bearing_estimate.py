@@ -86,3 +86,26 @@ def test_in_flight_thrust_factor_with_the_weighed_mass(tpods_exe, run_dir, tmp_p
     for t, f in zip(new["thrusters"], STATED["force_n"], strict=True):
         assert t["force_n"] == pytest.approx(f * scale["value"], rel=1e-4)
         assert t["force_sigma_n"] == pytest.approx(f * scale["sigma"], rel=1e-3)
+
+
+def test_auto_says_the_mass_depends_on_the_model(tpods_exe, run_dir):
+    """--model auto (issue 24, real runs): the candidates start from the vehicle scan (each
+    larger one warm at the smaller optimum), a negative damping is named with its sigma, and
+    the mass's spread across the models (22.6..35.3 kg here) is said beside its sigma."""
+    est, err = _batch(tpods_exe, run_dir, "--model", "auto")
+    fits = est["model_selection"]["fits"]
+    assert fits["ideal"]["start"].startswith("started from a scan")
+    assert fits["friction"]["start"] == "warm start at the ideal optimum"
+    assert fits["ideal"]["converged"] and abs(fits["ideal"]["mass_kg"] - 35.26) < 0.5
+    # the unphysical sign of the final fit (cr < 0 by many sigma) is said, not clamped
+    assert est["params"]["cr"] < 0
+    assert any(w.startswith("cr = -") and "not physical" in w for w in est["warnings"])
+    assert "negative rotational damping is not physical" in err
+    spread = est["model_spread"]
+    # only the ideal fit is converged with physical signs: the range is over all candidates
+    assert spread["counted"] == ["ideal"]
+    lo, hi = spread["mass_kg_range"]
+    assert lo < STATED["mass_kg"] < hi and hi - lo > 10 * est["mass_sigma_kg"]
+    assert spread["mass_kg_exceeds_sigma"]
+    assert any(w.startswith("the mass depends on the model") for w in est["warnings"])
+    assert "the mass depends on the model" in err
