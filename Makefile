@@ -15,12 +15,14 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 # in parallel over the machine's cores (pytest-xdist; one worker more gained nothing here:
-# 422 s against 418 s); the longest files start first (tests/conftest.py); the 15 slowest
+# 422 s against 418 s); the longest files start first (tests/conftest.py) and an idle worker
+# takes tests from the other's queue (worksteal: the default 'load' sent the first ~200
+# tests, every long file, to one worker; 372 s against 384 s); the 15 slowest
 # tests are listed at the end. One OpenBLAS thread per process: the workers already use every
 # core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s CPU, 0.09 s with one
 # thread) in each of the suite's few hundred `tpods` subprocesses
 test: $(STAMP)
-	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --durations=15
+	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
 # the many-seed studies marked slow (skipped by make test: tests/conftest.py), minutes each
 test-slow: $(STAMP)
