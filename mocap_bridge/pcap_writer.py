@@ -8,10 +8,12 @@ bytes, a correct header checksum, DF set, TTL 64, the real source and destinatio
 addresses and ports) + UDP header (8 bytes, checksum 0: "none", legal for IPv4) + the
 datagram's bytes exactly as received. The timestamp is the bridge's receive time
 (``time.time()``, microseconds). Records go to an unbuffered descriptor in ``writev``
-calls of whole records only, so the file always ends on a whole record: every record
-(``flush_every_s=0``) or, as the bridge does, the records of up to 50 ms at a time and
-whenever the stream pauses for 50 ms (one system call per 100 datagrams at Tracker's
-2 kHz instead of 100): a SIGKILL loses at most the last 0.1 s. A write error (disk full,
+calls of whole records only: every record (``flush_every_s=0``) or, as the bridge does, the
+records of up to 50 ms at a time and whenever the stream pauses for 50 ms (one system call
+per 100 datagrams at Tracker's 2 kHz instead of 100): a SIGKILL loses at most the last
+0.1 s. A SIGKILL during a write can cut it at a page boundary (Linux keeps the bytes copied
+before the pending fatal signal), leaving part of one record at the end, which
+:class:`~mocap_bridge.pcap_reader.PcapReader` counts as a truncated record. A write error (disk full,
 folder removed) stops the capture with one warning and is counted; it never stops the
 bridge. :func:`capture_path` checks the file or folder ``--capture`` names.
 """

@@ -58,7 +58,13 @@ def test_kill_9_watchdog_closes_and_raw_csv_keeps_every_reading(tpods_exe, bench
     assert seen_closed is not None, "the valves stayed open after kill -9"
     closing = bench.first_change_after(t_kill)
     assert closing.cause == "watchdog" and bench.valves.watchdog_trips == 1
-    assert closing.t - t_kill <= 0.3 + 1e-3               # watchdog 300 ms after the last feed
+    # the controller closes exactly 300 ms after the last line it received, and that line left
+    # the host before the kill: a feed still in the pseudo-terminal when the host died reaches
+    # the emulator's reader thread a few ms later on a loaded machine (3 ms seen in CI), so the
+    # transfer gets 20 ms; the watchdog's own 300 ms is asserted exactly
+    last_rx = max(t for t, _line, _reply in bench.valves.lines if t < closing.t)
+    assert abs(closing.t - (last_rx + 0.3)) < 1e-9
+    assert last_rx - t_kill <= 0.02
     assert seen_closed - t_kill < 0.3 + 0.25               # and noticed in wall time too
     # raw.csv holds every reading received before the kill: exactly the balance's output, in
     # order, up to lines still in flight (sent in the last 50 ms) when the process died
