@@ -2,7 +2,9 @@
 
 :func:`add_zenoh_options` adds ``--connect EP`` / ``--listen EP`` (repeatable),
 ``--no-multicast``, ``--zenoh-config FILE``, ``--zenoh-mode`` and ``--zenoh-batch-ms``;
-:func:`open_session` builds the configuration and opens the session.
+:func:`open_session` builds the configuration and opens the session;
+:func:`wait_matching` waits for the subscribers of publishers (a player that starts before
+its estimator).
 
 With none of the options (the one-machine case) the session is a *peer* that listens on
 ``tcp/127.0.0.1:7447`` (the local hub; if another tpods process already holds it,
@@ -38,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -176,3 +179,15 @@ def open_session(args: Any = None, /, **kwargs: Any):
         return zenoh.open(conf)
     except Exception as exc:
         raise UserError(f"cannot open the zenoh session ({str(exc).splitlines()[0]})") from None
+
+
+def wait_matching(publishers: list[Any], timeout_s: float, poll_s: float = 0.01) -> bool:
+    """Until every publisher has a matching subscriber (``matching_status``), at most
+    ``timeout_s`` seconds; whether they all have one."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if all(bool(getattr(p.matching_status, "matching", p.matching_status)) for p in publishers):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(poll_s)

@@ -189,21 +189,22 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
                        "--max-wait-ms", "10",
                        "--json", "--quiet", *zargs],
                 stdout=subprocess.PIPE, stderr=logs["live"], text=True)
-            wait_subscribed(session, cmd_key(BODY), procs["live"], "the live estimator",
-                            d / "live.log")
-            time.sleep(0.3)
-            print(f"   module: emulated valves on {module.valves_path}, truth m = {args.mass:g} kg, "
-                  f"Izz = {args.izz:g} kg m^2, thrust truth Table 2 with thruster {WEAK_THRUSTER} "
-                  f"at {WEAK_EFFICIENCY:.0%}, poses 120 Hz (1 cm, 1 deg)")
-            print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
-                  f"running; {lab_time_text(duration, args.time_scale)}")
+            # the player starts at the same time and waits for the estimator's subscription
+            # (run play --wait-subscriber): their start-ups overlap
             logs["play"] = (d / "play.log").open("w")
             procs["play"] = subprocess.Popen(
                 exe + ["run", "play", "--valves", module.valves_path, "--input", input_name,
                        "--duration", f"{duration:g}", "--body", BODY, "--out", str(d / "play"),
                        "--time-scale", f"{args.time_scale:g}", "--clock-origin", repr(clock.origin),
-                       "--no-progress", *zargs],
+                       "--wait-subscriber", "60", "--no-progress", *zargs],
                 stdout=logs["play"], stderr=subprocess.STDOUT, text=True)
+            wait_subscribed(session, cmd_key(BODY), procs["live"], "the live estimator",
+                            d / "live.log")
+            print(f"   module: emulated valves on {module.valves_path}, truth m = {args.mass:g} kg, "
+                  f"Izz = {args.izz:g} kg m^2, thrust truth Table 2 with thruster {WEAK_THRUSTER} "
+                  f"at {WEAK_EFFICIENCY:.0%}, poses 120 Hz (1 cm, 1 deg)")
+            print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
+                  f"running; {lab_time_text(duration, args.time_scale)}")
             phases["start-up"] = time.monotonic() - t_stage
             phases["played"] = follow_player(procs["play"], duration, args.time_scale,
                                              f"{name} (lab time)")

@@ -149,3 +149,52 @@ def test_play_cli_refuses_bad_options_in_one_line(tpods_exe, tmp_path):
                            capture_output=True, text=True, timeout=60)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, \
             r.stderr
+
+
+def test_play_waits_for_a_subscriber_of_its_commands(valves, tmp_path):
+    """``run play --wait-subscriber S`` (the demo starts the player beside the estimator): no
+    valve opens and no command goes out before a subscriber of the command key exists, and
+    that subscriber receives every command, from the first (seq 1) to the end."""
+    from common.zenoh_net import open_session
+    from tests.support.cli import run_in_process
+    from tests.support.net import free_port
+
+    emu, path = valves
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_session(listen=[ep], no_multicast=True)
+    got: list[bytes] = []
+    t_sub: list[float] = []
+    subs = []
+
+    def subscribe_late():
+        time.sleep(0.8)
+        subs.append(hub.declare_subscriber("tpods/tpods1/cmd",
+                                           lambda s: got.append(bytes(s.payload.to_bytes()))))
+        t_sub.append(time.monotonic())
+
+    th = threading.Thread(target=subscribe_late, daemon=True)
+    try:
+        th.start()
+        r = run_in_process("run", "play", "--valves", path, "--input", "phase-sine",
+                           "--duration", "1", "--out", str(tmp_path / "p"), "--no-progress",
+                           "--wait-subscriber", "20", "--connect", ep, "--no-multicast")
+        th.join(5)
+        time.sleep(0.2)  # the last messages in flight on loopback
+        assert r.returncode == 0, r.stderr
+        assert "no subscriber" not in r.stderr
+        first_open = next(c.t for c in emu.log if any(c.duties))
+        assert first_open > t_sub[0] - 0.05  # 50 ms: the declaration's trip to the player
+        dec = _decode_all(got)
+        n_cmd = len(pd.read_csv(tmp_path / "p" / "commands.csv"))
+        assert [m["seq"] for m in dec] == list(range(1, len(dec) + 1))
+        assert len([m for m in dec if m["kind"] != "hold"]) == n_cmd and dec[-1]["kind"] == "end"
+        # nobody listening: a warning after S seconds, and the run is played
+        r = run_in_process("run", "play", "--valves", path, "--input", "phase-sine",
+                           "--duration", "0.5", "--no-progress", "--wait-subscriber", "0.3",
+                           "--connect", ep, "--no-multicast", "--prefix", "nobody")
+        assert r.returncode == 0, r.stderr
+        assert "play: warning: no subscriber of nobody/tpods1/cmd after 0.3 s" in r.stderr
+    finally:
+        for s in subs:
+            s.undeclare()
+        hub.close()

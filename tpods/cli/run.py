@@ -69,6 +69,10 @@ def register(sub) -> None:
                    help="re-announce the command in force after S s without one (default 0.1)")
     p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--prefix", default="tpods", help="key prefix (default tpods)")
+    p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
+                   help="before the first command, wait up to S seconds for a subscriber of the "
+                        "command key (the live estimator or a recorder started at the same time; "
+                        "none by then: a warning and the run is played; default 0)")
     _clock_options(p)
     p.add_argument("--capture", nargs="?", const=True, default=None, metavar="DIR",
                    help="record a byte-exact transcript of the valve controller's serial link "
@@ -221,6 +225,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                           f"commands on {key}"
                           + (f" (time scale {clock.scale:g})" if clock.scale != 1 else ""),
                           file=sys.stderr)
+                    _wait_subscribers(args, [pub], key)
                     res = play(valves, cmd_t, duty, clock=clock, publish=pub.put, body=args.body,
                                out_dir=out, watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
                                heartbeat_s=args.heartbeat, progress=not args.no_progress,
@@ -241,6 +246,15 @@ def cmd_play(args: argparse.Namespace) -> int:
     if capture is not None:
         print(f"wrote {capture} (serial transcript)")
     return 0
+
+
+def _wait_subscribers(args: argparse.Namespace, pubs: list, what: str) -> None:
+    """``--wait-subscriber S``: the command publishers' subscribers, S seconds at most."""
+    from common.zenoh_net import wait_matching
+
+    if args.wait_subscriber > 0 and not wait_matching(pubs, args.wait_subscriber):
+        print(f"play: warning: no subscriber of {what} after {args.wait_subscriber:g} s; "
+              "playing (nothing records the commands over Zenoh)", file=sys.stderr)
 
 
 def _module_urls(text: str, names: list[str]) -> dict[str, str]:
@@ -289,6 +303,8 @@ def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
                           f"commands on {args.prefix.strip('/')}/<module>/cmd", file=sys.stderr)
                     if out is not None:
                         structure.write(out)
+                    _wait_subscribers(args, list(pubs.values()),
+                                      f"{args.prefix.strip('/')}/<module>/cmd")
                     res = play(ctrls, cmd_t, duty, clock=clock,
                                publish={n: p.put for n, p in pubs.items()}, out_dir=out,
                                watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
