@@ -49,15 +49,29 @@ class LiveRun:
     summary: dict[str, Any]
     elapsed_s: float
     rates: dict[str, float] = field(default_factory=dict)
+    after_end: int = 0
+    """Poses stamped after the end's span that ended an ``exit_on_end`` run (not used)."""
+
+
+END_WAIT_MAX_S = 5.0
+"""Host seconds after the player's ``end`` at which ``exit_on_end`` stops in any case."""
 
 
 def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None = None,
              duration_s: float | None = None, exit_on_end: bool = False,
-             end_grace_s: float = 0.5, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
+             end_grace_s: float = 0.5, end_span_s: float = 1.0,
+             mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
              on_console: Callable[[str], None] | None = None, console_period_s: float = 1.0
              ) -> LiveRun:
     """Subscribe, estimate and publish until ``stop``, ``duration_s`` or (with
-    ``exit_on_end``) ``end_grace_s`` after the player's ``end`` command.
+    ``exit_on_end``) the end of the player's input: once its ``end`` command is in, the
+    poses stamped up to ``end_span_s`` (lab time) after it are used and the run ends at the
+    first pose stamped later (a mocap that keeps streaming; that pose and any after it are
+    not used: ``LiveRun.after_end``), or once nothing has arrived for ``end_grace_s`` of
+    host time (a stream that stops: a replay), or at the latest :data:`END_WAIT_MAX_S` host
+    seconds after the ``end`` (poses that never reach its lab time: a mocap host's clock
+    behind the player's). The poses used do not depend on how late a loaded host delivers
+    them (one publisher per key keeps its order).
 
     Zenoh callbacks only queue the payloads with their arrival time; this thread
     decodes, aligns, filters and publishes, sleeping until the next message or the
@@ -94,6 +108,19 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     last_counts = (0, 0)
     rates = {"poses_hz": 0.0, "cmds_hz": 0.0}
     end_host: float | None = None
+    last_rx = time.monotonic()
+    beyond_end = False
+    after_end = 0
+
+    def past_the_end(t: float) -> bool:
+        """A pose stamped after the span that ends an ``exit_on_end`` run (not used)."""
+        nonlocal beyond_end, after_end
+        if exit_on_end and estimator.end_seen_t is not None and t > estimator.end_seen_t + end_span_s:
+            beyond_end = True
+            after_end += 1
+            return True
+        return False
+
     status = "success"
     try:
         while not stop.is_set():
@@ -102,7 +129,9 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                 break
             if end_host is None and exit_on_end and estimator.end_seen_t is not None:
                 end_host = mono
-            if end_host is not None and mono - end_host >= end_grace_s and q.empty():
+            if end_host is not None and q.empty() and (
+                    beyond_end or mono - max(end_host, last_rx) >= end_grace_s
+                    or mono - end_host >= END_WAIT_MAX_S):
                 break
             dl = estimator.next_deadline()
             timeout = 0.05 if dl is None else min(0.05, max(0.0, dl - now()))
@@ -112,6 +141,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                 item = None
             batch = 0
             if item is not None:
+                last_rx = time.monotonic()
                 qs = q.qsize() + 1
                 if qs > estimator.counters.max_queue:
                     estimator.counters.max_queue = qs
@@ -121,7 +151,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                     d = decode_pose(payload, bad)
                     if d is None:
                         estimator.counters.malformed += 1
-                    else:
+                    elif not past_the_end(d["t"]):
                         estimator.pose(d, arr)
                 else:
                     c = decode_command(payload, bad, estimator.config.n_channels)
@@ -162,8 +192,11 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
             with contextlib.suppress(Exception):
                 d = (decode_pose(payload, bad) if kind == 0
                      else decode_command(payload, bad, estimator.config.n_channels))
-                if d is not None:
-                    (estimator.pose(d, arr) if kind == 0 else estimator.command(d, arr))
+                if d is not None and kind == 0:
+                    if not past_the_end(d["t"]):
+                        estimator.pose(d, arr)
+                elif d is not None:
+                    estimator.command(d, arr)
         if status == "success":
             estimator.finish()
         else:
@@ -176,7 +209,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
         estimator.publish_bytes = None
     if status == "success" and stop.is_set():
         status = "stopped"
-    return LiveRun(status, estimator.summary(), time.monotonic() - t_start, rates)
+    return LiveRun(status, estimator.summary(), time.monotonic() - t_start, rates, after_end)
 
 
 def console_line(est: LiveEstimator, rates: dict[str, float], backlog: int = 0) -> str:
