@@ -9,6 +9,7 @@ player's commands; :func:`run_outcome`).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import socket
@@ -92,7 +93,8 @@ def follow_player(play: subprocess.Popen, duration_s: float, time_scale: float, 
     with tqdm(total=round(duration_s), desc=desc, file=sys.stderr, mininterval=1.0,
               bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]") as bar:
         while play.poll() is None:
-            time.sleep(0.25)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                play.wait(0.25)  # returns as soon as the player ends
             el = (time.monotonic() - t_real0) * time_scale
             bar.update(max(0, min(duration_s, el) - bar.n))
             if stop_if is not None and stop_if():
