@@ -60,8 +60,7 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
     res.warnings += misfit_warnings(res.residuals, o.sigma_pos_m, o.sigma_yaw_rad,
                                     what="the batch fit")
     res.warnings += result_sign_warnings(res)  # a negative drop or damping: said, not clamped
-    res.thrust_note = ("sigma = measurement noise, jointly with the estimated valve delay and "
-                       "supply drop (the valves' force_sigma_n not included)")
+    _add_considered(res, wrun, v, inputs, fixed, o)
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
@@ -76,6 +75,25 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
     est = Estimate("ls", "custom", wrun, out, batch=res, start_note=note)
     _truth(est, out, run, wrun, v, res, inputs, o)
     return est
+
+
+def _add_considered(res, wrun: Run, v: Vehicle, inputs, fixed, o: EstimateOptions) -> None:
+    """Make the fit's sigma the total: the vehicle's stated force uncertainty (force_sigma_n,
+    a table's, an unestimated drop's drop_sigma) considered at the joint solution
+    (:func:`estimator.batch.input_consider.joint_consider`)."""
+    from estimator.batch.input_consider import joint_consider
+
+    c = joint_consider(res, wrun.pose, v, wrun.cmd_t, wrun.duty_pct, tuple(inputs), fixed=fixed,
+                       sigma_pos_m=o.sigma_pos_m, sigma_yaw_rad=o.sigma_yaw_rad)
+    if c is None:
+        res.thrust_note = ("sigma = measurement noise, jointly with the estimated valve delay "
+                           "and supply drop (the vehicle states no force uncertainty that "
+                           "reaches these commands)")
+        return
+    res.add_thrust_covariance(c.cov_thrust, c.names)
+    res.thrust_note = ("sigma = measurement noise + the vehicle's stated force uncertainty "
+                       f"({', '.join(c.names)}), jointly with the estimated valve delay and "
+                       "supply drop")
 
 
 def valve_vehicle(run: Run, table) -> tuple[Vehicle, ThrustTable | None]:
