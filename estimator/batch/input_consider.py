@@ -51,19 +51,34 @@ def joint_consider(res: BatchResult, pose, vehicle: Vehicle, cmd_t, duty,
     model = InputModel(vehicle, cmd_t, duty, tuple(input_names))
     at = model.vehicle_at([res.params[n] for n in model.names])
     plant = tuple(n for n in res.names if not is_input_name(n))
-    keep = tuple(n for n in res.names if is_input_name(n))
-    sens_t, sens = at.input_sensitivity(cmd_t, duty)
-    sens = unestimated_terms(sens, [s for n in keep if n.startswith("drop")
+    cov_noise = res.cov if res.cov_noise is None else res.cov_noise
+    return consider_at(at, res.t, pose, cmd_t, duty, plant, res.z0, fixed, cov_noise,
+                       sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, max_step=max_step,
+                       input_names=tuple(n for n in res.names if is_input_name(n)))
+
+
+def consider_at(vehicle: Vehicle, pose_t, pose, cmd_t, duty, plant: Sequence[str], z,
+                fixed: Mapping[str, float] | None, cov_noise: np.ndarray, *,
+                input_names: Sequence[str], sigma_pos_m: float, sigma_yaw_rad: float,
+                max_step: float = DEFAULT_MAX_STEP_S) -> ConsiderResult | None:
+    """The considered part at ``z`` = (initial state, ``plant`` values, ``input_names``
+    values) of ``vehicle`` (its delay and drops at those values) with the noise covariance
+    ``cov_noise`` (the fit's, or a bound's inverse Fisher matrix); None without a stated
+    uncertainty that reaches the commands ``(cmd_t, duty)``."""
+    cmd_t, duty = np.asarray(cmd_t, float), np.asarray(duty, float)
+    model = InputModel(vehicle, cmd_t, duty, tuple(input_names))
+    sens_t, sens = vehicle.input_sensitivity(cmd_t, duty)
+    sens = unestimated_terms(sens, [s for n in model.names if n.startswith("drop")
                                     for s in model.supplies(n)])
     if sens.empty:
         return None
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     fixed_d = {**PLANT_DEFAULTS, **{k: float(v) for k, v in (fixed or {}).items()}}
-    jp = JointProblem(res.t, np.asarray(pose, float), InputModel(at, cmd_t, duty, keep), plant,
+    jp = JointProblem(np.asarray(pose_t, float), np.asarray(pose, float), model, tuple(plant),
                       fixed_d, w, max_step)
-    z, theta = res.z0[:6 + len(plant)], res.z0[6 + len(plant):]
+    z = np.asarray(z, float)
+    z, theta = z[:6 + len(plant)], z[6 + len(plant):]
     _, _, H = jp.jacobian(z, theta)
     params = jp.problem(theta).params(z)
-    J = considered_output(res.t, sens_t, sens, params, z[:6], max_step)
-    cov_noise = res.cov if res.cov_noise is None else res.cov_noise
+    J = considered_output(pose_t, sens_t, sens, params, z[:6], max_step)
     return consider(H, w, cov_noise, J, sens.covariance, sens.names)

@@ -10,7 +10,9 @@ options win over the truth. A parameter the run does not inform (no two valves o
 ever open together, valves that never open, a bound above the batch fit's
 :data:`~estimator.batch.input_params.UNINFORMED_SIGMA` or an infinite one) is not bounded:
 it is held at its value, as the batch fit holds it, and reported in ``not_informed`` with
-the reason (never a NaN or an infinity in the result)."""
+the reason (never a NaN or an infinity in the result). Beside the noise bound: the
+vehicle's stated force uncertainty considered at the same point
+(:mod:`estimator.batch.input_consider`), ``crlb_sigma_thrust`` and ``crlb_sigma_total``."""
 
 from __future__ import annotations
 
@@ -22,14 +24,20 @@ import numpy as np
 
 from common.errors import UserError
 from common.runfolder import read_run
-from estimator.batch.crlb import CRLBResult
-from estimator.batch.input_params import UNINFORMED_SIGMA, InputModel, crlb_input_params
+from estimator.batch.crlb import CRLBResult, safe_inverse
+from estimator.batch.input_params import (
+    UNINFORMED_SIGMA,
+    InputModel,
+    crlb_input_params,
+    is_input_name,
+)
 from estimator.estimate.bound import Bound
 from estimator.estimate.options import BoundOptions, _windowed, as_window
 from estimator.estimate.vehicle_inputs import BODY_NAMES, truth_inputs, valve_vehicle
 
-FORCE_SIGMA_NOTE = ("noise-only bound, jointly with the valve delay and supply drop (the "
-                    "valves' force_sigma_n not included)")
+NO_FORCE_SIGMA_NOTE = ("the vehicle states no force uncertainty (force_sigma_n, a table's, "
+                       "drop_sigma) that reaches these commands: the bound covers measurement "
+                       "noise only")
 AT_NAMES = ("mass", "izz", "cx", "cy", "delay", "drop")
 """The names ``at`` takes (``drop`` sets every on/off supply's)."""
 
@@ -103,7 +111,29 @@ def bound_with_inputs(path: str | Path, table, o: BoundOptions, plant: Sequence[
         skipped.update(loose)
     values = {**params, **dict(zip(model.names, model.start().tolist(), strict=True))}
     out = _to_dict(c, p, wrun.pose_t, params, source, o, plant + inputs, values, skipped)
+    out.update(_budget(c, tv, wrun, s0, values, params, o))
     return Bound("recorded", c, wrun.pose_t, params["mass"], params["izz"], source, out)
+
+
+def _budget(c: CRLBResult, tv, wrun, s0, values, params, o: BoundOptions) -> dict[str, Any]:
+    """The vehicle's stated force uncertainty considered at the bound's point
+    (:func:`estimator.batch.input_consider.consider_at` with the inverse Fisher matrix):
+    ``crlb_sigma_thrust`` and ``crlb_sigma_total`` (RSS) per bounded parameter."""
+    from estimator.batch.input_consider import consider_at
+
+    inputs = tuple(n for n in c.names if is_input_name(n))
+    plant = tuple(n for n in c.names if not is_input_name(n))
+    z = np.concatenate([s0, [values[n] for n in plant + inputs]])
+    cons = consider_at(tv, wrun.pose_t, np.zeros((len(wrun.pose_t), 3)), wrun.cmd_t,
+                       wrun.duty_pct, plant, z, params, safe_inverse(c.fisher),
+                       input_names=inputs, sigma_pos_m=o.sigma_pos_m,
+                       sigma_yaw_rad=o.sigma_yaw_rad)
+    if cons is None:
+        return {"thrust_uncertainty": {"included": False, "note": NO_FORCE_SIGMA_NOTE}}
+    st = np.sqrt(np.maximum(np.diag(cons.cov_thrust)[6:], 0.0))
+    return {"thrust_uncertainty": {"included": True, "terms": list(cons.names), "note": ""},
+            "crlb_sigma_thrust": dict(zip(c.names, st.tolist(), strict=True)),
+            "crlb_sigma_total": dict(zip(c.names, np.hypot(c.sigma, st).tolist(), strict=True))}
 
 
 def _to_dict(c: CRLBResult, path: Path, pose_t, params, source, o: BoundOptions,
@@ -128,6 +158,5 @@ def _to_dict(c: CRLBResult, path: Path, pose_t, params, source, o: BoundOptions,
         "not_informed": dict(skipped),
         "warnings": [f"{n} is not bounded: {why}; held at {values[n]:g}"
                      for n, why in skipped.items()],
-        "crlb_correlation": corr.tolist(),
-        "thrust_uncertainty": {"included": False, "note": FORCE_SIGMA_NOTE}}
+        "crlb_correlation": corr.tolist()}
     return out

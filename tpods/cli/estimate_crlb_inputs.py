@@ -41,7 +41,8 @@ def cmd_crlb_inputs(args: argparse.Namespace, out_folder) -> int:
     out = b.to_dict()
     for w in out["warnings"]:
         print(f"tpods: warning: {w}", file=sys.stderr)
-    print(f"tpods: warning: {out['thrust_uncertainty']['note']}", file=sys.stderr)
+    if not out["thrust_uncertainty"]["included"]:
+        print(f"tpods: warning: {out['thrust_uncertainty']['note']}", file=sys.stderr)
     if out_folder is not None:
         with out_folder.writing_main() as (main, _):
             write_json(main, out)
@@ -55,7 +56,9 @@ def cmd_crlb_inputs(args: argparse.Namespace, out_folder) -> int:
         if s is None:
             print(f"  {n:<5} not informed by this run ({out['not_informed'][n]}); {at}")
         else:
-            print(f"  {n:<5} sigma >= {s:.4g} {_unit(n)}, {at}")
+            total = out.get("crlb_sigma_total", {}).get(n)
+            with_f = f" (with the stated forces {total:.4g})" if total is not None else ""
+            print(f"  {n:<5} sigma >= {s:.4g} {_unit(n)}{with_f}, {at}")
     if out["crlb_corr_mass_izz"] is not None:
         print(f"  correlation(mass, Izz) {out['crlb_corr_mass_izz']:+.3f}, "
               f"log det(information) {out['logdet_info']:.3f}")

@@ -1,6 +1,7 @@
 """``tpods estimate crlb RUN --vehicle V --estimate mass,izz,cx,cy,delay,drop`` (issue 24): the
 joint bound of what ``estimate batch`` fits with the valves' dead time and supply drop, from
-the same information matrix: at the batch estimate (``--at``) it equals the fit's sigmas;
+the same information matrix: at the batch estimate (``--at``) it equals the fit's sigmas
+(the noise part and the total with the stated force_sigma_n);
 a parameter the run does not inform is reported as such (never a NaN), a run informing
 nothing is one line."""
 
@@ -15,10 +16,12 @@ NAMES = "mass,izz,cx,cy,delay,drop"
 
 
 def _files(tmp_path: Path) -> tuple[Path, Path]:
-    """``(truth, model)`` vehicle files: the truth with a 30 ms delay and a 3 % drop."""
-    text = EIGHT.read_text().replace("force_sigma_n = 0.005\n", "")
+    """``(truth, model)`` vehicle files: the truth with a 30 ms delay and a 3 % drop and
+    exact forces, the model the file as it is (force_sigma_n 0.005 N per valve)."""
+    text = EIGHT.read_text()
     truth, model = tmp_path / "truth.toml", tmp_path / "model.toml"
-    truth.write_text(text.replace("delay_s = 0.0", "delay_s = 0.03")
+    truth.write_text(text.replace("force_sigma_n = 0.005\n", "")
+                     .replace("delay_s = 0.0", "delay_s = 0.03")
                      + "\n[supplies.main]\ndrop_per_valve = 0.03\n")
     model.write_text(text)
     return truth, model
@@ -48,8 +51,12 @@ def test_the_bound_at_the_estimate_is_the_batch_fits_sigma(tpods_exe, tmp_path):
     bound = json.loads(r.stdout)
     assert bound["estimated"] == NAMES.split(",") and not bound["not_informed"]
     assert set(bound["crlb_sigma"]) == set(NAMES.split(","))
-    for n in est["estimated"]:
-        assert abs(bound["crlb_sigma"][n] / est["sigma"][n] - 1) < 0.01, n
+    assert est["thrust_uncertainty"]["included"] and bound["thrust_uncertainty"]["included"]
+    assert bound["thrust_uncertainty"]["terms"] == est["thrust_uncertainty"]["terms"]
+    for n in est["estimated"]:  # noise part, and the total with the valves' force_sigma_n
+        assert abs(bound["crlb_sigma"][n] / est["sigma_noise"][n] - 1) < 0.01, n
+        assert abs(bound["crlb_sigma_total"][n] / est["sigma"][n] - 1) < 0.01, n
+        assert est["sigma"][n] > 1.2 * est["sigma_noise"][n], n
         assert bound["at"][n] == est["params"][n]
     assert bound["crlb_mass_sigma_kg"] == bound["crlb_sigma"]["mass"]
 
