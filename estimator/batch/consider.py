@@ -232,14 +232,32 @@ def batch_consider(res, cmd_t: np.ndarray, sens, *, sigma_pos_m: float, sigma_ya
         states = reference_states(s0, grid, res.params)
         _, phi = trajectory_stm(s0, None, None, res.t, res.params, res.names, grid=grid,
                                 states=states)
-        J = output_sensitivity(states, grid, res.params, segment_jacobian(grid, sens.jacobian))
+        J = _tracked_output(states, grid, res.params, sens)
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     cov_noise = res.cov if res.cov_noise is None else res.cov_noise
     cx, cy = float(res.params.get("cx", 0.0)), float(res.params.get("cy", 0.0))
-    nodes = states[grid.node_pos]
-    H = output_jacobian(nodes, phi, res.names, cx, cy)
-    J = output_jacobian(nodes, J, (), cx, cy)  # the tracked frame's poses (yaw rotates c)
+    H = output_jacobian(states[grid.node_pos], phi, res.names, cx, cy)
     return consider(H, w, cov_noise, J, sens.covariance, sens.names)
+
+
+def _tracked_output(states: np.ndarray, grid: Grid, params: Mapping[str, float], sens
+                    ) -> np.ndarray:
+    """(N, 3, P) d tracked pose(t_k) / d considered parameter along ``states`` (the
+    tracked frame's poses: the yaw rotates the centre of mass offset)."""
+    J = output_sensitivity(states, grid, params, segment_jacobian(grid, sens.jacobian))
+    cx, cy = float(params.get("cx", 0.0)), float(params.get("cy", 0.0))
+    return output_jacobian(states[grid.node_pos], J, (), cx, cy)
+
+
+def considered_output(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[str, float],
+                      s0, max_step: float = DEFAULT_MAX_STEP_S) -> np.ndarray:
+    """(N, 3, P) d tracked pose(t_k) / d considered parameter of ``sens`` (a
+    ThrustSensitivity on the rows ``cmd_t``) at the plant ``params`` from the state
+    ``s0``: the ``J_k`` of :func:`consider` for a caller with its own ``H_k``."""
+    grid = make_grid(cmd_t, sens.thrust_n, pose_t, max_step)
+    with np.errstate(all="ignore"):
+        states = reference_states(np.asarray(s0, float), grid, params)
+        return _tracked_output(states, grid, params, sens)
 
 
 def bound_consider(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[str, float],
@@ -254,11 +272,9 @@ def bound_consider(pose_t: np.ndarray, cmd_t: np.ndarray, sens, params: Mapping[
     s0 = np.asarray(s0, float)
     states = reference_states(s0, grid, params)
     _, phi = trajectory_stm(s0, None, None, pose_t, params, tuple(names), grid=grid, states=states)
-    J = output_sensitivity(states, grid, params, segment_jacobian(grid, sens.jacobian))
+    J = _tracked_output(states, grid, params, sens)
     cx, cy = float(params.get("cx", 0.0)), float(params.get("cy", 0.0))
-    nodes = states[grid.node_pos]
-    H = output_jacobian(nodes, phi, tuple(names), cx, cy)
-    J = output_jacobian(nodes, J, (), cx, cy)
+    H = output_jacobian(states[grid.node_pos], phi, tuple(names), cx, cy)
     F = fisher_information(H, sigma_pos_m, sigma_yaw_rad)
     w = np.array([sigma_pos_m**-2, sigma_pos_m**-2, sigma_yaw_rad**-2])
     return consider(H, w, safe_inverse(F), J, sens.covariance, sens.names)

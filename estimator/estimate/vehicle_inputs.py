@@ -40,14 +40,7 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
                         "(name friction ones in --estimate instead of --model)")
     run = read_run(run, structure=o.structure) if not isinstance(run, Run) else (
         _with_structure(run, o.structure) if o.structure is not None else run)
-    v = run.structure
-    if v is None or v.kind != "vehicle" or run.thrust_n is not None or run.wrench_frame:
-        raise UserError(f"{run.path}: delay and drop are a vehicle's valves: give --vehicle "
-                        "FILE with a run of valve commands (commands.csv, no thrusts.csv)")
-    if table is not None:
-        v.check_table_option()
-        table = table if isinstance(table, ThrustTable) else load_thrust_table(table)
-        v = v.with_table(table)
+    v, table = valve_vehicle(run, table)
     fixed = dict(o.fixed or {})
     names = tuple(plant) or tuple(n for n in BODY_NAMES if n not in fixed)
     wrun = _windowed(run, as_window(o.window))
@@ -67,8 +60,7 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
     res.warnings += misfit_warnings(res.residuals, o.sigma_pos_m, o.sigma_yaw_rad,
                                     what="the batch fit")
     res.warnings += result_sign_warnings(res)  # a negative drop or damping: said, not clamped
-    res.thrust_note = ("sigma = measurement noise, jointly with the estimated valve delay and "
-                       "supply drop (the valves' force_sigma_n not included)")
+    _add_considered(res, wrun, v, inputs, fixed, o)
     if log is not None:
         for w in res.warnings:
             log(f"tpods: warning: {w}")
@@ -85,6 +77,53 @@ def estimate_with_inputs(run: Run | str, table, o: EstimateOptions, plant: Seque
     return est
 
 
+def _add_considered(res, wrun: Run, v: Vehicle, inputs, fixed, o: EstimateOptions) -> None:
+    """Make the fit's sigma the total: the vehicle's stated force uncertainty (force_sigma_n,
+    a table's, an unestimated drop's drop_sigma) considered at the joint solution
+    (:func:`estimator.batch.input_consider.joint_consider`)."""
+    from estimator.batch.input_consider import joint_consider
+
+    c = joint_consider(res, wrun.pose, v, wrun.cmd_t, wrun.duty_pct, tuple(inputs), fixed=fixed,
+                       sigma_pos_m=o.sigma_pos_m, sigma_yaw_rad=o.sigma_yaw_rad)
+    if c is None:
+        res.thrust_note = ("sigma = measurement noise, jointly with the estimated valve delay "
+                           "and supply drop (the vehicle states no force uncertainty that "
+                           "reaches these commands)")
+        return
+    res.add_thrust_covariance(c.cov_thrust, c.names)
+    res.thrust_note = ("sigma = measurement noise + the vehicle's stated force uncertainty "
+                       f"({', '.join(c.names)}), jointly with the estimated valve delay and "
+                       "supply drop")
+
+
+def valve_vehicle(run: Run, table) -> tuple[Vehicle, ThrustTable | None]:
+    """``(vehicle, table)`` of a run of valve commands (the run's ``--vehicle``, with
+    ``--thrust-table`` applied); one-line refusal for a run without one."""
+    v = run.structure
+    if v is None or v.kind != "vehicle" or run.thrust_n is not None or run.wrench_frame:
+        raise UserError(f"{run.path}: delay and drop are a vehicle's valves: give --vehicle "
+                        "FILE with a run of valve commands (commands.csv, no thrusts.csv)")
+    if table is not None:
+        v.check_table_option()
+        table = table if isinstance(table, ThrustTable) else load_thrust_table(table)
+        v = v.with_table(table)
+    return v, table
+
+
+def truth_inputs(run: Run, v: Vehicle) -> Vehicle:
+    """``v`` with the valve delay and supply drops the run was made with: run.json truth's
+    ``delay_s`` and ``drop_per_valve`` when given, else those of the run folder's own
+    ``vehicle.toml`` (the simulated vehicle), else ``v``'s own."""
+    truth = run.truth or {}
+    own = run.path / "vehicle.toml"
+    sim_v = Vehicle.load(own) if own.is_file() else v
+    delay = truth.get("delay_s", sim_v.valves.delay_s)
+    drops = truth.get("drop_per_valve")
+    drops = ({s: sim_v.drop_of(s) for s in v.onoff_supplies()} if drops is None
+             else {s: float(drops) for s in v.onoff_supplies()})
+    return v.with_input_params(float(delay), drops)
+
+
 def _truth(est, out, run, wrun, v, res, inputs, o) -> None:
     """Errors and the joint CRLB at run.json's truth (nothing without one)."""
     truth = run.truth or {}
@@ -97,13 +136,7 @@ def _truth(est, out, run, wrun, v, res, inputs, o) -> None:
                 "mass_error_kg": res.mass_kg - tp["mass"], "izz_error_kgm2": res.izz_kgm2 - tp["izz"],
                 "mass_rel_error": (res.mass_kg - tp["mass"]) / tp["mass"],
                 "izz_rel_error": (res.izz_kgm2 - tp["izz"]) / tp["izz"]})
-    own = run.path / "vehicle.toml"
-    sim_v = Vehicle.load(own) if own.is_file() else v
-    delay = truth.get("delay_s", sim_v.valves.delay_s)
-    drops = truth.get("drop_per_valve")
-    drops = ({s: sim_v.drop_of(s) for s in v.onoff_supplies()} if drops is None
-             else {s: float(drops) for s in v.onoff_supplies()})
-    tv = v.with_input_params(float(delay), drops)
+    tv = truth_inputs(run, v)
     s0 = truth.get("initial_state") if wrun.pose_t[0] == run.pose_t[0] else None
     plant = tuple(n for n in res.names if n not in inputs)
     try:

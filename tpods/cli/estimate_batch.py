@@ -51,8 +51,14 @@ _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "c
                  "r": "r", "arm": "arm", "cx": "cx", "cy": "cy"}
 
 
-def key_values(text: str) -> dict[str, float]:
-    """``"m=1,izz=0.005"`` -> {"mass": 1.0, "izz": 0.005} (argparse type)."""
+_AT_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "cx": "cx", "cy": "cy", "delay": "delay",
+            "drop": "drop"}
+
+
+def key_values(text: str, keys: dict[str, str] | None = None) -> dict[str, float]:
+    """``"m=1,izz=0.005"`` -> {"mass": 1.0, "izz": 0.005} (argparse type); ``keys`` the
+    accepted names and what each means (default the initial-guess names)."""
+    keys = _INITIAL_KEYS if keys is None else keys
     out: dict[str, float] = {}
     for item in text.split(","):
         item = item.strip()
@@ -61,17 +67,22 @@ def key_values(text: str) -> dict[str, float]:
         if "=" not in item:
             raise argparse.ArgumentTypeError(f"expected NAME=VALUE items, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
-        if k.lower() not in _INITIAL_KEYS:
+        if k.lower() not in keys:
             raise argparse.ArgumentTypeError(
-                f"unknown name {k!r}; use {', '.join(sorted(set(_INITIAL_KEYS)))}")
+                f"unknown name {k!r}; use {', '.join(sorted(set(keys)))}")
         try:
             val = float(v)
         except ValueError:
             raise argparse.ArgumentTypeError(f"not a number: {v!r} (for {k})") from None
         if not math.isfinite(val):
             raise argparse.ArgumentTypeError(f"{k} must be finite")
-        out[_INITIAL_KEYS[k.lower()]] = val
+        out[keys[k.lower()]] = val
     return out
+
+
+def at_values(text: str) -> dict[str, float]:
+    """``--at mass=23,delay=0.03``: the point of a vehicle's joint bound (argparse type)."""
+    return key_values(text, _AT_KEYS)
 
 
 def name_list(text: str) -> tuple[str, ...]:
@@ -144,9 +155,14 @@ def register(sub, est, rep) -> None:
     c.add_argument("--window", default=None, metavar="T0:T1", help="restrict to poses in T0..T1")
     add_structure_or_vehicle(c, "structure.toml: a structure's sequence (4N duty columns); bounds "
                         "mass, izz, cx, cy (default: the run folder's own structure.toml)")
-    c.add_argument("--estimate", type=name_list, default=None, metavar="NAMES",
+    c.add_argument("--estimate", type=batch_name_list, default=None, metavar="NAMES",
                    help="a structure: the parameters to bound (default mass,izz,cx,cy less "
-                        "the [body] values known without a sigma)")
+                        "the [body] values known without a sigma); a vehicle run of on/off "
+                        "valves also delay and drop: the joint bound of estimate batch's fit")
+    c.add_argument("--at", type=at_values, default={}, metavar="NAME=VALUE,...",
+                   help="with delay/drop in --estimate: the point of the bound (any of mass, "
+                        "izz, cx, cy in kg, kg m^2, m; delay in s; drop per other open valve); "
+                        "default the run's truth, else the vehicle's values")
     add_json_flag(c)
     add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
     cli_realism.add_model_option(c, auto=False)  # issue 9
@@ -311,6 +327,13 @@ def cmd_crlb(args: argparse.Namespace) -> int:
 
     out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")
     not_an_input(out_folder, args.run_dir, args.thrust_table)
+    if args.estimate and any(n in ("delay", "drop") or n.startswith("drop.") for n in args.estimate):
+        from tpods.cli.estimate_crlb_inputs import cmd_crlb_inputs
+
+        return cmd_crlb_inputs(args, out_folder)  # issue 24: the joint bound with the valves
+    if args.at:
+        raise UserError("--at sets the point of a vehicle's joint bound: name delay or drop "
+                        "in --estimate (else --mass and --izz)")
     table = load_thrust_table(args.thrust_table)
     _check_crlb_size(args)  # planned poses: before they are allocated
     seq = load_sequence(args.run_dir, table, args.clamp, args.pose_rate, structure=args.structure)
