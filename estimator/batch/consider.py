@@ -168,7 +168,9 @@ class ConsiderResult:
 
     Attributes:
         names: (P,) the table's uncertain parameters (see ``thrust_sensitivity``).
-        sensitivity: (n, P) d estimate / d parameter (SI units per parameter unit).
+        sensitivity: (n, P) ``S = Lambda^-1 sum_k H_k^T W J_k`` (SI units per parameter
+            unit): a change ``dc`` of the parameters moves the estimate by ``-S dc`` (the
+            covariance ``S P_c S^T`` does not depend on the sign).
         cov_thrust: (n, n) ``S P_c S^T``.
         contributions: (n, P) each parameter's share of each estimate's variance (sums
             to ``diag(cov_thrust)`` when the parameters are uncorrelated; with correlated
