@@ -14,7 +14,7 @@ import sys
 from typing import Any
 
 _UNITS = {"mass": "kg", "izz": "kg m^2", "ct": "N s/m", "cr": "N m s", "kb": "N m s/m",
-          "ax": "m/s^2", "ay": "m/s^2"}
+          "ax": "m/s^2", "ay": "m/s^2", "cx": "m", "cy": "m", "delay": "s", "drop": "per valve"}
 
 
 def print_json(obj: dict[str, Any]) -> None:
