@@ -298,10 +298,6 @@ def test_capture_path_rules(tmp_path):
 # ---------------------------------------------------------------- the command line
 
 
-def _run(exe, *args, timeout=60):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=timeout)
-
-
 @pytest.mark.parametrize("content, msg", [
     (b"poses,t,x\n1,2,3\n" * 4, "not a pcap or pcapng file (it starts with 'poses,t,')"),
     (b"", "not a pcap file (empty)"),
@@ -335,8 +331,8 @@ def test_cli_replays_a_truncated_capture_and_reports_it(tpods_exe, tmp_path):
     path = tmp_path / "cut.pcap"
     _write_capture(path, 5)
     path.write_bytes(path.read_bytes()[:-100])
-    r = _run(tpods_exe, "mocap", "bridge", "--source", f"pcap:{path}", "--speed", "0",
-             "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-multicast", "--quiet")
+    r = run_in_process("mocap", "bridge", "--source", f"pcap:{path}", "--speed", "0", "--listen",
+                       f"tcp/127.0.0.1:{free_port()}", "--no-multicast", "--quiet")
     assert r.returncode == 0, r.stderr
     assert "published 8 poses of 2 bodies" in r.stdout
     assert "4 datagrams, 0 malformed" in r.stdout and "1 truncated record (file cut)" in r.stdout

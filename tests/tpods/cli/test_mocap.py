@@ -93,8 +93,8 @@ def test_user_errors_are_one_line(tpods_exe, args, msg):
 
 def test_sim_source_without_folder_runs_nominal(tpods_exe, tmp_path):
     ep = f"tcp/127.0.0.1:{free_port()}"
-    r = _run(tpods_exe, "mocap", "bridge", "--source", "sim", "--rate-scale", "0",
-             "--listen", ep, "--no-multicast", "--quiet")
+    r = run_in_process("mocap", "bridge", "--source", "sim", "--rate-scale", "0", "--listen", ep,
+                       "--no-multicast", "--quiet")
     assert r.returncode == 0, r.stderr
     n = int(r.stdout.split("published ")[1].split()[0])
     assert n == 120 * 120 + 1  # 120 s at 120 Hz, nothing dropped
