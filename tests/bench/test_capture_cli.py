@@ -9,6 +9,7 @@ import pytest
 from bench.capture import read_transcript
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from tests.support.bench import Bench, start_session
+from tests.support.cli import run_in_process
 
 
 def _run(*args, timeout=120):
@@ -32,14 +33,14 @@ def test_characterize_captures_both_links_into_the_run_folder_and_replays(tpods_
     assert any(data.startswith(b"DUTY* 90") for _, d, data, _, _ in ev if d == "tx")
     assert json.loads((out / "run.json").read_text())["valves_closed_confirmed"] is True
     # the transcripts drive the same command again, as devices
-    r = _run(tpods_exe, "bench", "characterize", "--valves", f"replay://{out}/valves.serial.jsonl",
+    r = run_in_process("bench", "characterize", "--valves", f"replay://{out}/valves.serial.jsonl",
              "--scale", f"replay://{out}/scale.serial.jsonl", "--nozzles", "1", "--duty", "50,90",
              "--dwell", "0.2", "--settle", "0.1", "--zero-settle", "0.1", "--zero-dwell", "0.1",
              "--out", str(tmp_path / "again"), "--no-progress")
     assert r.returncode == 0, r.stderr
     assert "session success: 2 steps" in r.stdout
     # a changed command fails in one line naming the exchange
-    r = _run(tpods_exe, "bench", "characterize", "--valves", f"replay://{out}/valves.serial.jsonl",
+    r = run_in_process("bench", "characterize", "--valves", f"replay://{out}/valves.serial.jsonl",
              "--scale", f"replay://{out}/scale.serial.jsonl", "--nozzles", "1", "--duty", "50,80",
              "--dwell", "0.2", "--settle", "0.1", "--zero-settle", "0.1", "--zero-dwell", "0.1",
              "--out", str(tmp_path / "changed"), "--no-progress")
@@ -52,7 +53,7 @@ def test_characterize_capture_dir_refuses_existing_transcripts(tpods_exe, tmp_pa
     d = tmp_path / "cap"
     d.mkdir()
     (d / "valves.serial.jsonl").write_text("{}\n")
-    r = _run(tpods_exe, "bench", "characterize", "--valves", "/dev/null/x", "--scale", "/dev/null/y",
+    r = run_in_process("bench", "characterize", "--valves", "/dev/null/x", "--scale", "/dev/null/y",
              "--out", str(tmp_path / "run"), "--capture", str(d))
     assert r.returncode == 2 and "already holds valves.serial.jsonl" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
@@ -69,10 +70,10 @@ def test_calibrate_mass_capture_replays_to_the_same_mass(tpods_exe, tmp_path):
         srv.stop()
     assert r.returncode == 0, r.stderr
     live = json.loads(r.stdout)
-    r = _run(tpods_exe, "calibrate", "mass", "--scale", f"replay://{cap}", "--readings", "4", "--json")
+    r = run_in_process("calibrate", "mass", "--scale", f"replay://{cap}", "--readings", "4", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["mass_kg"] == live["mass_kg"]
-    r = _run(tpods_exe, "calibrate", "mass", "--values", "1,2", "--capture", str(tmp_path / "x.jsonl"))
+    r = run_in_process("calibrate", "mass", "--values", "1,2", "--capture", str(tmp_path / "x.jsonl"))
     assert r.returncode == 2 and "needs --scale" in r.stderr
 
 
@@ -91,7 +92,7 @@ def test_run_play_captures_into_its_out_folder(tpods_exe, tmp_path):
     _, ev = read_transcript(out / "valves.serial.jsonl")
     tx = [data for _, d, data, _, _ in ev if d == "tx"]
     assert tx[-2:] == [b"OFF\n", b"STATE?\n"]                 # closed on exit, on the record
-    r = _run(tpods_exe, "run", "play", "--valves", "/dev/null/x", "--capture")
+    r = run_in_process("run", "play", "--valves", "/dev/null/x", "--capture")
     assert r.returncode == 2 and "--capture without a folder" in r.stderr
 
 

@@ -15,6 +15,7 @@ from bench.valves import ValveController
 from common.errors import DeviceError, UserError
 from common.thrust_table import ThrustTable
 from tests.support.bench import Bench, recorded, run_json
+from tests.support.cli import run_in_process
 
 
 def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp_path):
@@ -45,8 +46,7 @@ def test_full_session_and_fit_match_table2_within_1pct_full_scale(tpods_exe, tmp
     assert len(steps) == 36 and (steps["n"] >= 10).all()
     assert steps["drift_gf"].iloc[-1] > 0.1                # the drift was there and was removed
     table_path = tmp_path / "fit.toml"
-    f = subprocess.run([tpods_exe, "bench", "fit", str(out), "--out", str(table_path),
-                        "--reference", "table2"], capture_output=True, text=True, timeout=120)
+    f = run_in_process("bench", "fit", str(out), "--out", str(table_path), "--reference", "table2")
     assert f.returncode == 0, f.stderr
     fitted = ThrustTable.load(table_path)
     errs = max_error_pct_full_scale(fitted, ThrustTable.default(), np.arange(10.0, 90.01, 0.5))

@@ -8,14 +8,13 @@ line naming the file and the line. Formats: docs/run-format.md.
 
 from __future__ import annotations
 
-import subprocess
-
 import numpy as np
 import pytest
 
 from common.errors import UserError
 from common.runfolder import read_run
 from common.thrust_table import ThrustTable
+from tests.support.cli import run_in_process
 
 TIDY_COMMANDS = b"t,d1,d2,d3,d4\n0,50,50,0,0\n1,20,0,20,0\n2,0,0,0,0\n"
 TIDY_POSES = b"t,x,y,psi\n0,0,0,0\n0.5,0.01,-0.02,0.1\n1,0.04,-0.05,0.3\n2,0.1,-0.1,3.1\n"
@@ -181,7 +180,7 @@ def test_utf16_is_refused_in_one_line(tmp_path):
 
 def test_cli_refusal_is_one_line_exit_2(tpods_exe, tmp_path):
     p = make_run(tmp_path, commands=b"t,d1,d2,d3,d4\r\n0,50,50,0,0\r\n\r\n1,20,0,x,0\r\n2,0,0,0,0\r\n")
-    r = subprocess.run([tpods_exe, "estimate", "batch", str(p)], capture_output=True, text=True, timeout=120)
+    r = run_in_process("estimate", "batch", str(p))
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
         f"tpods: error: {p / 'commands.csv'}: line 4: column d3 is not a finite number ('x')"]
@@ -263,8 +262,7 @@ def test_cli_bad_table_is_one_line_exit_2(tpods_exe, tmp_path):
     table = tmp_path / "table.toml"
     table.write_bytes(("# 20 °C\n" + TABLE).encode("cp1252"))
     p = make_run(tmp_path)
-    r = subprocess.run([tpods_exe, "estimate", "batch", str(p), "--thrust-table", str(table)],
-                       capture_output=True, text=True, timeout=120)
+    r = run_in_process("estimate", "batch", str(p), "--thrust-table", str(table))
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [
         f"tpods: error: {table}: line 1: byte 0xb0 is not UTF-8 (TOML must be UTF-8; save it as UTF-8)"]

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 import time
 
 import pytest
@@ -49,6 +48,7 @@ from bench.ohaus import NotALoadReading, OhausScout, Reading, parse_line, parse_
 from bench.session import SessionConfig, run_session
 from bench.valves import ValveController
 from tests.support.bench import Bench, run_json
+from tests.support.cli import run_in_process
 from tests.support.fakeport import ScriptedPort
 
 NaN = math.nan
@@ -254,9 +254,8 @@ def test_session_on_a_balance_printing_only_tare_fails_with_one_line(tpods_exe, 
     out = tmp_path / "run"
     try:
         v, s = b.paths
-        r = subprocess.run([tpods_exe, "bench", "characterize", "--valves", v, "--scale", s,
-                            "--nozzles", "1", "--duty", "50", "--out", str(out), "--no-progress"],
-                           capture_output=True, text=True, timeout=60)
+        r = run_in_process("bench", "characterize", "--valves", v, "--scale", s, "--nozzles", "1",
+                           "--duty", "50", "--out", str(out), "--no-progress")
     finally:
         b.stop()
     assert r.returncode == 2
@@ -272,8 +271,7 @@ def test_calibrate_mass_on_a_balance_printing_only_tare_fails_with_one_line(tpod
     es = EmulatedScout(None, load_g=812.5, print_content=("tare",), seed=2)
     t0 = time.monotonic()
     with serve_pty(es) as srv:
-        r = subprocess.run([tpods_exe, "calibrate", "mass", "--scale", srv.path, "--readings", "5",
-                            "--json"], capture_output=True, text=True, timeout=60)
+        r = run_in_process("calibrate", "mass", "--scale", srv.path, "--readings", "5", "--json")
     assert time.monotonic() - t0 < 20                        # not 3 n attempts of 5 s each
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()

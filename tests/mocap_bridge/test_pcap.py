@@ -23,6 +23,7 @@ from mocap_bridge.pose import decode_pose
 from mocap_bridge.sources import open_source
 from mocap_bridge.sources.pcap import PcapSource
 from mocap_bridge.sources.vicon_udp import DatagramDecoder, ViconUDPSource, build_datagram
+from tests.support.cli import run_in_process
 from tests.support.fixtures_vicon import capture_emulated, tracker_frames
 from tests.support.net import Collector, RunningBridge, free_port, subscribe_ready, wait_for
 
@@ -297,10 +298,6 @@ def test_capture_path_rules(tmp_path):
 # ---------------------------------------------------------------- the command line
 
 
-def _run(exe, *args, timeout=60):
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=timeout)
-
-
 @pytest.mark.parametrize("content, msg", [
     (b"poses,t,x\n1,2,3\n" * 4, "not a pcap or pcapng file (it starts with 'poses,t,')"),
     (b"", "not a pcap file (empty)"),
@@ -311,7 +308,7 @@ def test_not_a_pcap_is_one_line_error(tpods_exe, tmp_path, content, msg):
     path = tmp_path / "x.pcap"
     if content is not None:
         path.write_bytes(content)
-    r = _run(tpods_exe, "mocap", "bridge", "--source", f"pcap:{path}", "--no-multicast")
+    r = run_in_process("mocap", "bridge", "--source", f"pcap:{path}", "--no-multicast")
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip().splitlines() == [f"tpods: error: {path}: {msg}"], r.stderr
 
@@ -325,8 +322,7 @@ def test_not_a_pcap_is_one_line_error(tpods_exe, tmp_path, content, msg):
     (["--source", "pcap:"], "--source pcap needs a file"),
 ])
 def test_capture_and_pcap_user_errors(tpods_exe, tmp_path, args, msg):
-    r = subprocess.run([tpods_exe, "mocap", "bridge", *args, "--no-multicast"], capture_output=True,
-                       text=True, timeout=60, cwd=tmp_path)
+    r = run_in_process("mocap", "bridge", *args, "--no-multicast", cwd=tmp_path)
     assert r.returncode == 2 and msg in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 
@@ -335,8 +331,8 @@ def test_cli_replays_a_truncated_capture_and_reports_it(tpods_exe, tmp_path):
     path = tmp_path / "cut.pcap"
     _write_capture(path, 5)
     path.write_bytes(path.read_bytes()[:-100])
-    r = _run(tpods_exe, "mocap", "bridge", "--source", f"pcap:{path}", "--speed", "0",
-             "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-multicast", "--quiet")
+    r = run_in_process("mocap", "bridge", "--source", f"pcap:{path}", "--speed", "0", "--listen",
+                       f"tcp/127.0.0.1:{free_port()}", "--no-multicast", "--quiet")
     assert r.returncode == 0, r.stderr
     assert "published 8 poses of 2 bodies" in r.stdout
     assert "4 datagrams, 0 malformed" in r.stdout and "1 truncated record (file cut)" in r.stdout

@@ -14,6 +14,7 @@ from bench.emulators import EmulatedValveController
 from common.thrust_table import ThrustTable
 from estimator.plant.model import PlantParams, integrate_zoh
 from mocap_bridge.sources.vicon_udp import parse_datagram
+from tests.support.cli import run_in_process
 from tests.support.net import free_port
 from tpods.clock import LabClock
 from tpods.plant_loop import MocapNoise, PlantLoop
@@ -77,7 +78,6 @@ def test_live_cli_refuses_bad_input_in_one_line(tpods_exe, tmp_path):
     for extra, msg in ((["--thrust-table", str(tmp_path / "no.toml")], "no.toml"),
                        (["--method", "ls-ekf", "--ls-window", "-1"], "ls-window"),
                        (["--zenoh-config", str(tmp_path / "z.json5")], "zenoh config")):
-        r = subprocess.run([tpods_exe, "estimate", "live", *extra], capture_output=True,
-                           text=True, timeout=60)
+        r = run_in_process("estimate", "live", *extra)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, \
             r.stderr

@@ -19,6 +19,7 @@ from bench.emulators import EmulatedValveController
 from common.vehicle import Vehicle
 from common.vehicle_toml import Valves
 from estimator.plant.model import PlantParams, integrate_zoh
+from tests.support.cli import run_in_process
 from tests.support.net import free_port, matching, wait_for
 from tpods.clock import LabClock
 from tpods.demo_procs import switch_lag_ms
@@ -127,8 +128,8 @@ def test_run_plant_play_and_estimate_live_on_a_vehicle(tpods_exe, tmp_path):
                     f"switched {lag['mean']:.1f} lab ms after the player's stamps on average")
     assert abs(s["mass_kg"] - 23.09) < 3.5 * s["mass_sigma_kg"], (s, lag)
     assert abs(s["izz_kgm2"] - 0.31) < 3.5 * s["izz_sigma_kgm2"], (s, lag)
-    r = subprocess.run([tpods_exe, "estimate", "batch", str(tmp_path / "live"), "--vehicle",
-                        str(EIGHT), "--json"], capture_output=True, text=True, timeout=120)
+    r = run_in_process("estimate", "batch", str(tmp_path / "live"), "--vehicle", str(EIGHT),
+                       "--json")
     assert r.returncode == 0, r.stderr
     b = json.loads(r.stdout)
     assert b["vehicle"] == "example-8-onoff" and b["converged"]

@@ -140,13 +140,12 @@ def test_every_exit_path_closes_the_valves(valves, tmp_path, how):
 
 
 def test_play_cli_refuses_bad_options_in_one_line(tpods_exe, tmp_path):
-    import subprocess
+    from tests.support.cli import run_in_process
 
     for extra, msg in ((["--time-scale", "3"], "--clock-origin"),
                        (["--duty-limits", "90,10"], "--duty-limits"),
                        (["--input", str(tmp_path / "nope.csv")], "unknown input")):
-        r = subprocess.run([tpods_exe, "run", "play", "--valves", "/dev/null/none", *extra],
-                           capture_output=True, text=True, timeout=60)
+        r = run_in_process("run", "play", "--valves", "/dev/null/none", *extra)
         assert r.returncode == 2 and msg in r.stderr and len(r.stderr.strip().splitlines()) == 1, \
             r.stderr
 

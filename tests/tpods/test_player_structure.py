@@ -156,11 +156,10 @@ def test_run_play_structure_cli(tpods_exe, two, tmp_path, sig):
 
 
 def test_run_play_structure_refuses_mismatched_valves(tpods_exe, tmp_path):
-    import subprocess
+    from tests.support.cli import run_in_process
 
     (tmp_path / "truss.toml").write_text(STRUCTURE)
-    r = subprocess.run([tpods_exe, "run", "play", "--structure", str(tmp_path / "truss.toml"),
-                        "--valves", "a=/dev/null", "--duration", "1"], capture_output=True,
-                       text=True, timeout=60)
+    r = run_in_process("run", "play", "--structure", str(tmp_path / "truss.toml"), "--valves",
+                       "a=/dev/null", "--duration", "1")
     assert r.returncode == 2 and "the structure's modules are a, b" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

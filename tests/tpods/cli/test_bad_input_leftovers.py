@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.net import free_port
 from tests.tpods.cli.test_outputs import write_session
 from tpods.cli import main
@@ -241,8 +241,8 @@ def _no_network(tmp_path) -> list[str]:
 
 
 def test_estimate_live_that_received_nothing_fails(tpods_exe, tmp_path):
-    r = run(tpods_exe, "estimate", "live", "--duration", "1.5", "--quiet", "--out",
-            str(tmp_path / "live"), *_no_network(tmp_path), timeout=120)
+    r = run_in_process("estimate", "live", "--duration", "1.5", "--quiet", "--out",
+                       str(tmp_path / "live"), *_no_network(tmp_path))
     line = error_line(r.returncode, r.stderr)
     assert "no estimate: received no poses on tpods/mocap/tpods1/pose" in line
     assert json.loads((tmp_path / "live" / "run.json").read_text())["status"] == "failed"
@@ -250,16 +250,16 @@ def test_estimate_live_that_received_nothing_fails(tpods_exe, tmp_path):
 
 def test_mocap_bridge_that_published_nothing_fails(tpods_exe, tmp_path):
     port = free_port(socket.SOCK_DGRAM)
-    r = run(tpods_exe, "mocap", "bridge", "--source", f"vicon-udp:{port}", "--bind", "127.0.0.1",
-            "--duration", "1.5", "--quiet", *_no_network(tmp_path), timeout=120)
+    r = run_in_process("mocap", "bridge", "--source", f"vicon-udp:{port}", "--bind", "127.0.0.1",
+                       "--duration", "1.5", "--quiet", *_no_network(tmp_path))
     line = error_line(r.returncode, r.stderr)
     assert f"the bridge published no poses: no datagram arrived on UDP port {port}" in line
     assert "published 0 poses" in r.stdout
 
 
 def test_mocap_record_that_received_nothing_fails(tpods_exe, tmp_path):
-    r = run(tpods_exe, "mocap", "record", "--out", str(tmp_path / "rec"), "--duration", "1.5",
-            "--quiet", *_no_network(tmp_path), timeout=120)
+    r = run_in_process("mocap", "record", "--out", str(tmp_path / "rec"), "--duration", "1.5",
+                       "--quiet", *_no_network(tmp_path))
     line = error_line(r.returncode, r.stderr)
     assert "received nothing on tpods/mocap/**" in line
     assert json.loads((tmp_path / "rec" / "recording.json").read_text())["status"] == "failed"

@@ -9,7 +9,7 @@ import pytest
 from bench.ohaus import OhausScout
 from bench.valves import ValveController
 from common.thrust_table import ThrustTable
-from tests.support.cli import run
+from tests.support.cli import run, run_in_process
 from tpods.cli import main
 
 
@@ -58,7 +58,7 @@ def test_fit_recomputes_steps_from_raw_and_fixed_order(tpods_exe, tmp_path):
     run_dir.mkdir()
     pd.DataFrame(rows, columns=["t_s", "window", "phase", "step", "n_open", "duty_pct", "reading_gf",
                                 "stable"]).to_csv(run_dir / "raw.csv", index=False)
-    r = run(tpods_exe, "bench", "fit", str(run_dir), "--order", "3", "--pressure-psi", "60")
+    r = run_in_process("bench", "fit", str(run_dir), "--order", "3", "--pressure-psi", "60")
     assert r.returncode == 0, r.stderr
     fitted = ThrustTable.load(run_dir / "thrust_table.toml")
     assert fitted.pressure_psi == 60 and sorted(fitted.coefficients) == [1, 2]

@@ -1,5 +1,6 @@
-"""`tpods bench import` and `tpods bench fit` on imported load-cell logs (subprocess, as a
-user runs them): on/off pulses and a duty staircase; damaged logs are one line, exit 2."""
+"""`tpods bench import` and `tpods bench fit` on imported load-cell logs (in process, with the
+exit code, stdout and stderr a user sees): on/off pulses and a duty staircase; damaged logs
+are one line, exit 2."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from common.thrust_table import GF_TO_N
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tests.support.pulse_logs import pulse_log
 from tpods.cli import main
 
@@ -17,12 +18,12 @@ from tpods.cli import main
 def test_import_then_fit_pulses_json(tpods_exe, tmp_path):
     log = pulse_log(tmp_path / "log.csv", {1: 45.0, 2: 38.0}, 0.08, 0.15, seed=3)
     sess = tmp_path / "sess"
-    r = run(tpods_exe, "bench", "import", str(log), "--out", str(sess), "--settle", "1.5",
+    r = run_in_process("bench", "import", str(log), "--out", str(sess), "--settle", "1.5",
             "--zero-settle", "1.5")
     assert r.returncode == 0, r.stderr
     assert "as on/off pulses: 8 steps; 5 empty force cell(s)" in r.stdout
     assert json.loads((sess / "run.json").read_text())["valves"] == "on/off"
-    r = run(tpods_exe, "bench", "fit", str(sess), "--json", "--scale-rel", "0.002")
+    r = run_in_process("bench", "fit", str(sess), "--json", "--scale-rel", "0.002")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d["valves"]) == {"1", "2"}
@@ -35,7 +36,7 @@ def test_import_then_fit_pulses_json(tpods_exe, tmp_path):
     assert d["counts"]["2"]["valve_sets"] == ["1,2"]
     assert d["vehicle_valves"]["delay_s"] == pytest.approx(0.08, abs=0.02)
     assert (sess / "pulse_fit.json").is_file() and (sess / "pulse_fit_edges.png").stat().st_size > 1000
-    r = run(tpods_exe, "bench", "fit", str(sess), "--out", str(tmp_path / "fitdir"))
+    r = run_in_process("bench", "fit", str(sess), "--out", str(tmp_path / "fitdir"))
     assert r.returncode == 0 and "for the vehicle file: [valves] delay_s" in r.stdout
     assert (tmp_path / "fitdir" / "pulse_fit.json").is_file()
 
@@ -52,12 +53,12 @@ def test_import_a_duty_staircase_and_fit_polynomials(tpods_exe, tmp_path):
     log = tmp_path / "stairs.csv"
     log.write_text("\n".join(rows) + "\n")
     sess = tmp_path / "s"
-    r = run(tpods_exe, "bench", "import", str(log), "--out", str(sess), "--columns",
+    r = run_in_process("bench", "import", str(log), "--out", str(sess), "--columns",
             "t=time_ms,force=kg,valves=valves", "--force-unit", "kg", "--valves-as", "duty",
             "--time-unit", "ms")
     assert r.returncode == 0, r.stderr
     assert "as duty steps: 4 steps" in r.stdout
-    r = run(tpods_exe, "bench", "fit", str(sess), "--json")
+    r = run_in_process("bench", "fit", str(sess), "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["thrust_table"].endswith("thrust_table.toml") and "1" in d["selected_order"]
@@ -81,8 +82,8 @@ def test_damaged_logs_are_one_line_exit_2(tmp_path, capsys, text, needle):
 def test_bad_columns_option_and_binary_file(tpods_exe, tmp_path):
     f = tmp_path / "log.csv"
     f.write_text("t_s,weight_g,bitmask\n0,1,0\n")
-    r = run(tpods_exe, "bench", "import", str(f), "--out", str(tmp_path / "o"), "--columns", "x=1")
+    r = run_in_process("bench", "import", str(f), "--out", str(tmp_path / "o"), "--columns", "x=1")
     assert r.returncode == 2 and "--columns: 'x=1'" in r.stderr and r.stderr.count("\n") == 1
     f.write_bytes(b"\xff\xfe\x00\x01garbage")
-    r = run(tpods_exe, "bench", "import", str(f), "--out", str(tmp_path / "o"))
+    r = run_in_process("bench", "import", str(f), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "unreadable" in r.stderr and r.stderr.count("\n") == 1

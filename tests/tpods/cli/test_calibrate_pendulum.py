@@ -1,4 +1,5 @@
-"""`tpods calibrate pendulum-check` end to end (subprocess, as a user runs it)."""
+"""`tpods calibrate pendulum-check` end to end (in process, with the exit code, stdout and
+stderr a user sees; the console script itself: tests/tpods/cli/test_main.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from calibration.pendulum_check import simulate_series
-from tests.support.cli import run
+from tests.support.cli import run_in_process
 from tpods.cli import main
 
 RADII = np.arange(0.25, 0.751, 0.05)
@@ -23,7 +24,7 @@ def _izz_csv(path, scale=1.0, seed=0):
 
 def test_json_and_folder_output(tpods_exe, tmp_path):
     f = _izz_csv(tmp_path / "series.csv")
-    r = run(tpods_exe, "calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02094",
+    r = run_in_process("calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02094",
             "--json", "--out", str(tmp_path / "check"))
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
@@ -36,7 +37,7 @@ def test_json_and_folder_output(tpods_exe, tmp_path):
 
 def test_text_output_and_a_failing_pendulum_warns(tpods_exe, tmp_path):
     f = _izz_csv(tmp_path / "series.csv", scale=0.9)
-    r = run(tpods_exe, "calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02094")
+    r = run_in_process("calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02094")
     assert r.returncode == 0
     assert "pendulum check FAIL" in r.stdout and "sigma from the known" in r.stderr
 
@@ -49,15 +50,15 @@ def test_periods_with_the_trifilar_geometry(tpods_exe, tmp_path):
     f.write_text("# a comment\nradius_m,period_s,period_sigma_s\n"
                  + "".join(f"{r:.2f},{p:.10f},2e-5\n" for r, p in zip(RADII, period, strict=True)))
     base = ["calibrate", "pendulum-check", str(f), "--test-mass-kg", "0.02094"]
-    r = run(tpods_exe, *base, "--string-radius", "1.0", "--length", "0.995", "--mass", "0.848",
+    r = run_in_process(*base, "--string-radius", "1.0", "--length", "0.995", "--mass", "0.848",
             "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["test_mass_kg"] == pytest.approx(0.02094, rel=1e-6)
     assert d["i0_kgm2"] == pytest.approx(0.2345, rel=1e-7)
-    r = run(tpods_exe, *base, "--spacing", "2.0", "--length", "0.995", "--mass", "0.848", "--json")
+    r = run_in_process(*base, "--spacing", "2.0", "--length", "0.995", "--mass", "0.848", "--json")
     assert json.loads(r.stdout)["i0_kgm2"] == pytest.approx(0.2345, rel=1e-7)  # D = 2R
-    r = run(tpods_exe, *base)  # periods without the geometry
+    r = run_in_process(*base)  # periods without the geometry
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--length" in r.stderr
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 
 from common.errors import UserError
-from tests.support.cli import run, run_in_process
+from tests.support.cli import run_in_process
 from tpods.cli import quiet_expected_warnings, user_message
 
 
@@ -28,7 +28,7 @@ def test_user_message_drops_internal_names():
 
 
 def test_cli_bad_zenoh_listen_port_is_plain(tpods_exe):
-    r = run(tpods_exe, "estimate", "live", "--listen", "tcp/127.0.0.1:99999", "--duration", "1", timeout=60)
+    r = run_in_process("estimate", "live", "--listen", "tcp/127.0.0.1:99999", "--duration", "1")
     assert r.returncode == 2
     assert r.stderr.strip() == "tpods: error: cannot open the zenoh session (invalid port value)", r.stderr
 

@@ -1,4 +1,5 @@
-"""`tpods mocap bridge` and `tpods mocap record` as a user runs them (subprocesses)."""
+"""`tpods mocap bridge` and `tpods mocap record` as a user runs them (subprocesses;
+the one-line user errors in process, with the same exit code and stderr)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run
 from mocap_bridge.sources.vicon_udp import build_datagram
+from tests.support.cli import run_in_process
 from tests.support.net import free_port, wait_for
 
 
@@ -83,7 +85,7 @@ def test_bridge_udp_source_cli_duration(tpods_exe, tmp_path):
     (["record"], "required: --out"),
 ])
 def test_user_errors_are_one_line(tpods_exe, args, msg):
-    r = _run(tpods_exe, "mocap", *args)
+    r = run_in_process("mocap", *args)
     assert r.returncode == 2
     assert msg in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "Traceback" not in r.stderr
@@ -91,8 +93,8 @@ def test_user_errors_are_one_line(tpods_exe, args, msg):
 
 def test_sim_source_without_folder_runs_nominal(tpods_exe, tmp_path):
     ep = f"tcp/127.0.0.1:{free_port()}"
-    r = _run(tpods_exe, "mocap", "bridge", "--source", "sim", "--rate-scale", "0",
-             "--listen", ep, "--no-multicast", "--quiet")
+    r = run_in_process("mocap", "bridge", "--source", "sim", "--rate-scale", "0", "--listen", ep,
+                       "--no-multicast", "--quiet")
     assert r.returncode == 0, r.stderr
     n = int(r.stdout.split("published ")[1].split()[0])
     assert n == 120 * 120 + 1  # 120 s at 120 Hz, nothing dropped

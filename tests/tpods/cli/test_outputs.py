@@ -471,14 +471,15 @@ def test_bench_fit_never_replaces_its_session(inputs, tmp_path, capsys):
 ])
 @pytest.mark.parametrize("case", ["a-file", "under-a-file", "a-json-name"])
 def test_long_commands_refuse_their_output_at_the_start(argv, case, tpods_exe, tmp_path):
-    import subprocess
     import time
+
+    from tests.support.cli import run_in_process
 
     a_file = tmp_path / "a_file"
     a_file.write_text("x\n")
     out = {"a-file": a_file, "under-a-file": a_file / "logs", "a-json-name": tmp_path / "logs.json"}[case]
     t0 = time.monotonic()
-    r = subprocess.run([tpods_exe, *argv, str(out)], capture_output=True, text=True, timeout=30)
+    r = run_in_process(*argv, str(out))
     assert r.returncode == 2 and time.monotonic() - t0 < 20  # not after the 60 s run
     assert r.stderr.startswith(f"tpods: error: {argv[-1]} {out}") and r.stderr.count("\n") == 1, r.stderr
     assert r.stdout == ""  # nothing served, nothing simulated

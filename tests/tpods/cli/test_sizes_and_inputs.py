@@ -109,13 +109,13 @@ def test_sim_clamp_and_omega_above_nyquist_warns(tpods_exe, tmp_path):
 
 def test_run_play_checks_duties_before_opening_the_valves(tpods_exe, tmp_path):
     # /dev/null is never opened: the duties are refused first
-    line = _one_error_line(run(tpods_exe, "run", "play", "--valves", "/dev/null", "--amplitude", "45"))
+    line = _one_error_line(run_in_process("run", "play", "--valves", "/dev/null", "--amplitude", "45"))
     assert "--amplitude 45" in line and "--duty-limits 10,90" in line and "--amplitude 40 or less" in line
 
 
 def test_crlb_refuses_planned_poses_that_will_not_fit(tpods_exe, tmp_path):
     """Was a silent hang (or a MemoryError traceback) at --pose-rate 1e7."""
-    assert run(tpods_exe, "sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
+    assert run_in_process("sim", "--duration", "3", "--out", str(tmp_path / "r")).returncode == 0
     line = _one_error_line(run(tpods_exe, "estimate", "crlb", str(tmp_path / "r" / "commands.csv"),
                                "--pose-rate", "1e7", timeout=60))
     assert "--pose-rate 1e7 Hz over the 3 s of" in line and "3e7 planned poses" in line
@@ -154,8 +154,8 @@ def test_ls_window_longer_than_the_run_warns_naming_both(tpods_exe, tmp_path):
 
 
 def test_live_ls_window_not_shorter_than_duration_is_refused_before_listening(tpods_exe):
-    line = _one_error_line(run(tpods_exe, "estimate", "live", "--method", "ls-ekf", "--duration", "5",
-                               "--ls-window", "10"))
+    line = _one_error_line(run_in_process("estimate", "live", "--method", "ls-ekf", "--duration",
+                                          "5", "--ls-window", "10"))
     assert "--ls-window 10 s is not shorter than --duration 5 s" in line
 
 
@@ -167,7 +167,7 @@ def test_live_ls_window_not_shorter_than_duration_is_refused_before_listening(tp
 ])
 def test_run_plant_refuses_a_bad_udp_target_before_the_run(tpods_exe, spec, needle):
     """Was: status 0 and 'plant: 1 poses' (the sender's error swallowed in its thread)."""
-    r = run(tpods_exe, "run", "plant", "--mocap", spec, "--duration", "1", timeout=30)
+    r = run_in_process("run", "plant", "--mocap", spec, "--duration", "1")
     line = _one_error_line(r)
     assert needle in line and "valves:" not in r.stdout
 

@@ -5,7 +5,7 @@ uninformed drop warned about, and the one-line refusal on a run without valves."
 import json
 from pathlib import Path
 
-from tests.support.cli import run as run_cli
+from tests.support.cli import run_in_process
 
 ROOT = Path(__file__).resolve().parents[3]
 EIGHT = ROOT / "vehicles" / "example-8-onoff.toml"
@@ -22,7 +22,7 @@ def _files(tmp_path: Path) -> tuple[Path, Path]:
 
 
 def _sim(tpods_exe, truth: Path, out: Path, spec: str) -> None:
-    r = run_cli(tpods_exe, "sim", "--vehicle", str(truth), "--input", spec, "--mass", "23.09",
+    r = run_in_process("sim", "--vehicle", str(truth), "--input", spec, "--mass", "23.09",
                 "--izz", "0.31", "--duration", "40", "--seed", "4", "--out", str(out))
     assert r.returncode == 0, r.stderr
 
@@ -30,7 +30,7 @@ def _sim(tpods_exe, truth: Path, out: Path, spec: str) -> None:
 def test_delay_and_drop_estimated_on_the_command_line(tpods_exe, tmp_path):
     truth, model = _files(tmp_path)
     _sim(tpods_exe, truth, tmp_path / "run", "pulse-groups")
-    r = run_cli(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--vehicle", str(model),
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--vehicle", str(model),
                 "--estimate", "mass,izz,cx,cy,delay,drop", "--json")
     assert r.returncode == 0, r.stderr
     est = json.loads(r.stdout)
@@ -45,7 +45,7 @@ def test_delay_and_drop_estimated_on_the_command_line(tpods_exe, tmp_path):
 def test_a_run_of_single_valves_warns_that_the_drop_is_not_estimated(tpods_exe, tmp_path):
     truth, model = _files(tmp_path)
     _sim(tpods_exe, truth, tmp_path / "run", "pulses")
-    r = run_cli(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--vehicle", str(model),
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--vehicle", str(model),
                 "--estimate", "mass,izz,cx,cy,delay,drop", "--json")
     assert r.returncode == 0, r.stderr
     assert "tpods: warning: drop is not estimated" in r.stderr
@@ -54,9 +54,9 @@ def test_a_run_of_single_valves_warns_that_the_drop_is_not_estimated(tpods_exe, 
 
 
 def test_delay_on_a_run_without_a_vehicle_is_one_line(tpods_exe, tmp_path):
-    r = run_cli(tpods_exe, "sim", "--duration", "5", "--out", str(tmp_path / "run"))
+    r = run_in_process("sim", "--duration", "5", "--out", str(tmp_path / "run"))
     assert r.returncode == 0, r.stderr
-    r = run_cli(tpods_exe, "estimate", "batch", str(tmp_path / "run"), "--estimate",
+    r = run_in_process("estimate", "batch", str(tmp_path / "run"), "--estimate",
                 "mass,izz,delay")
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "--vehicle" in lines[0], r.stderr
@@ -65,7 +65,7 @@ def test_delay_on_a_run_without_a_vehicle_is_one_line(tpods_exe, tmp_path):
 def test_calibrate_thrust_estimates_the_centre_of_mass_when_asked(tpods_exe, tmp_path):
     truth, _ = _files(tmp_path)
     _sim(tpods_exe, truth, tmp_path / "run", "pulse-groups")
-    r = run_cli(tpods_exe, "calibrate", "thrust", str(tmp_path / "run"), "--mass", "23.09",
+    r = run_in_process("calibrate", "thrust", str(tmp_path / "run"), "--mass", "23.09",
                 "--per", "common", "--estimate-com", "--json", "--out", str(tmp_path / "cal"))
     assert r.returncode == 0, r.stderr
     cal = json.loads(r.stdout)
