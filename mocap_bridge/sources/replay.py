@@ -14,14 +14,17 @@ with ``t_src`` holding the original run time so a recorder writes the same times
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from common.errors import UserError
 from common.runfolder import POSE_COLUMNS, read_table
 from common.wire import sanitize_chunk
 from mocap_bridge.sources.playback import Frame, Playback, frames_from_planar
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 SAMPLE_COLUMNS = ("body", "frame", "t", "t_recv", "t_src", "x", "y", "z", "qx", "qy", "qz",
                   "qw", "yaw", "occluded", "t_rx")
@@ -29,6 +32,7 @@ SAMPLE_COLUMNS = ("body", "frame", "t", "t_recv", "t_src", "x", "y", "z", "qx", 
 
 def read_samples(path: Path) -> pd.DataFrame:
     """Read a recorder ``samples.csv``; refuses a bad file with one line."""
+    import pandas as pd  # lazy: `tpods mocap bridge` with another source starts without it
     try:
         df = pd.read_csv(path, keep_default_na=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -43,6 +47,7 @@ def read_samples(path: Path) -> pd.DataFrame:
 
 
 def _frames_from_samples(dfs: list[pd.DataFrame], path: Path) -> list[Frame]:
+    import pandas as pd
     df = pd.concat(dfs, ignore_index=True)
     t = pd.to_numeric(df["t"], errors="coerce").to_numpy(float)
     t_src = (pd.to_numeric(df["t_src"], errors="coerce").to_numpy(float)
