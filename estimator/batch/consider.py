@@ -217,6 +217,22 @@ THRUSTS_GIVEN = ("thrusts.csv gives the thrusts in newtons: no thrust-table unce
                  "included, sigma covers measurement noise only")
 
 
+def _fit_reference(res, cmd_t: np.ndarray, thrust_n: np.ndarray, max_step: float
+                   ) -> tuple[Grid, np.ndarray]:
+    """The grid and reference trajectory of ``res`` at its estimate: the fit's own when it
+    kept them for the same commands, thrusts, poses and step (the same numbers), else
+    integrated again."""
+    ref = getattr(res, "reference", None)
+    if ref is not None:
+        grid, states, pose_t, step, z0, params = ref
+        if (step == max_step and pose_t is res.t and np.array_equal(z0, res.z0)
+                and params == res.params and np.array_equal(grid.cmd_t, cmd_t)
+                and np.array_equal(grid.thrust_n, thrust_n)):
+            return grid, states
+    grid = make_grid(cmd_t, thrust_n, res.t, max_step)
+    return grid, reference_states(res.z0[:6], grid, res.params)
+
+
 def batch_consider(res, cmd_t: np.ndarray, sens, *, sigma_pos_m: float, sigma_yaw_rad: float,
                    max_step: float = DEFAULT_MAX_STEP_S) -> ConsiderResult:
     """The thrust part of a batch fit's covariance at its estimate.
@@ -228,10 +244,9 @@ def batch_consider(res, cmd_t: np.ndarray, sens, *, sigma_pos_m: float, sigma_ya
             of the same command rows.
         sigma_pos_m, sigma_yaw_rad: the fit's measurement noise.
     """
-    grid = make_grid(cmd_t, sens.thrust_n, res.t, max_step)
     s0 = res.z0[:6]
     with np.errstate(all="ignore"):
-        states = reference_states(s0, grid, res.params)
+        grid, states = _fit_reference(res, cmd_t, sens.thrust_n, max_step)
         _, phi = trajectory_stm(s0, None, None, res.t, res.params, res.names, grid=grid,
                                 states=states)
         J = _tracked_output(states, grid, res.params, sens)

@@ -103,9 +103,11 @@ def make_grid(cmd_t, thrust_n, t_nodes, max_step: float = DEFAULT_MAX_STEP_S) ->
     gaps = np.diff(events)
     long = np.nonzero(gaps > max_step * (1 + 1e-9))[0]
     if long.size:
-        extra = [events[i] + gaps[i] * np.arange(1, k) / k
-                 for i, k in zip(long, np.ceil(gaps[long] / max_step).astype(int), strict=True)]
-        events = np.union1d(events, np.concatenate(extra))
+        # gap i split in k equal parts: events[i] + gaps[i] * j / k, j = 1..k-1 (all gaps at once)
+        k = np.ceil(gaps[long] / max_step).astype(int)
+        at = np.repeat(long, k - 1)
+        j = np.arange(len(at)) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
+        events = np.union1d(events, events[at] + gaps[at] * j / np.repeat(k, k - 1))
     cmd_idx = np.searchsorted(cmd_t, events[:-1], side="right") - 1
     node_pos = np.searchsorted(events, t_nodes)
     return Grid(events, segment_thrust(thrust_n, cmd_idx), node_pos, cmd_t, thrust_n)

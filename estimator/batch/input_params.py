@@ -148,11 +148,19 @@ class JointProblem:
                  fixed: Mapping[str, float], w: np.ndarray, max_step: float) -> None:
         self.pose_t, self.pose, self.model = pose_t, pose, model
         self.names, self.fixed, self.w, self.max_step = names, dict(fixed), w, max_step
+        self._last: tuple[bytes, HorizonProblem] | None = None
 
     def problem(self, theta) -> HorizonProblem:
+        """The plant problem at the input parameters ``theta``. The last one is kept: the
+        Jacobian at an accepted step reuses the trajectory its evaluation integrated."""
+        key = np.asarray(theta, float).tobytes()
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
         t, thrust = self.model.profile(theta)
-        return HorizonProblem(self.pose_t, self.pose, t, thrust, self.names, self.fixed, self.w,
+        prob = HorizonProblem(self.pose_t, self.pose, t, thrust, self.names, self.fixed, self.w,
                               None, None, self.max_step)
+        self._last = (key, prob)
+        return prob
 
     def evaluate(self, z, theta) -> tuple[float, np.ndarray | None]:
         cost, res, _ = self.problem(theta).evaluate(z)

@@ -218,7 +218,9 @@ def _batch_ls(pose_t, pose, cmd_t, thrust_n, *, names, fixed, initial, prior, si
     warnings = residual_warnings(rms, sigma_pos_m, sigma_yaw_rad)
     return BatchResult(z, cov, sigma, names, params, float(pose_t[0]), prob.pose_t, res,
                        stats["iterations"], bool(converged), history, m, izz, sm, si, corr, msg,
-                       horizons, time.perf_counter() - t_start, Lam, warnings)
+                       horizons, time.perf_counter() - t_start, Lam, warnings,
+                       reference=(prob.grid, states, prob.pose_t, prob.max_step, z.copy(),
+                                  dict(params)))
 
 
 def parse_window(text: str | None) -> tuple[float | None, float | None]:

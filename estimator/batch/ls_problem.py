@@ -121,6 +121,7 @@ class HorizonProblem:
         self.pose_t, self.pose = pose_t, pose
         self.names, self.fixed, self.w = names, fixed, w
         self.zbar, self.prior_info = zbar, prior_info
+        self.max_step = max_step
         self.grid = make_grid(cmd_t, thrust_n, pose_t, max_step)
         self.islog = np.array([False] * 6 + [n in LOG_PARAMS for n in names])
         self._eval_cache = None

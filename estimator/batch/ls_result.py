@@ -54,6 +54,10 @@ class BatchResult:
     cov_thrust: np.ndarray | None = None
     thrust_terms: tuple[str, ...] = ()
     thrust_note: str = ""
+    reference: tuple | None = field(default=None, repr=False, compare=False)
+    """``(grid, states, pose_t, max_step, z0, params)``: the fit's segment grid and reference
+    trajectory at ``z0`` with ``params`` (:func:`estimator.batch.consider.batch_consider`
+    reuses them instead of integrating the same trajectory again); None when not kept."""
 
     def add_thrust_covariance(self, cov_thrust: np.ndarray, terms: tuple[str, ...]) -> None:
         """Make ``cov``/``sigma`` (and the mass/Izz copies) the TOTAL: measurement noise

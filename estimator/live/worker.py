@@ -38,4 +38,5 @@ def ls_job(pose_t, pose, cmd_t, thrust_n, kw, sens=None):
         if all(c.cov_thrust.ravel() == c.cov_thrust.ravel()):  # no NaN
             res.add_thrust_covariance(c.cov_thrust, c.names)
     res.fisher = None  # not needed by the live estimator
+    res.reference = None  # nor the fit's trajectory (kept for batch_consider, done above)
     return res, time.perf_counter() - t_a

@@ -30,7 +30,7 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any
 
 import numpy as np
@@ -82,10 +82,13 @@ def wrench(thrust_n: np.ndarray, arm: float = ARM_M) -> np.ndarray:
     """Thruster-only body force and moment ``(Fx, Fy, Mz)``, shape (..., 3), N and N m."""
     t = np.asarray(thrust_n, dtype=float)
     t1, t2, t3, t4 = t[..., 0], t[..., 1], t[..., 2], t[..., 3]
-    fx = (t2 + t3 - t1 - t4) * SQRT1_2
-    fy = (t1 + t2 - t3 - t4) * SQRT1_2
-    mz = arm * (t1 + t3 - t2 - t4)
-    return np.stack([fx, fy, mz], axis=-1)
+    lead = t.shape[:-1] if isinstance(arm, (float, int)) else np.broadcast_shapes(
+        t.shape[:-1], np.shape(arm))
+    out = np.empty(lead + (3,))
+    out[..., 0] = (t2 + t3 - t1 - t4) * SQRT1_2
+    out[..., 1] = (t1 + t2 - t3 - t4) * SQRT1_2
+    out[..., 2] = arm * (t1 + t3 - t2 - t4)
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -177,12 +180,19 @@ EVERY_EFFECT = tuple(range(len(EFFECTS)))
 """Every effect, the centre-of-mass offset included."""
 
 
+def _nonzero(v) -> bool:
+    """``v`` (a number or an array) is non-zero somewhere (a plain number without numpy:
+    the array functions ask this for every call)."""
+    if isinstance(v, (float, int)):
+        return bool(v != 0)
+    return bool(np.any(np.asarray(v) != 0))
+
+
 def active_effects(values: Mapping[str, Any], names: Sequence[str] = ()) -> tuple[int, ...]:
     """Indices of the effects needed for parameter ``values`` when ``names`` are estimated."""
     out = []
     for i, e in enumerate(EFFECTS):
-        if not e.params or any(p in names or np.any(np.asarray(values.get(p, 0.0)) != 0)
-                               for p in e.params):
+        if not e.params or any(p in names or _nonzero(values.get(p, 0.0)) for p in e.params):
             out.append(i)
     return tuple(out)
 
@@ -331,8 +341,19 @@ def scalar_rk4_chain(effects: tuple[int, ...], substeps: bool):
 def _present(ct, cr, kb, ax, ay, cx, cy, names) -> tuple[int, ...]:
     """:func:`active_effects` of these parameter values with ``names`` estimated: an effect
     whose parameters are all zero and not estimated adds exact zeros, so it is left out."""
-    return active_effects({"ct": ct, "cr": cr, "kb": kb, "ax": ax, "ay": ay, "cx": cx, "cy": cy},
-                          names)
+    key = (ct, cr, kb, ax, ay, cx, cy)
+    if all(type(v) is float for v in key):  # plain numbers: the same answer as last time
+        return _present_numbers(key, tuple(names))
+    return active_effects(dict(zip(_OPTIONAL, key, strict=True)), names)
+
+
+_OPTIONAL = ("ct", "cr", "kb", "ax", "ay", "cx", "cy")
+"""The parameters whose effects are left out while they are zero and not estimated."""
+
+
+@lru_cache(maxsize=256)
+def _present_numbers(key: tuple[float, ...], names: tuple[str, ...]) -> tuple[int, ...]:
+    return active_effects(dict(zip(_OPTIONAL, key, strict=True)), names)
 
 
 def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, ay=0.0,
@@ -343,7 +364,8 @@ def dynamics(s, thrust_n, mass, izz, arm=ARM_M, ct=0.0, cr=0.0, kb=0.0, ax=0.0, 
     f = array_function(_present(ct, cr, kb, ax, ay, cx, cy, ()), None)
     rates = f(s[..., 2], s[..., 3], s[..., 4], s[..., 5], w[..., 0], w[..., 1], w[..., 2],
               mass, izz, ct, cr, kb, ax, ay, cx, cy)
-    out = np.empty(np.broadcast_shapes(s.shape, w.shape[:-1] + (6,)))
+    same = s.shape[:-1] == w.shape[:-1] and s.shape[-1:] == (6,)
+    out = np.empty(s.shape if same else np.broadcast_shapes(s.shape, w.shape[:-1] + (6,)))
     for i, v in enumerate(rates):
         out[..., i] = v
     return out
