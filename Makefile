@@ -14,13 +14,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-# in parallel over the machine's cores (pytest-xdist; one worker more gained nothing here:
-# 422 s against 418 s); the longest files start first (tests/conftest.py) and an idle worker
-# takes tests from the other's queue (worksteal: the default 'load' sent the first ~200
-# tests, every long file, to one worker; 372 s against 384 s); the 15 slowest
-# tests are listed at the end. One OpenBLAS thread per process: the workers already use every
-# core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s CPU, 0.09 s with one
-# thread) in each of the suite's few hundred `tpods` subprocesses
+# in parallel over the machine's cores (pytest-xdist): a worker per core takes any test, and
+# one more worker at low priority takes only the tests that do not watch the clock
+# (tests/support/lanes.py; on 2 cores 299 s against 362 s with 2 workers, where a third
+# equal worker starved the demo's emulated valves); the longest files start first
+# (tests/conftest.py) and an idle worker takes tests from another's queue (worksteal); the
+# 15 slowest tests are listed at the end. One OpenBLAS thread per process: the workers
+# already use every core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s
+# CPU, 0.09 s with one thread) in each of the suite's few hundred `tpods` subprocesses
 test: $(STAMP)
 	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 

@@ -83,6 +83,39 @@ def pytest_collection_modifyitems(config, items):
                 item.add_marker(skip)
 
 
+# files that wait on wall-clock time without saying so in the words tests/support/lanes.py
+# looks for: they run on a full-priority worker only
+EXTRA_FOREGROUND: tuple[str, ...] = ()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: a worker per core plus one low-priority worker (tests/support/lanes.py)."""
+    from tests.support.lanes import auto_workers_env
+
+    return auto_workers_env()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    """Tell each worker its lane (read back in :func:`pytest_configure` and the scheduler)."""
+    from tests.support.lanes import lane_of
+
+    node.workerinput["tpods_lane"] = lane_of(node.gateway.id, node.config.getoption("dist"))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist worksteal`` with the lane rule of tests/support/lanes.py."""
+    if config.getoption("dist") != "worksteal":
+        return None
+    from tests.support.lanes import LaneScheduling
+
+    sched = LaneScheduling(config, log)
+    sched.extra_foreground = EXTRA_FOREGROUND
+    return sched
+
+
 def pytest_addoption(parser):
     parser.addoption("--update-goldens", action="store_true", default=False,
                      help="rewrite the golden outputs of tests/regression (prints what moved)")
@@ -92,3 +125,7 @@ def pytest_configure(config):
     from tests.support import golden
 
     golden.UPDATE["on"] = bool(config.getoption("--update-goldens", default=False))
+    if getattr(config, "workerinput", {}).get("tpods_lane") == "background":
+        from tests.support.lanes import BACKGROUND_NICE
+
+        os.nice(BACKGROUND_NICE)
