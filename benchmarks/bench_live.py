@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.host import Window
+from common.zenoh_net import direct_callback
 
 TARGET_P99_MS = 5.0
 BACKLOG_MS = 0.5
@@ -142,7 +143,7 @@ def _stream(ctx, session, ep: str, seconds: float, rate_hz: float, key: str, sta
     """Run one publisher stream while ``start_consumer()`` handles it; returns
     (pose publish times, received (payload, t) list, consumer result)."""
     sink = _Sink()
-    sub = session.declare_subscriber(key, sink)
+    sub = session.declare_subscriber(key, direct_callback(sink))
     consumer = start_consumer()
     go, out = ctx.Event(), ctx.Queue()
     p = ctx.Process(target=_publisher_proc, args=(ep, seconds, rate_hz, go, out))

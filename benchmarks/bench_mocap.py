@@ -45,6 +45,7 @@ import time
 import numpy as np
 
 from benchmarks.host import Window
+from common.zenoh_net import keep_thread_state
 
 TARGET_POSES_S = 20_000
 TARGET_P99_MS = 2.0
@@ -226,7 +227,7 @@ def _handler(sink: _Sink):
     import zenoh
 
     indirect = os.environ.get("TPODS_BENCH_MOCAP_INDIRECT", "0") == "1"
-    return zenoh.handlers.Callback(sink, indirect=indirect)
+    return zenoh.handlers.Callback(keep_thread_state(sink), indirect=indirect)
 
 
 def _sub_proc(ep: str, key: str, count, ready, stop, out, capacity: int = 0) -> None:

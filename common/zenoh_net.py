@@ -33,15 +33,29 @@ p99 0.8-1.4 ms against 1.4-4.2 ms, three pairs; bridge runs pooled p99 1.12 agai
 1.40 ms, eight pairs) and the same maximum rate (77,000-87,000/s). So before its first
 session a tpods process sets ``ZENOH_RUNTIME`` to ``(rx: (worker_threads: 1))`` unless the
 environment already sets ``ZENOH_RUNTIME`` (Zenoh reads it once per process).
+
+Receive callbacks: a plain Python callable given to ``declare_subscriber`` runs in a
+Python thread zenoh-python starts for it (``indirect``), one hand-over per sample.
+:func:`direct_callback` runs it on Zenoh's receive thread itself, for callbacks that never
+block (a queue put): no hand-over, and poses and commands keep their arrival order.
+zenoh-python takes the interpreter lock there with ``PyGILState_Ensure``/``Release``
+around each call, and on a thread Python did not start CPython makes a new thread state
+at each Ensure and deletes it at the Release that brings the thread's count back to
+zero; :func:`keep_thread_state` holds one Ensure for the thread's lifetime instead. A
+direct subscriber at 20,000 samples/s then used 0.7 instead of 2.3 CPU-seconds per 5 s,
+and the bridge bench's p99 (whose measuring subscriber is direct) went from 2.7-3.6 to
+1.4-1.6 ms (two pairs of runs, ``benchmarks/bench_mocap.py``).
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -191,3 +205,31 @@ def wait_matching(publishers: list[Any], timeout_s: float, poll_s: float = 0.01)
         if time.monotonic() >= deadline:
             return False
         time.sleep(poll_s)
+
+
+_KEPT: set[int] = set()
+"""Threads whose Python thread state :func:`keep_thread_state` holds."""
+
+
+def keep_thread_state(fn: Callable[[Any], None]) -> Callable[[Any], None]:
+    """``fn`` as a Zenoh callback that keeps its receiving thread's Python thread state
+    (see the module doc): the first call on a thread takes one ``PyGILState_Ensure``
+    that is never released, so later calls on that thread reuse its state."""
+    kept = _KEPT
+    ident = threading.get_ident
+
+    def callback(sample: Any) -> None:
+        if ident() not in kept:
+            ctypes.pythonapi.PyGILState_Ensure()  # the lock is held: only counts up
+            kept.add(ident())
+        fn(sample)
+
+    return callback
+
+
+def direct_callback(fn: Callable[[Any], None]):
+    """``fn`` as a handler that runs on Zenoh's receive thread (:func:`keep_thread_state`
+    kept): only for callbacks that never block."""
+    import zenoh  # lazy: see open_session
+
+    return zenoh.handlers.Callback(keep_thread_state(fn), indirect=False)

@@ -20,6 +20,7 @@ from typing import Any
 import zenoh
 
 from common.wire import ENCODING, cmd_key, decode_command, decode_pose, estimate_key, pose_key
+from common.zenoh_net import direct_callback
 from estimator.live.core import LiveEstimator
 
 
@@ -100,8 +101,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                                     express=True)
 
     estimator.publish_bytes = pub.put
-    subs = [session.declare_subscriber(k["pose"], on_pose)]
-    subs += [session.declare_subscriber(key, on_cmd) for key in command_keys(k)]
+    subs = [session.declare_subscriber(k["pose"], direct_callback(on_pose))]
+    subs += [session.declare_subscriber(key, direct_callback(on_cmd)) for key in command_keys(k)]
     t_start = time.monotonic()
     t_end = None if duration_s is None else t_start + duration_s
     next_console = t_start + console_period_s

@@ -123,3 +123,50 @@ def test_one_receive_thread_unless_the_user_sets_zenoh_runtime(user_value, expec
                          capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[2])
     assert out.returncode == 0, out.stderr[-2000:]
     assert int(out.stdout.strip().splitlines()[-1]) == expected
+
+
+
+_KEPT_SCRIPT = """
+import json, sys, threading, time
+import zenoh
+from common.zenoh_net import keep_thread_state, open_session
+ep = sys.argv[1]
+pub = open_session(listen=[ep], no_multicast=True)
+sub = open_session(connect=[ep], no_multicast=True)
+local, seen = threading.local(), {"plain": [], "kept": []}
+def count(name):
+    def cb(sample):
+        n = getattr(local, name, 0)
+        setattr(local, name, n + 1)
+        seen[name].append(n)
+    return cb
+for name, cb in (("plain", count("plain")), ("kept", keep_thread_state(count("kept")))):
+    s = sub.declare_subscriber("lanes/" + name, zenoh.handlers.Callback(cb, indirect=False))
+    p = pub.declare_publisher("lanes/" + name)
+    deadline = time.monotonic() + 10
+    while not p.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.01)
+    for k in range(20):
+        p.put(b"x")
+    while len(seen[name]) < 20 and time.monotonic() < deadline:
+        time.sleep(0.01)
+print(json.dumps(seen))
+sub.close(); pub.close()
+"""
+
+
+def test_a_kept_callback_reuses_its_thread_state_across_samples():
+    """A direct callback (``indirect=False``) runs on Zenoh's own thread; without
+    keep_thread_state CPython makes and deletes a thread state around every call (a
+    thread-local value never survives to the next sample), with it the state lives on
+    (~20 us less per sample). In a fresh process: a kept receive thread stays kept for
+    every later callback of the process, so the plain callback goes first."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _KEPT_SCRIPT, f"tcp/127.0.0.1:{free_port()}"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen["plain"] == [0] * 20
+    assert seen["kept"] == list(range(20))
