@@ -53,6 +53,7 @@ from common import __version__
 from common.errors import UserError
 from common.wire import CMD_SCHEMA, EST_SCHEMA, SCHEMA
 from common.wire_schemas import SCHEMAS, schema_bytes
+from common.zenoh_net import direct_callback
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -276,7 +277,7 @@ def subscribe(session: Any, key: str, log: McapLog):
             log.counters["write_errors"] = log.counters.get("write_errors", 0) + 1
 
     try:
-        return session.declare_subscriber(key, on_sample)
+        return session.declare_subscriber(key, direct_callback(on_sample))
     except Exception as exc:
         raise UserError(f"cannot subscribe to {key!r} ({str(exc).splitlines()[0]})") from None
 

@@ -73,7 +73,7 @@ def register(est) -> None:
 def cmd_live(args: argparse.Namespace) -> int:
     import tpods
     from common.console import Console as _Console
-    from common.mcap_log import McapLog
+    from common.mcap_process import McapProcessLog
     from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
     from estimator.live.recorder import record_streams
@@ -117,7 +117,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     if args.mcap and args.out is None:
         raise UserError("--mcap records into the --out folder; give --out RUN_DIR (or --out X.mcap)")
     if is_mcap(args.out):
-        log = McapLog(stream_file(args.out, force=args.force),
+        log = McapProcessLog(stream_file(args.out, force=args.force),
                       meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     elif args.out is not None:
         rec = LiveRecorder(stream_folder(args.out, force=args.force, command="tpods estimate live"), {
@@ -133,7 +133,7 @@ def cmd_live(args: argparse.Namespace) -> int:
                          "underweight": cfg.ekf.underweight}},
             structure=structure)
         if args.mcap:
-            log = McapLog(Path(args.out) / "recording.mcap",
+            log = McapProcessLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
     console = _Console(args.quiet)
