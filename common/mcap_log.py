@@ -19,6 +19,8 @@ message must replay as it came).
   ``max_pending`` messages the writing thread does the work itself (:meth:`McapLog.drain`).
   :meth:`McapLog.flush` and :meth:`McapLog.close` write everything queued first. With
   ``flush_every_s=0`` (no background thread) every write is written at once.
+- **Or in a process of its own:** :class:`common.mcap_process.McapProcessLog` (same file,
+  same interface) for a recording beside a latency-critical loop (``tpods estimate live``).
 - **Written to survive a kill.** The file is chunked (LZ4) with small chunks: a chunk is
   closed and handed to the operating system every ``flush_every_s`` (0.05 s) by the
   background thread, and whenever it grows past ``chunk_size``. SIGKILL then loses at
