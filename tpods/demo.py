@@ -178,7 +178,22 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
     """The stages of :func:`cmd_demo` into ``out``, the summary table and the report; each
     stage's wall time into ``meta`` (run.json's ``timings_s``)."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)
+    from tpods.demo_side import SideWork  # light: the workers import the heavy modules
+
+    # two workers import the estimator and matplotlib while this process does and the
+    # characterisation dwells; figures and two batch fits run there beside the stages
+    side = SideWork()
+    try:
+        # lazy: keeps tpods --help fast (the stages import the estimator, Zenoh, matplotlib)
+        from tpods.demo_timing import StageTimes
+
+        return _stages_with(args, out, StageTimes(meta), side)
+    finally:
+        side.close()
+
+
+def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
+    """:func:`_stages` with the side workers ``side`` (:class:`tpods.demo_side.SideWork`)."""
     from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
     from tpods.demo_stages import (
         stage_batch,
@@ -188,14 +203,14 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
         stage_mass,
         stage_run,
     )
-    from tpods.demo_timing import StageTimes, print_summary
+    from tpods.demo_timing import print_summary
 
-    times = StageTimes(meta)
+    meta = times.meta
     print(f"TPODS lab day on emulated devices -> {out}")
 
     with times.stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)",
                      "characterisation + fit"):
-        bench = stage_bench(out, args.seed, args.quick)
+        bench = stage_bench(out, args.seed, args.quick, side)
     times.paced("characterisation + fit", bench["planned_s"])
 
     with times.stage("2/6 mass on the balance", "mass"):
@@ -219,12 +234,17 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
 
     with times.stage("6/6 batch least squares on the recorded run, before and after calibration",
                      "batch"):
-        batch = stage_batch(out, bench["table"], cal["table"])
+        truth = (args.mass, args.izz)
+        run_figs = side.submit("run figures (beside batch)", plot_run, out,
+                               {k: live[k] for k in ("truth_t", "truth_s", "method") if k in live},
+                               truth)
+        batch = stage_batch(out, bench["table"], cal["table"], side)
 
     with times.stage(None, "figures"):
-        truth = (args.mass, args.izz)
-        figs = bench["figures"] + bif["figures"] + plot_run(out, live, truth) + batch["figures"]
+        bench["figures"] = bench["figures"].result()  # drawn beside the mass and bifilar
+        figs = bench["figures"] + bif["figures"] + run_figs.result() + batch["figures"]
         rows = summary_rows(truth, mass, bif, live, batch)
+    times.beside(side.side_s)
     meta["timings_s"] = timings = times.timings()  # the total with the figures
     report = write_report(out, args, rows, bench, mass, bif, live, batch, figs, times, cal)
     write_summary(out, args, rows, bench, live, batch, timings, cal)

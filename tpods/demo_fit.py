@@ -74,6 +74,14 @@ def batch_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
     return {**{k: v for k, v in row.items() if k != "res"}, "res_dict": row["res"].to_dict()}
 
 
+def switch_row_json(run_dir: Path, switches_csv: Path, table: ThrustTable) -> dict[str, Any]:
+    """:func:`batch_row` of a run folder with the plant's own valve switches as its commands
+    (:func:`switch_run`: the check fit with the true table), for another process: the row
+    without the result object."""
+    row = batch_row(switch_run(read_run(run_dir), switches_csv), table)
+    return {k: v for k, v in row.items() if k != "res"}
+
+
 def _child(conn, run_dir: Path, table: ThrustTable) -> None:
     try:
         conn.send(("ok", batch_row_json(run_dir, table)))

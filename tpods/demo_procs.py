@@ -163,16 +163,33 @@ def switch_lag_ms(switches, play_dir: Path, warn_ms: float = SWITCH_LAG_WARN_MS
         for j in (i - 1, i):
             hit = np.all(np.isclose(duties[j], sw_d), axis=1)
             lags = np.where(hit, np.fmin(lags, np.abs(t_cmd[j] - sw_t)), lags)
-        for k in np.nonzero(np.isnan(lags))[0]:
-            same = np.all(np.isclose(duties, sw_d[k]), axis=1)
-            if same.any():
-                lags[k] = np.min(np.abs(t_cmd[same] - sw_t[k]))
+        _nearest_same_duties(t_cmd, duties, sw_t, sw_d, np.nonzero(np.isnan(lags))[0], lags)
     lags = lags[~np.isnan(lags)].tolist()
     if not lags:
         return {"mean": 0.0, "p99": 0.0, "max": 0.0, "n": 0, "warn_ms": warn_ms}
     ms = 1e3 * np.asarray(lags)
     return {"mean": float(ms.mean()), "p99": float(np.percentile(ms, 99)), "max": float(ms.max()),
             "n": int(ms.size), "warn_ms": warn_ms}
+
+
+def _nearest_same_duties(t_cmd: np.ndarray, duties: np.ndarray, sw_t: np.ndarray,
+                         sw_d: np.ndarray, ks: np.ndarray, lags: np.ndarray) -> None:
+    """For each change ``k`` in ``ks``: ``lags[k]`` = the gap to the nearest command whose
+    duties are ``np.isclose`` to its own (left NaN when none is). The same comparison as a
+    search of every command, on the few whose first duty can pass it (commands sorted by
+    first duty, a window of twice isclose's tolerance): a long run's switches that miss
+    their neighbours (the valves' rounding) cost milliseconds, not a second."""
+    order = np.argsort(duties[:, 0], kind="stable")
+    first = duties[order, 0]
+    for k in ks:
+        b = sw_d[k]
+        tol = 2.0 * (1e-8 + 1e-5 * abs(float(b[0])))  # np.isclose's atol + rtol |b|, doubled
+        lo = int(np.searchsorted(first, b[0] - tol, side="left"))
+        hi = int(np.searchsorted(first, b[0] + tol, side="right"))
+        cand = order[lo:hi]
+        same = np.all(np.isclose(duties[cand], b), axis=1)
+        if same.any():
+            lags[k] = np.min(np.abs(t_cmd[cand[same]] - sw_t[k]))
 
 
 def lag_text(lag: dict[str, Any] | None) -> str:

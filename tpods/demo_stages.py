@@ -28,7 +28,6 @@ import numpy as np
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
 from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
 from bench.ohaus import OhausScout
-from bench.plots import plot_fit_orders, plot_time_series
 from bench.session import SessionConfig, read_session, run_session
 from bench.valves import ValveController
 from calibration.bifilar import swing_and_estimate
@@ -42,7 +41,14 @@ from estimator.plant.model import PlantParams
 from estimator.reports.plots_batch import plot_residuals
 from tpods.clock import LabClock
 from tpods.demo_fidelity import duty_time_error
-from tpods.demo_fit import BackgroundFit, batch_row, save_switches, switch_run
+from tpods.demo_fit import (
+    BackgroundFit,
+    batch_row,
+    batch_row_json,
+    save_switches,
+    switch_row_json,
+    switch_run,
+)
 from tpods.demo_procs import (
     child_failed,
     child_zenoh_args,
@@ -55,6 +61,7 @@ from tpods.demo_procs import (
     tpods_exe,
     wait_subscribed,
 )
+from tpods.demo_side import SideWork, bench_figures
 from tpods.plant_loop import MocapNoise, SimulatedModule
 
 # re-exported under their old names (tests/support, older callers)
@@ -77,8 +84,10 @@ def plant_table() -> ThrustTable:
     return ThrustTable.from_dict(d)
 
 
-def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
-    """Characterisation session on emulated devices and the cubic fits."""
+def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
+                ) -> dict[str, Any]:
+    """Characterisation session on emulated devices and the cubic fits; with ``side``, its
+    figures are drawn in a side process (``figures``: a future of their paths)."""
     truth = ThrustTable.default()
     duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
     # a fast emulated balance (25 ms lag, 100 Hz printing): settle 6 lags, 15 readings a
@@ -114,8 +123,9 @@ def stage_bench(out: Path, seed: int, quick: bool) -> dict[str, Any]:
     table.save(table_path)
     grid = np.arange(10.0, 90.01, 0.5)
     errs = max_error_pct_full_scale(table, truth, grid)
-    figs = [plot_fit_orders(fit, d / "thrust_fit_orders.png", truth=truth),
-            plot_time_series(raw, d / "thrust_timeseries.png", steps)]
+    figs = (bench_figures(fit, raw, steps, d, truth) if side is None else
+            side.submit("bench figures (beside mass, bifilar)", bench_figures, fit, raw, steps,
+                        d, truth))
     print(f"   session {res.status}: {len(res.steps)} steps, {res.n_readings} readings "
           f"({res.n_garbage} garbage lines skipped), valves closed; fitted orders "
           f"{dict(sorted(fit.selected.items()))}")
@@ -294,16 +304,22 @@ def _json(d: dict[str, Any]) -> str:
     return json.dumps(d, indent=2, default=str) + "\n"
 
 
-def stage_batch(out: Path, bench_table, calibrated_table=None) -> dict[str, Any]:
+def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | None = None
+                ) -> dict[str, Any]:
     """Batch least squares on the run the live estimator recorded: with the bench table
     (before calibration), the calibrated table (after) and the plant's true table (check).
 
     With a calibrated table, the fit with the bench table (it does not converge: it runs
     out of iterations or steps, the longest of the three) runs in a process of its own
-    while this one fits the other two and draws the residuals: the same fits, in parallel."""
+    while this one fits the other two and draws the residuals: the same fits, in parallel.
+    With ``side`` (the demo's pre-warmed workers, :mod:`tpods.demo_side`), the bench-table
+    fit and the check fit run there (no process to start) while this one fits the
+    calibrated table and draws the residuals."""
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
+    if side is not None and calibrated_table is not None:
+        return _batch_beside(out, run, bench_table, calibrated_table, side)
     bg = BackgroundFit(out / "run" / "live", bench_table) if calibrated_table is not None else None
     try:
         after = batch_row(run, calibrated_table) if calibrated_table is not None else None
@@ -320,6 +336,28 @@ def stage_batch(out: Path, bench_table, calibrated_table=None) -> dict[str, Any]
     finally:
         if bg is not None:
             bg.stop()
+    return _batch_done(d, res, before, after, chk, fig)
+
+
+def _batch_beside(out: Path, run, bench_table, calibrated_table, side: SideWork
+                  ) -> dict[str, Any]:
+    """:func:`stage_batch` with the bench-table fit and the check fit in side workers."""
+    d = out / "batch"
+    f_before = side.submit("batch: bench-table fit (beside)", batch_row_json,
+                           out / "run" / "live", bench_table)
+    f_chk = side.submit("batch: true-table check fit (beside)", switch_row_json,
+                        out / "run" / "live", out / "run" / "switches.csv", plant_table())
+    after = batch_row(run, calibrated_table)
+    res = after["res"]
+    fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
+                         title="Batch LS on the recorded run: residuals")
+    before = f_before.result()
+    (d / "estimate_before_calibration.json").write_text(_json(before.pop("res_dict")))
+    return _batch_done(d, res, before, after, f_chk.result(), fig)
+
+
+def _batch_done(d: Path, res, before, after, chk, fig) -> dict[str, Any]:
+    """The end of :func:`stage_batch`: estimate.json, the printed lines, the stage's result."""
     (d / "estimate.json").write_text(_json(res.to_dict()))
     for label, r in (("bench table (before calibration)", before), ("calibrated table", after)):
         if r is None:

@@ -22,6 +22,8 @@ class StageTimes:
         self.t0 = time.monotonic()
         self.wall_s: dict[str, float] = {}
         self.paced_s: dict[str, float] = {}
+        self.side_s: dict[str, float] = {}
+        """Work done in side processes beside the stages (:meth:`beside`), s by label."""
         self.meta = meta
         """run.json's metadata (:func:`common.runwriter.run_status`): its ``timings_s``
         follows every stage's end, so a partial lab day says how far it got and when."""
@@ -45,6 +47,14 @@ class StageTimes:
         """``seconds`` of stage ``key`` are paced by design (lab time, planned windows)."""
         self.paced_s[key] = self.paced_s.get(key, 0.0) + float(seconds)
 
+    def beside(self, side_s: dict[str, float]) -> None:
+        """Wall time of the jobs that ran in side processes beside the stages (each label
+        says beside which): rows of their own in the table, not in the total (they overlap
+        the stages), and run.json's ``side_s``."""
+        self.side_s.update(side_s)
+        if self.meta is not None:
+            self.meta["side_s"] = dict(self.side_s)
+
     def timings(self) -> dict[str, float]:
         """Every stage's wall time and the ``total`` so far, s (``summary.json``'s
         ``timings_s``)."""
@@ -57,6 +67,8 @@ class StageTimes:
         body = []
         for k, v in tim.items():
             p = self.paced_s.get(k) if k != "total" else sum(self.paced_s.values())
+            if k == "total":
+                body += [[f"  {label}", f"({w:.1f})", "-", "-"] for label, w in self.side_s.items()]
             body.append([k, f"{v:.1f}", "-" if p is None else f"{p:.1f}",
                          "-" if p is None else f"{v - p:.1f}"])
         return table_text(hdr, body, markdown)
@@ -80,7 +92,8 @@ def print_summary(title: str, rows: list[str], times: StageTimes, run_line: str,
     for line in rows:
         print("  " + line)
     print("\n== wall time of the stages (paced: the lab time played at the time scale, the "
-          "bench session's planned windows)\n")
+          "bench session's planned windows" + ("; in parentheses: side processes beside the "
+                                               "stages" if times.side_s else "") + ")\n")
     for line in times.lines():
         print("  " + line)
     print(f"\n{run_line}; whole demo {times.timings()['total']:.0f} s")
@@ -99,5 +112,6 @@ def timing_section(times: StageTimes) -> list[str]:
     return ["## Timing", "",
             "Wall time of each stage; paced: the lab time played at the time scale and the "
             "bench session's planned settle and dwell windows (waiting by design); rest: "
-            "start-up of the processes, fits, figures.", "",
+            "start-up of the processes, fits, figures. Indented rows in parentheses: work done "
+            "in a side process beside the stages it names (not part of the total).", "",
             *times.lines(markdown=True), ""]
