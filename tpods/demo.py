@@ -196,11 +196,10 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
     """:func:`_stages` with the side workers ``side`` (:class:`tpods.demo_side.SideWork`)."""
     from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
     from tpods.demo_stages import (
+        mass_and_bifilar,
         stage_batch,
         stage_bench,
-        stage_bifilar,
         stage_calibrate,
-        stage_mass,
         stage_run,
     )
     from tpods.demo_timing import print_summary
@@ -208,16 +207,21 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
     meta = times.meta
     print(f"TPODS lab day on emulated devices -> {out}")
 
+    # the balance and the pendulum (their own emulated devices) in a side process, beside
+    # the characterisation; their results are printed in their place below
+    ground = side.submit("mass + bifilar (beside characterisation)", mass_and_bifilar, out,
+                         args.mass, args.izz, args.seed)
     with times.stage("1/6 thrust characterisation (emulated valve controller + OHAUS Scout)",
                      "characterisation + fit"):
         bench = stage_bench(out, args.seed, args.quick, side)
     times.paced("characterisation + fit", bench["planned_s"])
 
     with times.stage("2/6 mass on the balance", "mass"):
-        mass = stage_mass(args.mass, args.seed)
+        mass, text_mass, bif, text_bif = ground.result()
+        print(text_mass, end="")
 
     with times.stage("3/6 bifilar pendulum", "bifilar"):
-        bif = stage_bifilar(out, mass, args.izz, args.seed)
+        print(text_bif, end="")
 
     with times.stage("4/6 in-situ thrust calibration: the module as the known body",
                      "calibration run + fit"):

@@ -124,7 +124,7 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
     grid = np.arange(10.0, 90.01, 0.5)
     errs = max_error_pct_full_scale(table, truth, grid)
     figs = (bench_figures(fit, raw, steps, d, truth) if side is None else
-            side.submit("bench figures (beside mass, bifilar)", bench_figures, fit, raw, steps,
+            side.submit("bench figures (beside the next stages)", bench_figures, fit, raw, steps,
                         d, truth))
     print(f"   session {res.status}: {len(res.steps)} steps, {res.n_readings} readings "
           f"({res.n_garbage} garbage lines skipped), valves closed; fitted orders "
@@ -169,6 +169,19 @@ def stage_bifilar(out: Path, mass: dict[str, Any], izz_kgm2: float, seed: int) -
           f"({100 * demo.small_angle_error_rel:+.2f} %)")
     return {"izz_kgm2": fit.izz_kgm2, "sigma_kgm2": fit.izz_sigma_kgm2, "figures": [fig],
             "small_angle_kgm2": fit.details["izz_small_angle_kgm2"]}
+
+
+def mass_and_bifilar(out: Path, mass_kg: float, izz_kgm2: float, seed: int) -> tuple:
+    """The mass and bifilar stages (:func:`stage_mass`, :func:`stage_bifilar`)
+    in a worker, beside the characterisation: their results and what each printed."""
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()) as text_mass:
+        mass = stage_mass(mass_kg, seed)
+    with contextlib.redirect_stdout(io.StringIO()) as text_bif:
+        bif = stage_bifilar(out, mass, izz_kgm2, seed)
+    return mass, text_mass.getvalue(), bif, text_bif.getvalue()
 
 
 def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
