@@ -42,7 +42,8 @@ with the figure of the structure and the centres of mass with their 95 % ellipse
 estimator out. ``--quick``: 40 s of lab time.
 
 This module is the command (``register``, :func:`cmd_demo`: the stages in order, the
-summary printed); the stages are in :mod:`tpods.demo_stages` (their processes in
+summary printed); the stages are in :mod:`tpods.demo_bench` (on the bench) and
+:mod:`tpods.demo_stages` (the flights and the batch fits; their processes in
 :mod:`tpods.demo_procs`), the figures, summary table and report in :mod:`tpods.demo_report`,
 each stage's wall time (printed, in report.md, summary.json and run.json) in
 :mod:`tpods.demo_timing`.
@@ -52,8 +53,10 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import importlib
 import os
 import sys
+import threading
 from pathlib import Path
 
 from common.argtypes import positive_float, random_seed
@@ -194,16 +197,12 @@ def _stages(args: argparse.Namespace, out: Path, meta: dict) -> int:
 
 def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
     """:func:`_stages` with the side workers ``side`` (:class:`tpods.demo_side.SideWork`)."""
-    from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
-    from tpods.demo_stages import (
-        mass_and_bifilar,
-        stage_batch,
-        stage_bench,
-        stage_calibrate,
-        stage_run,
-    )
+    from tpods.demo_bench import mass_and_bifilar, stage_bench  # light: the bench's modules
     from tpods.demo_timing import print_summary
 
+    # the flights', the batch stage's and the report's modules (the estimator, Zenoh,
+    # matplotlib: 1-2 s) are imported by a thread while the characterisation dwells
+    later = _import_beside("tpods.demo_stages", "tpods.demo_report")
     meta = times.meta
     print(f"TPODS lab day on emulated devices -> {out}")
 
@@ -215,6 +214,9 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
                      "characterisation + fit"):
         bench = stage_bench(out, args.seed, args.quick, side)
     times.paced("characterisation + fit", bench["planned_s"])
+    later.join()
+    from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
+    from tpods.demo_stages import stage_batch, stage_calibrate, stage_run
 
     with times.stage("2/6 mass on the balance", "mass"):
         mass, text_mass, bif, text_bif = ground.result()
@@ -257,3 +259,21 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
                   f"simulated run: {args.duration:g} s of lab time at time scale "
                   f"{args.time_scale:g}", report, len(figs))
     return 0
+
+
+def _import_beside(*modules: str) -> threading.Thread:
+    """A thread that imports ``modules`` (started at once; ``join`` it before using them).
+    Beside the characterisation: its emulated devices are threads of this process that
+    mostly sleep between readings, and the interpreter lock passes between threads every
+    few milliseconds (the planned windows are 150 ms). An import that fails here fails
+    again, with its message, where the module is used."""
+    def run() -> None:
+        for m in modules:
+            try:
+                importlib.import_module(m)
+            except Exception:  # noqa: BLE001 - raised again by the import that needs it
+                return
+
+    t = threading.Thread(target=run, name="tpods-demo-imports", daemon=True)
+    t.start()
+    return t

@@ -45,7 +45,7 @@ def timed_call(fn: Callable[..., Any], *args: Any) -> tuple[Any, float]:
 
 
 def bench_figures(fit, raw, steps, d: Path, truth) -> list[Path]:
-    """The characterisation's figures (what :func:`tpods.demo_stages.stage_bench` drew)."""
+    """The characterisation's figures (what :func:`tpods.demo_bench.stage_bench` drew)."""
     from bench.plots import plot_fit_orders, plot_time_series
 
     return [plot_fit_orders(fit, d / "thrust_fit_orders.png", truth=truth),

@@ -50,7 +50,7 @@ from common.wire import cmd_key, decode_pose, pose_key
 from estimator.estimate import estimate_run
 from estimator.reports.plots_batch import plot_residuals
 from tpods import demo_procs as dp
-from tpods.demo_stages import stage_mass
+from tpods.demo_bench import stage_mass
 from tpods.demo_structure_layout import (
     BODY,
     MODULES,
