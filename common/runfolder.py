@@ -273,9 +273,13 @@ def _check_truth(meta_file: Path, truth: Any) -> None:
 
 def partial_status(meta: Any) -> str | None:
     """The ``status`` of run metadata that marks its run partial, None for a whole run
-    (status ``complete`` or ``success``, or no status at all)."""
+    (status ``complete`` or ``success``, or no status at all, or ``running`` with
+    ``data_complete: true``: a live estimator that has sealed its data files and still
+    computes its final estimate, :meth:`estimator.live.recorder.LiveRecorder.seal`)."""
     status = meta.get("status") if isinstance(meta, dict) else None
     if status is None or str(status) in WHOLE_STATUSES:
+        return None
+    if str(status) == "running" and meta.get("data_complete") is True:
         return None
     return str(status)
 

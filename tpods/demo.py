@@ -216,7 +216,7 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
     times.paced("characterisation + fit", bench["planned_s"])
     later.join()
     from tpods.demo_report import plot_run, summary_rows, table_lines, write_report, write_summary
-    from tpods.demo_stages import stage_batch, stage_calibrate, stage_run
+    from tpods.demo_stages import side_fits, stage_batch, stage_calibrate, stage_run
 
     with times.stage("2/6 mass on the balance", "mass"):
         mass, text_mass, bif, text_bif = ground.result()
@@ -232,7 +232,11 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
 
     with times.stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)",
                      "module run (live)"):
-        live = stage_run(out, args, cal["table_path"])
+        # the batch stage's two side fits start once the run's recording is sealed,
+        # beside the live estimator's final fit
+        early: dict = {}
+        live = stage_run(out, args, cal["table_path"], on_recorded=lambda _d: early.update(
+            side_fits(out, bench["table"], side, "beside the estimator's end and batch")))
         print(f"   live {live.get('method')} ({live.get('phase')}): m = {live['mass_kg']:.5f} +- "
               f"{live['mass_sigma_kg']:.2g} kg, Izz = {live['izz_kgm2']:.6g} +- "
               f"{live['izz_sigma_kgm2']:.2g} kg m^2 (total sigma)")
@@ -244,7 +248,7 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
         run_figs = side.submit("run figures (beside batch)", plot_run, out,
                                {k: live[k] for k in ("truth_t", "truth_s", "method") if k in live},
                                truth)
-        batch = stage_batch(out, bench["table"], cal["table"], side)
+        batch = stage_batch(out, bench["table"], cal["table"], side, early or None)
 
     with times.stage(None, "figures"):
         bench["figures"] = bench["figures"].result()  # drawn beside the mass and bifilar

@@ -102,6 +102,23 @@ def follow_player(play: subprocess.Popen, duration_s: float, time_scale: float, 
     return time.monotonic() - t_real0
 
 
+def wait_recorded(run_dir: Path, live: subprocess.Popen, timeout_s: float = 60.0) -> bool:
+    """Until the live estimator has sealed its recording in ``run_dir`` (run.json's
+    ``data_complete``: poses and commands whole, its final fit still running;
+    :meth:`estimator.live.recorder.LiveRecorder.seal`): True; False when it ended first
+    or ``timeout_s`` passed (then :func:`live_summary` says how it ended)."""
+    meta = run_dir / "run.json"
+    t0 = time.monotonic()
+    while live.poll() is None and time.monotonic() - t0 < timeout_s:
+        try:
+            if json.loads(meta.read_text()).get("data_complete") is True:
+                return True
+        except (OSError, ValueError):  # not written yet (it is replaced atomically)
+            pass
+        time.sleep(0.01)
+    return False
+
+
 def live_summary(live: subprocess.Popen, log: Path) -> dict[str, Any]:
     """The live estimator's JSON summary (its last stdout line) once it exits after the
     player's end (SIGTERM after 60 s); UserError when it failed."""

@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,7 @@ from tpods.demo_procs import (
     print_run_timing,
     switch_lag_ms,
     tpods_exe,
+    wait_recorded,
     wait_subscribed,
 )
 from tpods.demo_side import SideWork
@@ -75,10 +77,15 @@ def plant_table() -> ThrustTable:
 
 
 def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
-              input_name: str = "phase-sine", duration: float | None = None) -> dict[str, Any]:
+              input_name: str = "phase-sine", duration: float | None = None,
+              on_recorded: Callable[[Path], None] | None = None) -> dict[str, Any]:
     """Simulated module (one weak thruster: :func:`plant_table`) + live estimator + player
     over Zenoh, into ``out/name``; returns the live summary, with the run's valve-switch lag
-    (``switch_lag_ms``) and the wall time of its phases (``timing_s``)."""
+    (``switch_lag_ms``) and the wall time of its phases (``timing_s``).
+
+    ``on_recorded(out/name)`` runs once the recording is whole (the estimator has sealed
+    ``live/``'s poses and commands: :func:`tpods.demo_procs.wait_recorded`; ``truth.csv``
+    and ``switches.csv`` written), beside the estimator's final fit."""
     duration = args.duration if duration is None else duration
     t_stage = time.monotonic()
     phases: dict[str, float] = {}
@@ -124,18 +131,28 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
             if procs["play"].returncode != 0:
                 raise child_failed("player", procs["play"], d / "play.log")
             t_end = time.monotonic()
-            summary = live_summary(procs["live"], d / "live.log")
-            phases["estimator's end"] = time.monotonic() - t_end
+            # the estimator ends its stream (the end rule) and seals its data files before
+            # its final fit; the plant stops once it has: every pose it uses is in
+            sealed = wait_recorded(d / "live", procs["live"])
+            phases["until recorded"] = time.monotonic() - t_end
+        summary = None if sealed else live_summary(procs["live"], d / "live.log")
         t_truth, s_truth = module.plant.truth_arrays()
         t0_lab = json.loads((d / "live" / "run.json").read_text()).get("t0_lab") or t_truth[0]
         np.savetxt(d / "truth.csv", np.column_stack([t_truth - t0_lab, s_truth]), delimiter=",",
                    header="t,x,y,psi,u,v,r", comments="", fmt="%.12g")
+        save_switches(d / "switches.csv", module.plant.switches, t0_lab)
+        if on_recorded is not None:
+            t_beside = time.monotonic()
+            on_recorded(d)
+            phases["beside its final fit"] = time.monotonic() - t_beside
+        if summary is None:
+            summary = live_summary(procs["live"], d / "live.log")
+        phases["estimator's end"] = time.monotonic() - t_end
         play_meta = json.loads((d / "play" / "run.json").read_text())
         summary["play"] = {k: play_meta.get(k) for k in ("status", "valves_closed_confirmed",
                                                          "counts", "timing")}
         summary["plant"] = {"poses": module.plant.frames, "max_behind_lab_s":
                             module.plant.max_behind_s, "valve_changes": len(module.plant.switches)}
-        save_switches(d / "switches.csv", module.plant.switches, t0_lab)
         summary["switch_lag_ms"] = lag = switch_lag_ms(module.plant.switches, d / "play")
         summary["duty_time_error"] = duty_time_error(module.plant.switches, d / "play")
         summary["truth_t"], summary["truth_s"], summary["t0_lab"] = t_truth - t0_lab, s_truth, t0_lab
@@ -168,18 +185,24 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
     # table's (a zero shared by three steps; see stage_bench). A late switch on a busy
     # machine is an impulse error the efficiencies would absorb: stage_run measures the
     # switches' lag and warns when the machine cannot keep up
+    got: dict[str, Any] = {}
+
+    def calibrate(d: Path) -> None:
+        """``calibrate thrust`` on the sealed recording, beside the estimator's final fit."""
+        res = calibrate_run(read_run(d / "live"), bench["table"], mass_kg=mass["mass_kg"],
+                            mass_sigma_kg=mass["sigma_kg"], izz_kgm2=bif["izz_kgm2"],
+                            izz_sigma_kgm2=bif["sigma_kgm2"], per="thruster", clamp=True)
+        got["table"] = res.new_table(bench["table"], source="tpods demo: calibrate thrust",
+                                     run=str(d / "live"))
+        got["table"].save(d / "thrust_table.toml")
+        (d / "calibration.json").write_text(json.dumps(res.to_dict(), indent=2, default=str)
+                                            + "\n")
+        got["res"] = res
+
     live = stage_run(out, args, bench["table_path"], name="calibration",
-                     input_name="translate-rotate", duration=duration)
+                     input_name="translate-rotate", duration=duration, on_recorded=calibrate)
     d = out / "calibration"
-    run = read_run(d / "live")
-    res = calibrate_run(run, bench["table"], mass_kg=mass["mass_kg"], mass_sigma_kg=mass["sigma_kg"],
-                        izz_kgm2=bif["izz_kgm2"], izz_sigma_kgm2=bif["sigma_kgm2"], per="thruster",
-                        clamp=True)
-    table = res.new_table(bench["table"], source="tpods demo: calibrate thrust",
-                          run=str(d / "live"))
-    path = d / "thrust_table.toml"
-    table.save(path)
-    (d / "calibration.json").write_text(json.dumps(res.to_dict(), indent=2, default=str) + "\n")
+    res, table, path = got["res"], got["table"], d / "thrust_table.toml"
     sig = res.sigma
     truth = [1.0] * 4
     truth[WEAK_THRUSTER - 1] = WEAK_EFFICIENCY
@@ -207,8 +230,20 @@ def _json(d: dict[str, Any]) -> str:
     return json.dumps(d, indent=2, default=str) + "\n"
 
 
-def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | None = None
-                ) -> dict[str, Any]:
+def side_fits(out: Path, bench_table, side: SideWork, beside: str = "beside"
+              ) -> dict[str, Any]:
+    """Two of :func:`stage_batch`'s fits submitted to the side workers (``beside`` names
+    what they run beside): the bench-table fit (it does not converge: the longest) and the
+    check fit with the plant's true table and valve switches; futures of their rows."""
+    return {"before": side.submit(f"batch: bench-table fit ({beside})", batch_row_json,
+                                  out / "run" / "live", bench_table),
+            "check": side.submit(f"batch: true-table check fit ({beside})", switch_row_json,
+                                 out / "run" / "live", out / "run" / "switches.csv",
+                                 plant_table())}
+
+
+def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | None = None,
+                early: dict[str, Any] | None = None) -> dict[str, Any]:
     """Batch least squares on the run the live estimator recorded: with the bench table
     (before calibration), the calibrated table (after) and the plant's true table (check).
 
@@ -217,12 +252,14 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     while this one fits the other two and draws the residuals: the same fits, in parallel.
     With ``side`` (the demo's pre-warmed workers, :mod:`tpods.demo_side`), the bench-table
     fit and the check fit run there (no process to start) while this one fits the
-    calibrated table and draws the residuals."""
+    calibrated table and draws the residuals; ``early``: those two already submitted
+    (:func:`side_fits`, once the module run's recording was sealed)."""
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
     if side is not None and calibrated_table is not None:
-        return _batch_beside(out, run, bench_table, calibrated_table, side)
+        return _batch_beside(out, run, calibrated_table,
+                             early or side_fits(out, bench_table, side))
     bg = BackgroundFit(out / "run" / "live", bench_table) if calibrated_table is not None else None
     try:
         after = batch_row(run, calibrated_table) if calibrated_table is not None else None
@@ -242,14 +279,11 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     return _batch_done(d, res, before, after, chk, fig)
 
 
-def _batch_beside(out: Path, run, bench_table, calibrated_table, side: SideWork
-                  ) -> dict[str, Any]:
-    """:func:`stage_batch` with the bench-table fit and the check fit in side workers."""
+def _batch_beside(out: Path, run, calibrated_table, fits: dict[str, Any]) -> dict[str, Any]:
+    """:func:`stage_batch` with the bench-table fit and the check fit in side workers
+    (``fits``: :func:`side_fits`)."""
     d = out / "batch"
-    f_before = side.submit("batch: bench-table fit (beside)", batch_row_json,
-                           out / "run" / "live", bench_table)
-    f_chk = side.submit("batch: true-table check fit (beside)", switch_row_json,
-                        out / "run" / "live", out / "run" / "switches.csv", plant_table())
+    f_before, f_chk = fits["before"], fits["check"]
     after = batch_row(run, calibrated_table)
     res = after["res"]
     fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",

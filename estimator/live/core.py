@@ -314,8 +314,11 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         return n
 
     def finish(self) -> dict[str, Any] | None:
-        """End of stream: release every pending pose, finish an ls-ekf restart, publish."""
+        """End of stream: release every pending pose (the recording is then whole and sealed:
+        :meth:`LiveRecorder.seal`), finish an ls-ekf restart, the final fit, publish."""
         self.process(math.inf)
+        if self.recorder is not None:
+            self.recorder.seal()
         if self.config.method == "ls-ekf":
             if self.phase == "ekf" and self.hist_t and (
                     self.hist_t[-1] - self.hist_t[0] >= self.config.ls_window_s

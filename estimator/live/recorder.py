@@ -83,6 +83,8 @@ class LiveRecorder:
         self._pending: list[tuple[float, float, float, float]] = []
         self.counts = {"commands": 0, "commands_unrecorded": 0, "poses": 0, "estimates": 0}
         self.closed = False
+        self.sealed = False
+        """:meth:`seal` ran: commands.csv and poses.csv are closed and whole."""
         self.write_meta()
 
     def write_meta(self) -> None:
@@ -90,6 +92,9 @@ class LiveRecorder:
         write_json_atomic(self.out / "run.json", self.meta)
 
     def command(self, t: float, duty) -> None:
+        if self.sealed:  # after the end of the stream (none expected): not recorded
+            self.counts["commands_unrecorded"] += 1
+            return
         if self.t0 is None:
             self.t0 = t
             self.write_meta()
@@ -103,6 +108,8 @@ class LiveRecorder:
         self._write_covered()
 
     def pose(self, t: float, x: float, y: float, yaw: float) -> None:
+        if self.sealed:
+            return
         self._pending.append((t, x, y, yaw))
         self._write_covered()
 
@@ -139,13 +146,37 @@ class LiveRecorder:
                         math.hypot(sig[7], ti), *z[:6], *sig[:6], sig[6], tm, sig[7], ti, *com)
         self.counts["estimates"] += 1
 
+    def seal(self) -> None:
+        """The run's data are whole (the end of the stream, before the estimator's final
+        fit): a last hold row covers the poses still pending, commands.csv and poses.csv
+        are closed and run.json says ``data_complete: true`` with their row counts, its
+        status still ``running``. Readers take such a folder as whole
+        (:func:`common.runfolder.partial_status`): a post-processing fit can start while
+        the estimator finishes (``tpods demo``). estimates.csv stays open until
+        :meth:`close`."""
+        if self.closed or self.sealed:
+            return
+        if self._pending and self.last_duty is not None:
+            t_last = self._pending[-1][0]
+            if t_last > self.last_cmd_t:
+                self.command(t_last, self.last_duty)
+        for log in (self._cmd, self._pose):
+            with contextlib.suppress(OSError):
+                log.close()
+        self.sealed = True
+        self.meta["data_complete"] = True
+        self.meta["recorded"] = {k: self.counts[k] for k in ("commands", "commands_unrecorded",
+                                                             "poses")}
+        with contextlib.suppress(OSError):
+            self.write_meta()
+
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
         """Close the files: a last hold row covers the poses still pending; write ``status``
         (``success`` for a run that ended cleanly, anything else marks it partial)."""
         if self.closed:
             return
         self.closed = True
-        if self._pending and self.last_duty is not None:
+        if self._pending and self.last_duty is not None and not self.sealed:
             t_last = self._pending[-1][0]
             if t_last > self.last_cmd_t:
                 self.command(t_last, self.last_duty)
