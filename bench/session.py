@@ -37,10 +37,9 @@ import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from tqdm import tqdm
 
 from bench import clock
@@ -51,6 +50,9 @@ from common.plausible import check_duty_range
 from common.runfolder import warn_if_partial
 from common.runwriter import CsvLog, run_header, write_json_atomic
 from common.thrust_table import GF_TO_N
+
+if TYPE_CHECKING:  # pandas is imported where a frame is made: `tpods run play` and the live
+    import pandas as pd  # estimator import this module for its signals, not for its frames
 
 RAW_COLUMNS = ["t_s", "window", "phase", "step", "n_open", "duty_pct", "reading_gf", "stable"]
 STEP_COLUMNS = ["step", "n_open", "duty_pct", "t_start_s", "t_end_s", "n", "n_unstable",
@@ -188,6 +190,8 @@ def summarize_steps(raw: pd.DataFrame) -> pd.DataFrame:
     at each dwell reading is interpolated linearly in time between the windows
     (held constant beyond the first/last). Returns a frame with STEP_COLUMNS.
     """
+    import pandas as pd
+
     zeros = raw[raw["phase"] == "zero"].groupby("window").agg(t=("t_s", "mean"), z=("reading_gf", "mean"))
     zt, zv = zeros["t"].to_numpy(), zeros["z"].to_numpy()
     rows = []
@@ -228,11 +232,17 @@ class SessionResult:
     n_readings: int
     n_garbage: int
     error: str | None = None
-    steps: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=STEP_COLUMNS))
+    steps: pd.DataFrame = field(default_factory=lambda: _frame([], STEP_COLUMNS))
 
     @property
     def overhead_pct(self) -> float:
         return 100.0 * (self.elapsed_s - self.planned_s) / self.planned_s
+
+
+def _frame(rows: list, columns) -> pd.DataFrame:
+    import pandas as pd
+
+    return pd.DataFrame(rows, columns=columns)
 
 
 class _Recorder:
@@ -257,7 +267,7 @@ class _Recorder:
         self.log.write(*row)
 
     def frame(self) -> pd.DataFrame:
-        return pd.DataFrame(self.rows, columns=RAW_COLUMNS)
+        return _frame(self.rows, RAW_COLUMNS)
 
     def close(self) -> None:
         self.log.close()
@@ -442,6 +452,8 @@ def read_session(run_dir: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     whose run.json status is not ``success`` (``running``: killed; ``aborted``, ``failed``)
     is partial: read, with one warning line on stderr
     (:func:`common.runfolder.warn_if_partial`)."""
+    import pandas as pd
+
     run = Path(run_dir)
     if not run.is_dir():
         raise UserError(f"{run}: no such run folder")

@@ -200,9 +200,10 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
     from tpods.demo_bench import mass_and_bifilar, stage_bench  # light: the bench's modules
     from tpods.demo_timing import print_summary
 
-    # the flights', the batch stage's and the report's modules (the estimator, Zenoh,
-    # matplotlib: 1-2 s) are imported by a thread while the characterisation dwells
-    later = _import_beside("tpods.demo_stages", "tpods.demo_report")
+    # the bench fit's, the flights', the batch stage's and the report's modules (pandas, the
+    # estimator, Zenoh, matplotlib: 1-2 s) are imported by a thread while the
+    # characterisation dwells
+    later = _import_beside("bench.fit", "tpods.demo_stages", "tpods.demo_report")
     meta = times.meta
     print(f"TPODS lab day on emulated devices -> {out}")
 

@@ -7,8 +7,8 @@ any flight, each on its own emulated device.
   together in a side worker beside the characterisation (:func:`mass_and_bifilar`).
 
 A light module: the demo imports it first and runs the characterisation while a thread
-imports the flights' and the batch stage's modules (:mod:`tpods.demo_stages`: the estimator,
-Zenoh, matplotlib); the bifilar fit and its figure are imported where they run.
+imports the fits' and the flights' modules (:mod:`bench.fit`, :mod:`tpods.demo_stages`: pandas,
+the estimator, Zenoh, matplotlib); the bifilar fit and its figure are imported where they run.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
 from bench.ohaus import OhausScout
 from bench.session import SessionConfig, read_session, run_session
 from bench.valves import ValveController
@@ -33,6 +32,8 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
                 ) -> dict[str, Any]:
     """Characterisation session on emulated devices and the cubic fits; with ``side``, its
     figures are drawn in a side process (``figures``: a future of their paths)."""
+    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty  # pandas
+
     truth = ThrustTable.default()
     duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
     # a fast emulated balance (25 ms lag, 100 Hz printing): settle 6 lags, 15 readings a
