@@ -228,13 +228,16 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
 
     with times.stage("4/6 in-situ thrust calibration: the module as the known body",
                      "calibration run + fit"):
-        cal = stage_calibrate(out, args, bench, mass, bif)
+        # the bench figures are drawn beside the calibration flight's paced part
+        draw = bench.pop("draw_figures")
+        cal = stage_calibrate(out, args, bench, mass, bif,
+                              on_started=lambda: bench.update(figures=draw()))
     times.paced("calibration run + fit", cal["live"]["duration_lab_s"] / cal["live"]["time_scale"])
 
     with times.stage("5/6 simulated module run over Zenoh, estimated live (calibrated table)",
                      "module run (live)"):
-        # the batch stage's two side fits start once the run's recording is sealed,
-        # beside the live estimator's final fit
+        # the batch stage's fits start once the run's recording is sealed, beside the live
+        # estimator's final fit
         early: dict = {}
         live = stage_run(out, args, cal["table_path"], on_recorded=lambda _d: early.update(
             side_fits(out, bench["table"], side, "beside the estimator's end and batch")))
@@ -252,7 +255,7 @@ def _stages_with(args: argparse.Namespace, out: Path, times, side) -> int:
         batch = stage_batch(out, bench["table"], cal["table"], side, early or None)
 
     with times.stage(None, "figures"):
-        bench["figures"] = bench["figures"].result()  # drawn beside the mass and bifilar
+        bench["figures"] = bench["figures"].result()  # drawn beside the calibration flight
         figs = bench["figures"] + bif["figures"] + run_figs.result() + batch["figures"]
         rows = summary_rows(truth, mass, bif, live, batch)
     times.beside(side.side_s)

@@ -14,6 +14,7 @@ the estimator, Zenoh, matplotlib); the bifilar fit and its figure are imported w
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -31,9 +32,9 @@ from tpods.demo_side import SideWork, bench_figures
 def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
                 ) -> dict[str, Any]:
     """Characterisation session on emulated devices and the cubic fits; with ``side``, its
-    figures are drawn in a side process (``figures``: a future of their paths)."""
-    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty  # pandas
-
+    figures are drawn in a side process when the caller calls ``draw_figures()`` (a future
+    of their paths; the demo calls it once the calibration flight has started: the
+    flight's paced part leaves the CPU idle, its start-up does not)."""
     truth = ThrustTable.default()
     duties = (10, 30, 50, 70, 90) if quick else (10, 20, 30, 40, 50, 60, 70, 80, 90)
     # a fast emulated balance (25 ms lag, 100 Hz printing): settle 6 lags, 15 readings a
@@ -59,6 +60,9 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
     finally:
         ss.stop()
         sv.stop()
+    # pandas: imported by the demo's import thread during the session
+    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
+
     raw, steps = read_session(d)
     fit = fit_steps(steps, 3 if quick else "auto")  # 5 duty steps are too few for AICc
     table = fit.table(60.0, source="tpods demo: emulated characterisation")
@@ -69,9 +73,10 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
     table.save(table_path)
     grid = np.arange(10.0, 90.01, 0.5)
     errs = max_error_pct_full_scale(table, truth, grid)
-    figs = (bench_figures(fit, raw, steps, d, truth) if side is None else
-            side.submit("bench figures (beside the next stages)", bench_figures, fit, raw, steps,
-                        d, truth))
+    figs = bench_figures(fit, raw, steps, d, truth) if side is None else None
+    draw = None if side is None else functools.partial(
+        side.submit, "bench figures (beside the calibration flight)", bench_figures, fit, raw,
+        steps, d, truth)
     print(f"   session {res.status}: {len(res.steps)} steps, {res.n_readings} readings "
           f"({res.n_garbage} garbage lines skipped), valves closed; fitted orders "
           f"{dict(sorted(fit.selected.items()))}")
@@ -80,6 +85,7 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
     print(f"   table uncertainty: each fit's coefficient covariance, scale_rel "
           f"{unc.scale_rel:.2%} ({unc.sources['scale_rel'].split(';')[0]})")
     return {"table_path": table_path, "table": table, "errors_pct_fs": errs, "figures": figs,
+            "draw_figures": draw,
             "planned_s": cfg.planned_s, "steps": len(res.steps), "readings": res.n_readings, "status": res.status,
             "orders": {int(k): int(v) for k, v in fit.selected.items()}}
 

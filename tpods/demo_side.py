@@ -23,8 +23,16 @@ WORKERS = 2
 """One per core of a small lab PC: two jobs beside the main process at most."""
 
 
+WARM_DELAY_S = 1.0
+"""How long a worker waits before its imports: the demo's own imports and the first steps of
+the characterisation go first (on two cores, four processes importing at once delayed the
+session's start by a few tenths of a second)."""
+
+
 def _warm() -> None:
-    """Each worker's start: the modules its jobs need, imported before any job is sent."""
+    """Each worker's start: the modules its jobs need, imported before any job is sent
+    (after :data:`WARM_DELAY_S`)."""
+    time.sleep(WARM_DELAY_S)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -78,11 +78,13 @@ def plant_table() -> ThrustTable:
 
 def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
               input_name: str = "phase-sine", duration: float | None = None,
+              on_started: Callable[[], None] | None = None,
               on_recorded: Callable[[Path], None] | None = None) -> dict[str, Any]:
     """Simulated module (one weak thruster: :func:`plant_table`) + live estimator + player
     over Zenoh, into ``out/name``; returns the live summary, with the run's valve-switch lag
     (``switch_lag_ms``) and the wall time of its phases (``timing_s``).
 
+    ``on_started()`` runs once the player and the estimator run (the paced part begins);
     ``on_recorded(out/name)`` runs once the recording is whole (the estimator has sealed
     ``live/``'s poses and commands: :func:`tpods.demo_procs.wait_recorded`; ``truth.csv``
     and ``switches.csv`` written), beside the estimator's final fit."""
@@ -126,6 +128,8 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
             print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
                   f"running; {lab_time_text(duration, args.time_scale)}")
             phases["start-up"] = time.monotonic() - t_stage
+            if on_started is not None:
+                on_started()
             phases["played"] = follow_player(procs["play"], duration, args.time_scale,
                                              f"{name} (lab time)")
             if procs["play"].returncode != 0:
@@ -174,10 +178,12 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
 
 
 def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
-                    mass: dict[str, Any], bif: dict[str, Any]) -> dict[str, Any]:
+                    mass: dict[str, Any], bif: dict[str, Any],
+                    on_started: Callable[[], None] | None = None) -> dict[str, Any]:
     """The module as the known body: a translate-rotate run (every thruster opens alone with
     its partner, so each one's efficiency is seen), then ``tpods calibrate thrust`` with the
-    balance's mass and the bifilar Izz -> ``calibration/thrust_table.toml``."""
+    balance's mass and the bifilar Izz -> ``calibration/thrust_table.toml``
+    (``on_started``: :func:`stage_run`'s)."""
     from estimator.batch.thrust_calibration import calibrate_run
 
     duration = 28.0 if args.quick else 42.0  # two or three 14 s cycles
@@ -200,7 +206,8 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
         got["res"] = res
 
     live = stage_run(out, args, bench["table_path"], name="calibration",
-                     input_name="translate-rotate", duration=duration, on_recorded=calibrate)
+                     input_name="translate-rotate", duration=duration, on_started=on_started,
+                     on_recorded=calibrate)
     d = out / "calibration"
     res, table, path = got["res"], got["table"], d / "thrust_table.toml"
     sig = res.sigma
@@ -258,8 +265,7 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
     if side is not None and calibrated_table is not None:
-        return _batch_beside(out, run, calibrated_table,
-                             early or side_fits(out, bench_table, side))
+        return _batch_beside(d, run, calibrated_table, early or side_fits(out, bench_table, side))
     bg = BackgroundFit(out / "run" / "live", bench_table) if calibrated_table is not None else None
     try:
         after = batch_row(run, calibrated_table) if calibrated_table is not None else None
@@ -279,10 +285,9 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     return _batch_done(d, res, before, after, chk, fig)
 
 
-def _batch_beside(out: Path, run, calibrated_table, fits: dict[str, Any]) -> dict[str, Any]:
-    """:func:`stage_batch` with the bench-table fit and the check fit in side workers
-    (``fits``: :func:`side_fits`)."""
-    d = out / "batch"
+def _batch_beside(d: Path, run, calibrated_table, fits: dict[str, Any]) -> dict[str, Any]:
+    """:func:`stage_batch` into ``d`` with the bench-table fit and the check fit in side
+    workers (``fits``: :func:`side_fits`)."""
     f_before, f_chk = fits["before"], fits["check"]
     after = batch_row(run, calibrated_table)
     res = after["res"]
