@@ -37,6 +37,7 @@ def _warm() -> None:
 
     matplotlib.use("Agg")
     import bench.plots  # noqa: F401
+    import estimator.reports.plots_batch  # noqa: F401
     import tpods.demo_fit  # noqa: F401
     import tpods.demo_report  # noqa: F401
 
@@ -58,6 +59,13 @@ def bench_figures(fit, raw, steps, d: Path, truth) -> list[Path]:
 
     return [plot_fit_orders(fit, d / "thrust_fit_orders.png", truth=truth),
             plot_time_series(raw, d / "thrust_timeseries.png", steps)]
+
+
+def residual_figure(t, residuals, path: Path, title: str) -> Path:
+    """The batch fit's residual figure (what :func:`tpods.demo_stages.stage_batch` drew)."""
+    from estimator.reports.plots_batch import plot_residuals
+
+    return plot_residuals(t, residuals, path, title=title)
 
 
 class SideWork:

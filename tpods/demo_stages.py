@@ -53,7 +53,7 @@ from tpods.demo_procs import (
     wait_recorded,
     wait_subscribed,
 )
-from tpods.demo_side import SideWork
+from tpods.demo_side import SideWork, residual_figure
 from tpods.plant_loop import MocapNoise, SimulatedModule
 
 # re-exported under their old names (tests/support, older callers)
@@ -78,13 +78,11 @@ def plant_table() -> ThrustTable:
 
 def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: str = "run",
               input_name: str = "phase-sine", duration: float | None = None,
-              on_started: Callable[[], None] | None = None,
               on_recorded: Callable[[Path], None] | None = None) -> dict[str, Any]:
     """Simulated module (one weak thruster: :func:`plant_table`) + live estimator + player
     over Zenoh, into ``out/name``; returns the live summary, with the run's valve-switch lag
     (``switch_lag_ms``) and the wall time of its phases (``timing_s``).
 
-    ``on_started()`` runs once the player and the estimator run (the paced part begins);
     ``on_recorded(out/name)`` runs once the recording is whole (the estimator has sealed
     ``live/``'s poses and commands: :func:`tpods.demo_procs.wait_recorded`; ``truth.csv``
     and ``switches.csv`` written), beside the estimator's final fit."""
@@ -128,8 +126,6 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
             print(f"   live estimator ({args.method}, {table_path.name}) and player ({input_name}) "
                   f"running; {lab_time_text(duration, args.time_scale)}")
             phases["start-up"] = time.monotonic() - t_stage
-            if on_started is not None:
-                on_started()
             phases["played"] = follow_player(procs["play"], duration, args.time_scale,
                                              f"{name} (lab time)")
             if procs["play"].returncode != 0:
@@ -178,12 +174,10 @@ def stage_run(out: Path, args: argparse.Namespace, table_path: Path, *, name: st
 
 
 def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
-                    mass: dict[str, Any], bif: dict[str, Any],
-                    on_started: Callable[[], None] | None = None) -> dict[str, Any]:
+                    mass: dict[str, Any], bif: dict[str, Any]) -> dict[str, Any]:
     """The module as the known body: a translate-rotate run (every thruster opens alone with
     its partner, so each one's efficiency is seen), then ``tpods calibrate thrust`` with the
-    balance's mass and the bifilar Izz -> ``calibration/thrust_table.toml``
-    (``on_started``: :func:`stage_run`'s)."""
+    balance's mass and the bifilar Izz -> ``calibration/thrust_table.toml``."""
     from estimator.batch.thrust_calibration import calibrate_run
 
     duration = 28.0 if args.quick else 42.0  # two or three 14 s cycles
@@ -206,8 +200,7 @@ def stage_calibrate(out: Path, args: argparse.Namespace, bench: dict[str, Any],
         got["res"] = res
 
     live = stage_run(out, args, bench["table_path"], name="calibration",
-                     input_name="translate-rotate", duration=duration, on_started=on_started,
-                     on_recorded=calibrate)
+                     input_name="translate-rotate", duration=duration, on_recorded=calibrate)
     d = out / "calibration"
     res, table, path = got["res"], got["table"], d / "thrust_table.toml"
     sig = res.sigma
@@ -265,7 +258,8 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     d.mkdir(parents=True, exist_ok=True)
     run = read_run(out / "run" / "live")
     if side is not None and calibrated_table is not None:
-        return _batch_beside(d, run, calibrated_table, early or side_fits(out, bench_table, side))
+        return _batch_beside(d, run, calibrated_table, early or side_fits(out, bench_table, side),
+                             side)
     bg = BackgroundFit(out / "run" / "live", bench_table) if calibrated_table is not None else None
     try:
         after = batch_row(run, calibrated_table) if calibrated_table is not None else None
@@ -285,17 +279,20 @@ def stage_batch(out: Path, bench_table, calibrated_table=None, side: SideWork | 
     return _batch_done(d, res, before, after, chk, fig)
 
 
-def _batch_beside(d: Path, run, calibrated_table, fits: dict[str, Any]) -> dict[str, Any]:
+def _batch_beside(d: Path, run, calibrated_table, fits: dict[str, Any], side: SideWork
+                  ) -> dict[str, Any]:
     """:func:`stage_batch` into ``d`` with the bench-table fit and the check fit in side
     workers (``fits``: :func:`side_fits`)."""
     f_before, f_chk = fits["before"], fits["check"]
     after = batch_row(run, calibrated_table)
     res = after["res"]
-    fig = plot_residuals(res.t, res.residuals, d / "batch_residuals.png",
-                         title="Batch LS on the recorded run: residuals")
+    # drawn by the worker that is free first (the other still fits the bench table)
+    f_fig = side.submit("batch: residual figure (beside)", residual_figure, res.t,
+                        res.residuals, d / "batch_residuals.png",
+                        "Batch LS on the recorded run: residuals")
     before = f_before.result()
     (d / "estimate_before_calibration.json").write_text(_json(before.pop("res_dict")))
-    return _batch_done(d, res, before, after, f_chk.result(), fig)
+    return _batch_done(d, res, before, after, f_chk.result(), f_fig.result())
 
 
 def _batch_done(d: Path, res, before, after, chk, fig) -> dict[str, Any]:
