@@ -1,10 +1,12 @@
 """The side processes of ``tpods demo`` (issue 26): two spawned workers started with the demo,
-which import the estimator, the fits and matplotlib while the characterisation dwells, and
-then take work off the demo's critical path: the bench figures (drawn beside the mass and
-bifilar stages), the run's figures and two of the batch stage's three fits (beside the
-third). Processes, not threads: the simulated plant runs in the demo's main process and a
-thread would take its interpreter lock (late valve switches). Between jobs the workers wait
-on a pipe and take no CPU, also during the paced flights.
+which import the estimator, the fits and matplotlib while the characterisation dwells (after
+:data:`WARM_DELAY_S`), and then take work off the demo's critical path: the mass and bifilar
+stages (beside the characterisation), the bench figures (beside the calibration flight's
+start), two of the batch stage's three fits (from the module run's sealed recording on,
+beside the live estimator's final fit), the run's figures and the residual figure.
+Processes, not threads: the simulated plant runs in the demo's main process and a thread
+would take its interpreter lock (late valve switches). Between jobs the workers wait on a
+pipe and take no CPU, also during the paced flights.
 
 Each job runs through :func:`timed_call`: its result and its wall time in the worker, which
 the demo's stage table shows as work done beside the stages (:meth:`SideWork.seconds`).
