@@ -9,6 +9,11 @@ from pathlib import Path
 
 import pytest
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover (not POSIX): flights are not serialised
+    fcntl = None
+
 from common.zenoh_net import open_session
 from tests.support.bench import Bench
 from tests.support.net import free_port, wait_for
@@ -44,6 +49,29 @@ def zenoh_pair():
         pub.close()
 
 
+@pytest.fixture(autouse=True)
+def _one_flight_at_a_time(request, tmp_path_factory):
+    """Tests marked ``flight`` (a demo or lab run: the simulated plant, the player and the
+    live estimator as processes on the lab clock, judged by how late the emulated valves
+    switched) never run at the same time, on any xdist worker: an exclusive lock on a file
+    in the run's shared temporary folder. A flight takes up to four processes at its
+    peaks; the lanes (tests/support/lanes.py) count one core per foreground test. In
+    session 6 the structure demo's valves switched 31-46 lab ms late on average in 2 of 5
+    `make test` runs (its estimator checks skipped) and once its plant missed the player's
+    commands for a second; a flight beside another flight is the heaviest load the suite
+    can put beside one."""
+    if request.node.get_closest_marker("flight") is None or fcntl is None:
+        yield
+        return
+    lock = tmp_path_factory.getbasetemp().parent / "tpods-flight.lock"
+    with open(lock, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 @pytest.fixture
 def bench():
     b = Bench()
@@ -62,11 +90,13 @@ def runs_mixed():
 # lab time; the coverage and Monte Carlo studies compute): run first, so that no parallel worker
 # is left with one of them at the end while the others idle (`make test`, pytest-xdist)
 LONGEST_FIRST = (
-    "tests/tpods/test_demo.py", "tests/tpods/test_demo_structure.py",
+    # the flights (marked ``flight``: one at a time) together at the front: the first worker
+    # takes them in one block and flies them one after the other, without waiting
+    "tests/tpods/test_demo.py", "tests/tpods/test_demo_structure.py", "tests/tpods/test_e2e.py",
+    "tests/tpods/test_demo_vehicle.py", "tests/tpods/test_plant_vehicle.py",
     "tests/bench/test_session.py", "tests/estimator/batch/test_consider.py",
     "tests/estimator/test_montecarlo.py", "tests/estimator/test_sweep.py",
-    "tests/estimator/plant/test_sim.py", "tests/tpods/test_e2e.py",
-    "tests/tpods/cli/test_estimate_structure_models.py",
+    "tests/estimator/plant/test_sim.py", "tests/tpods/cli/test_estimate_structure_models.py",
 )
 
 

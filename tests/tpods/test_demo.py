@@ -8,6 +8,7 @@ import subprocess
 import pytest
 
 
+@pytest.mark.flight
 def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([tpods_exe, "demo", "--quick", "--out", str(out)], capture_output=True,

@@ -110,6 +110,7 @@ def _within(row: dict, truth: dict, n_sigma: float) -> None:
         assert abs(row[v] - truth[v]) < n_sigma * row[s], (row["source"], v, row[v], truth[v], row[s])
 
 
+@pytest.mark.flight
 def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     """The whole variant: parts ground truth, run plant/estimate live/run play --structure over
     Zenoh, batch LS; the live and batch estimates (and the parts) within 4 sigma of the truth

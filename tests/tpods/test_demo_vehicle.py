@@ -18,6 +18,7 @@ MAX_LAG_MS = 2.0
 loaded for the physics to match the recorded commands."""
 
 
+@pytest.mark.flight
 def test_demo_vehicle_end_to_end(tpods_exe, tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([tpods_exe, "demo", "--vehicle", str(EIGHT), "--mass", "23.09", "--izz",

@@ -22,6 +22,7 @@ def _batch(capsys, run_dir, *extra):
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.mark.flight
 def test_live_estimate_matches_truth_and_the_batch_estimate(tmp_path, capsys, tpods_exe):
     """`tpods run play` and `tpods estimate live --method ls-ekf` as subprocesses, the
     simulated module and the bridge here; 24 s of lab time at time scale 2."""

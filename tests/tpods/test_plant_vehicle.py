@@ -68,6 +68,7 @@ def test_the_plant_applies_the_valves_dead_time_and_rise():
                               lambda *a: None)) is PlantLoop
 
 
+@pytest.mark.flight
 def test_run_plant_play_and_estimate_live_on_a_vehicle(tpods_exe, tmp_path):
     """The three commands as in the lab, on a loopback Zenoh peer (no multicast), lab clock
     at 4x: `run plant --vehicle` serves one 8-channel driver and publishes the poses,
