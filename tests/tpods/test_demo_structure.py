@@ -19,6 +19,7 @@ from estimator.reports.plots_structure import (
     plot_structure_errors,
     thruster_layout,
 )
+from tests.support.lab import PLAYER_LATE_MS
 
 
 def test_chi_square_factor_of_two_degrees_of_freedom():
@@ -128,6 +129,14 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     if lag_ms > 5.0:  # as tests/tpods/test_e2e.py: the physics no longer match the commands
         pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
                     f"switched {lag_ms:.1f} lab ms after the player's stamps on average")
+    late_ms = json.loads((out / "run" / "play" / "run.json").read_text())["timing"]["max_late_ms"]
+    trips = re.search(r"(\d+) watchdog trip", (out / "run" / "plant.log").read_text())
+    if late_ms > PLAYER_LATE_MS or (trips and int(trips.group(1)) > 0):
+        # the player stalled (1865 lab ms in a session-6 CI run, 2 watchdog trips: the valves
+        # closed by the watchdog, live Izz 6.5 sigma off): not the estimators' doing
+        pytest.skip(f"this machine is too loaded to judge the estimators: the player sent a "
+                    f"command {late_ms:.0f} lab ms behind its schedule, the plant counted "
+                    f"{trips.group(1) if trips else 0} watchdog trip(s)")
     s = json.loads((out / "summary.json").read_text())
     rows = {row["source"]: row for row in s["rows"]}
     assert set(rows) == {"truth (simulation)", "parts (calibrate combine)", "live ls-ekf",
