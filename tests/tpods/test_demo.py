@@ -3,16 +3,11 @@
 from __future__ import annotations
 
 import json
-import re
 import subprocess
 
 import pytest
 
-from tests.support.lab import PLAYER_LATE_MS
-
-CONTROLLER_STALLED = re.compile(r"valve controller at \S+ (did not answer|answered) '[^']*'"
-                                r"[^;]*within 1 s")
-"""The player's message when the emulated valve controller did not reply in time."""
+from tests.support.lab import CONTROLLER_STALLED, PLAYER_LATE_MS
 
 
 def _skip_if_a_flight_was_late(out, lags: dict) -> None:
