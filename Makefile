@@ -8,14 +8,12 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-# the project's bytecode, compiled ahead of the demo and the benchmarks. A
+# the project's bytecode, compiled ahead of every target that starts Python processes. A
 # machine may set PYTHONDONTWRITEBYTECODE (this one does): Python then never caches what it
 # compiles, and every `tpods` process compiled the ~250 project modules it imports again
 # (0.15-0.4 s of CPU each: a demo flight's estimator subscribed after 0.8-0.9 s instead of
-# 0.5-0.6 s). Only changed files are compiled again (0.2 s when nothing changed); errors are
-# left to the tests to report. Not for `make test`: with it, the suite's flight tests (the
-# demos, e2e) stalled for seconds in 6 of 10 runs of session 6 (cause not found; in session
-# 5, without it: none), so the suite runs as before
+# 0.5-0.6 s, and the suite starts a few hundred such processes). Only changed files are
+# compiled again (0.2 s when nothing changed); errors are left to the tests to report
 BYTECODE := $(BIN)/python -m compileall -q -j 0 common tpods bench calibration mocap_bridge \
 	estimator benchmarks tests > /dev/null || true
 
@@ -34,6 +32,7 @@ $(STAMP): pyproject.toml
 # already use every core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s
 # CPU, 0.09 s with one thread) in each of the suite's few hundred `tpods` subprocesses
 test: $(STAMP)
+	@$(BYTECODE)
 	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
 # the many-seed studies marked slow (skipped by make test: tests/conftest.py), minutes each
