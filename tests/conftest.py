@@ -9,12 +9,8 @@ from pathlib import Path
 
 import pytest
 
-try:
-    import fcntl
-except ImportError:  # pragma: no cover (not POSIX): flights are not serialised
-    fcntl = None
-
 from common.zenoh_net import open_session
+from tests.support import flight_gate
 from tests.support.bench import Bench
 from tests.support.net import free_port, wait_for
 from tests.support.sim import sim_run
@@ -49,27 +45,33 @@ def zenoh_pair():
         pub.close()
 
 
+def _lock_folder(config) -> Path:
+    """The run's shared temporary folder (all xdist workers' basetemps are inside it)."""
+    return config._tmp_path_factory.getbasetemp().parent
+
+
 @pytest.fixture(autouse=True)
-def _one_flight_at_a_time(request, tmp_path_factory):
+def _one_flight_at_a_time(request):
     """Tests marked ``flight`` (a demo or lab run: the simulated plant, the player and the
     live estimator as processes on the lab clock, judged by how late the emulated valves
-    switched) never run at the same time, on any xdist worker: an exclusive lock on a file
-    in the run's shared temporary folder. A flight takes up to four processes at its
-    peaks; the lanes (tests/support/lanes.py) count one core per foreground test. In
-    session 6 the structure demo's valves switched 31-46 lab ms late on average in 2 of 5
-    `make test` runs (its estimator checks skipped) and once its plant missed the player's
-    commands for a second; a flight beside another flight is the heaviest load the suite
-    can put beside one."""
-    if request.node.get_closest_marker("flight") is None or fcntl is None:
+    switched) never run at the same time, on any xdist worker, nor beside a test of the
+    background lane (tests/support/flight_gate.py says why: kernel threads starved for a
+    second when the machine never idles)."""
+    if request.node.get_closest_marker("flight") is None:
         yield
         return
-    lock = tmp_path_factory.getbasetemp().parent / "tpods-flight.lock"
-    with open(lock, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+    with flight_gate.flight(_lock_folder(request.config)):
+        yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """A background-lane worker waits while a flight flies (its set-up included)."""
+    if getattr(item.config, "workerinput", {}).get("tpods_lane") != "background":
+        yield
+        return
+    with flight_gate.background_test(_lock_folder(item.config)):
+        yield
 
 
 @pytest.fixture

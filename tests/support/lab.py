@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import time
 from contextlib import contextmanager
 
@@ -15,16 +14,6 @@ from tpods.plant_loop import SimulatedModule
 from tpods.player import cmd_key
 
 TRUTH = PlantParams(2.268, 3.78e-3)
-
-
-CONTROLLER_STALLED = re.compile(r"valve controller at \S+ (did not answer|answered) '[^']*'"
-                                r"[^;]*within 1 s")
-"""The player's message when the emulated valve controller did not reply in time."""
-
-PLAYER_LATE_MS = 100.0
-"""A player that sent a command this many lab ms behind its schedule was stalled by the machine
-(1-2 ms normally; 1865 and 2853 ms seen in session 6's CI runs, with the controllers'
-watchdogs closing the valves): that flight's physics do not match its commands."""
 
 
 @contextmanager

@@ -10,7 +10,9 @@ So ``-n auto`` starts one worker per core (the *foreground* lane, normal priorit
 test) plus one *background* worker (``os.nice(BACKGROUND_NICE)``; its children inherit
 it) that takes only tests that do not watch the clock. The kernel gives the background
 worker the CPU the foreground leaves idle and about a tenth of it otherwise, so a
-real-time test competes with at most one other full-weight worker, as before.
+real-time test competes with at most one other full-weight worker, as before. While a test
+marked ``flight`` flies, the background worker starts no test (tests/support/flight_gate.py:
+a machine that never idles starved the kernel threads that move a pty's bytes).
 
 Which tests watch the clock is read from their source, not from a list kept by hand: a
 test file that mentions any of :data:`CLOCK_WORDS` (Zenoh, process pipelines, ptys,

@@ -7,64 +7,41 @@ import subprocess
 
 import pytest
 
-from tests.support.lab import CONTROLLER_STALLED, PLAYER_LATE_MS
-
-
-def _skip_if_a_flight_was_late(out, lags: dict) -> None:
-    """Skip (naming the measurement) when the machine could not keep a flight on schedule: the
-    emulated valves switched late on average (the physics no longer match the commands), one
-    valve change came a tenth of a second late (426 ms seen at load 7: the batch fit of the
-    run diverged on it while the check at the plant's switch times found the truth), or the
-    player itself fell behind its schedule (its run.json ``timing.max_late_ms``)."""
-    worst = max(lag["mean"] for lag in lags.values())
-    if worst > 5.0:  # as test_demo_structure.py
-        pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
-                    f"switched {worst:.1f} lab ms after the player's stamps on average")
-    late = max(lag["max"] for lag in lags.values())
-    if late > 100.0:
-        pytest.skip(f"this machine is too loaded to judge the estimators: an emulated valve "
-                    f"switched {late:.0f} lab ms after the player's stamp")
-    for flight in ("calibration", "run"):
-        timing = json.loads((out / flight / "play" / "run.json").read_text())["timing"]
-        if timing["max_late_ms"] > PLAYER_LATE_MS:
-            pytest.skip(f"this machine is too loaded to judge the estimators: the {flight} "
-                        f"flight's player sent a command {timing['max_late_ms']:.0f} lab ms "
-                        "behind its schedule")
-
 
 @pytest.mark.flight
 def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([tpods_exe, "demo", "--quick", "--out", str(out)], capture_output=True,
                        text=True, timeout=300)
-    if r.returncode != 0 and CONTROLLER_STALLED.search(r.stderr):
-        # the emulated valve controller is a thread of the demo's own process: a reply that
-        # did not come within 1 s means that process was not scheduled for a second (seen
-        # twice in session 6's runs of the whole suite, with the players of the other
-        # flight tests 1-3 s behind their schedules in the same runs)
-        pytest.skip("this machine is too loaded to fly the demo: "
-                    + CONTROLLER_STALLED.search(r.stderr).group(0))
     assert r.returncode == 0, r.stderr[-3000:]
     assert "summary" in r.stdout and "time scale 2" in r.stdout
     s = json.loads((out / "summary.json").read_text())
     rows = {row["source"]: row for row in s["rows"]}
-    assert {"truth (simulation)", "balance + bifilar", "batch LS, true table (check)"} <= set(rows)
-    # the machine's load first: a flight it could not keep on schedule proves nothing about
-    # the estimators (the batch fit of such a run may not even converge)
-    lags = {"calibration": s["calibration"]["switch_lag_ms"], "run": s["live"]["switch_lag_ms"]}
-    assert all(lag["n"] > 0 for lag in lags.values()), lags
-    _skip_if_a_flight_was_late(out, lags)
-    assert "batch LS (recorded run)" in rows, set(rows)
+    assert set(rows) >= {"truth (simulation)", "balance + bifilar", "batch LS (recorded run)",
+                         "batch LS, true table (check)"}
     # the ground-truth instruments and the batch fit with the true table find the truth
     assert abs(rows["balance + bifilar"]["mass_error_sigmas"]) < 3
     assert abs(rows["balance + bifilar"]["izz_error_sigmas"]) < 3
     chk = rows["batch LS, true table (check)"]
     assert abs(chk["mass_error_pct"]) < 1 and abs(chk["izz_error_pct"]) < 1
     assert s["live"]["play"]["valves_closed_confirmed"] is True
+    # the demo measures how late its emulated valves switched (both runs at time scale 2)
+    lags = {"calibration": s["calibration"]["switch_lag_ms"], "run": s["live"]["switch_lag_ms"]}
+    assert all(lag["n"] > 0 for lag in lags.values()), lags
     timings = s["timings_s"]
     assert set(timings) >= {"characterisation + fit", "calibration run + fit", "module run (live)",
                             "batch", "total"}
     assert json.loads((out / "run.json").read_text())["timings_s"]["total"] > 0
+    worst = max(lag["mean"] for lag in lags.values())
+    if worst > 5.0:  # as test_demo_structure.py: the physics no longer match the commands
+        pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
+                    f"switched {worst:.1f} lab ms after the player's stamps on average")
+    late = max(lag["max"] for lag in lags.values())
+    if late > 100.0:  # one valve change a tenth of a second late (426 ms seen at load 7):
+        # the batch fit of the run diverged on it while the check at the plant's switch times
+        # found the truth
+        pytest.skip(f"this machine is too loaded to judge the estimators: an emulated valve "
+                    f"switched {late:.0f} lab ms after the player's stamp")
     # issue 17: the calibration finds the weak thruster, and after it the batch estimate's
     # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
     factors = {f["name"]: f for f in s["calibration"]["factors"]}

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import subprocess
 
 import numpy as np
@@ -19,7 +18,6 @@ from estimator.reports.plots_structure import (
     plot_structure_errors,
     thruster_layout,
 )
-from tests.support.lab import PLAYER_LATE_MS
 
 
 def test_chi_square_factor_of_two_degrees_of_freedom():
@@ -91,19 +89,6 @@ def _switch_lag_ms(run_dir) -> float:
     return switch_lag_ms([(row[0], row[1:]) for row in sw], run_dir / "play")["mean"]
 
 
-def _plant_starved(stderr: str, plant_log) -> str:
-    """Why a failed structure demo failed on the machine, not the code: the player's valve
-    controller (emulated in the plant process) did not answer in time AND the plant's
-    emulated controllers saw the player's watchdog feeds missing (the plant process, the
-    player or both were starved of CPU: seen with `pytest -n 3`, and in `make test` while
-    the other workers ran CPU-bound tests). Empty otherwise."""
-    m = re.search(r"(\d+) watchdog trip", plant_log.read_text()) if plant_log.is_file() else None
-    if "did not answer" in stderr and m and int(m.group(1)) > 0:
-        return (f"the player's valve controller did not answer in time and the plant counted "
-                f"{m.group(1)} watchdog trip(s)")
-    return ""
-
-
 def _within(row: dict, truth: dict, n_sigma: float) -> None:
     for v, s in (("mass_kg", "mass_sigma_kg"), ("izz_kgm2", "izz_sigma_kgm2"),
                  ("com_x_m", "com_x_sigma_m"), ("com_y_m", "com_y_sigma_m")):
@@ -119,8 +104,6 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     out = tmp_path / "demo"
     r = subprocess.run([tpods_exe, "demo", "--structure", "--quick", "--out", str(out)],
                        capture_output=True, text=True, timeout=280)
-    if r.returncode != 0 and (why := _plant_starved(r.stderr, out / "run" / "plant.log")):
-        pytest.skip(f"this machine is too loaded to run the structure's flight: {why}")
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
     report = (out / "report.md").read_text()
     figs = [line.split("(")[1].rstrip(")") for line in report.splitlines() if line.startswith("![")]
@@ -129,14 +112,6 @@ def test_demo_structure_quick_end_to_end(tpods_exe, tmp_path):
     if lag_ms > 5.0:  # as tests/tpods/test_e2e.py: the physics no longer match the commands
         pytest.skip(f"this machine is too loaded to judge the estimators: the emulated valves "
                     f"switched {lag_ms:.1f} lab ms after the player's stamps on average")
-    late_ms = json.loads((out / "run" / "play" / "run.json").read_text())["timing"]["max_late_ms"]
-    trips = re.search(r"(\d+) watchdog trip", (out / "run" / "plant.log").read_text())
-    if late_ms > PLAYER_LATE_MS or (trips and int(trips.group(1)) > 0):
-        # the player stalled (1865 lab ms in a session-6 CI run, 2 watchdog trips: the valves
-        # closed by the watchdog, live Izz 6.5 sigma off): not the estimators' doing
-        pytest.skip(f"this machine is too loaded to judge the estimators: the player sent a "
-                    f"command {late_ms:.0f} lab ms behind its schedule, the plant counted "
-                    f"{trips.group(1) if trips else 0} watchdog trip(s)")
     s = json.loads((out / "summary.json").read_text())
     rows = {row["source"]: row for row in s["rows"]}
     assert set(rows) == {"truth (simulation)", "parts (calibrate combine)", "live ls-ekf",
