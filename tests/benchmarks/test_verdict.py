@@ -13,8 +13,10 @@ from benchmarks.verdict import (
     Rule,
     exit_status,
     explain,
+    fastest_probe_ms,
     judge,
     noisy_reasons,
+    slow_reasons,
     verdict,
 )
 
@@ -44,8 +46,8 @@ def test_unmeasured_figures_count_as_quiet():
 
 
 def test_thresholds_of_the_rule():
-    assert (RULE.steal_pct, RULE.others_cpu_pct, RULE.iowait_pct, RULE.probe_change_pct) == \
-        (0.5, 10.0, 5.0, 20.0)
+    assert (RULE.steal_pct, RULE.others_cpu_pct, RULE.iowait_pct, RULE.probe_change_pct,
+            RULE.slow_probe_pct) == (0.5, 10.0, 5.0, 20.0, 10.0)
     assert "steal >= 0.5 %" in RULE.describe()
     assert RULE.to_dict()["others_cpu_pct"] == 10.0
 
@@ -123,3 +125,44 @@ def test_table_shows_the_verdict_and_unmeasured_host_figures(capsys):
     assert "noisy host" in out[2] and " 55 " in out[2]
     assert "yes" in out[3] and "n/a" in out[3]
     assert out[4].startswith("a very long case name that is wider than the column m")
+
+
+# the EKF row of this session's `make bench` (runs/bench.json, 2026-11-27): 1.87e4 updates/s
+# against >= 2e4, its probes 3.716 and 3.88 ms, the run's fastest probe 3.245 ms
+EKF_ROW = {"case": "ekf single 120 Hz", "metric": "pose updates per s", "value": 18703.9,
+           "ok": False, "timed": True, "limit": 20000.0, "better": "higher",
+           "host": {**QUIET, "probe_before_ms": 3.716, "probe_after_ms": 3.88}}
+
+
+def test_a_row_missed_on_a_slow_host_is_excused_by_the_slowdown_only():
+    (reason,) = slow_reasons(EKF_ROW, 3.245)
+    assert "probe 15 % slower" in reason and "2.14e+04 at that speed" in reason
+    # a regression larger than the slowdown is still a miss
+    assert slow_reasons({**EKF_ROW, "value": 15000.0}, 3.245) == []
+    # a host within 10 % of the run's fastest excuses nothing
+    assert slow_reasons(EKF_ROW, 3.716 / 1.09) == []
+    # rows that do not state their limit as numbers are never excused this way
+    assert slow_reasons({k: v for k, v in EKF_ROW.items() if k != "limit"}, 3.245) == []
+    assert slow_reasons({**EKF_ROW, "better": "faster"}, 3.245) == []
+    assert slow_reasons(EKF_ROW, None) == []
+
+
+def test_a_time_row_scales_the_other_way():
+    row = {**EKF_ROW, "value": 2.2, "limit": 2.0, "better": "lower",
+           "host": {**QUIET, "probe_before_ms": 4.0, "probe_after_ms": 4.2}}
+    (reason,) = slow_reasons(row, 3.2)  # 25 % slower: 2.2 s is 1.76 s at the fastest speed
+    assert "1.76 at that speed" in reason
+    assert slow_reasons({**row, "value": 2.6}, 3.2) == []  # 2.08 s: still over 2 s
+
+
+def test_judge_excuses_a_slow_host_against_the_fastest_probe_of_the_run():
+    fast_case = {**QUIET, "probe_before_ms": 3.245, "probe_after_ms": 3.3}
+    rows = judge([dict(EKF_ROW), {**EKF_ROW, "value": 15000.0, "case": "regressed"},
+                  {**EKF_ROW, "ok": True, "case": "passed"}], {"bench_x": fast_case})
+    assert [r["verdict"] for r in rows] == [NOISY, NO, YES]
+    assert "slower than the run's fastest" in explain(rows[0])
+    assert rows[2]["noisy"] == []  # a pass is never given reasons
+    assert fastest_probe_ms([None, {}, fast_case, EKF_ROW["host"]]) == 3.245
+    assert fastest_probe_ms([None, {"probe_before_ms": None}]) is None
+    # without any faster probe in the run the row's miss stands
+    assert judge([dict(EKF_ROW)])[0]["verdict"] == NO
