@@ -51,8 +51,10 @@ def _files(tmp_path: Path) -> list[str]:
     (tmp_path / "tests" / "test_zenoh.py").write_text("import zenoh\n")
     (tmp_path / "tests" / "test_emu.py").write_text("from tests.support.emu import x\n")
     (tmp_path / "tests" / "test_rig.py").write_text("def test_b(bench):\n    pass\n")
+    (tmp_path / "tests" / "test_fly.py").write_text(
+        "import pytest\n\n@pytest.mark.flight\ndef test_c():\n    pass\n")
     ids = []
-    for name in ("fit", "zenoh", "emu", "rig"):
+    for name in ("fit", "zenoh", "emu", "rig", "fly"):
         ids += [f"tests/test_{name}.py::test_{k}" for k in range(30)]
     return ids
 
@@ -61,7 +63,7 @@ def test_clock_words_and_support_imports_decide_the_lane(tmp_path):
     ids = _files(tmp_path)
     fg = clock_bound_files(ids, tmp_path, extra=("tests/test_other.py",))
     assert fg == {"tests/test_zenoh.py", "tests/test_emu.py", "tests/test_rig.py",
-                  "tests/test_other.py"}
+                  "tests/test_fly.py", "tests/test_other.py"}
     # a file that cannot be read is kept on a full-priority worker
     assert clock_bound_files(["tests/gone.py::test_x"], tmp_path) == {"tests/gone.py"}
 

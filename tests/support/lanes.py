@@ -34,10 +34,13 @@ from xdist.scheduler.worksteal import MIN_PENDING, NodePending, WorkStealingSche
 BACKGROUND_NICE = 10
 CLOCK_WORDS = re.compile(
     r"zenoh|Popen|\bpty\b|openpty|socket\.|serial_for_url|sleep\(|perf_counter|monotonic\("
-    r"|time\.time\(|def test_\w+\([^)]*\bbench\b|\"demo\"|--time-scale|\"play\"|\"plant\"")
+    r"|time\.time\(|def test_\w+\([^)]*\bbench\b|\"demo\"|--time-scale|\"play\"|\"plant\""
+    r"|mark\.flight")
 """Words of a test file that waits on wall-clock time: Zenoh, process pipelines, ptys,
 sockets, serial emulators, sleeps, clocks, the emulated ``bench`` fixture, the demo, the
-player and the plant (which run lab time at a time scale)."""
+player and the plant (which run lab time at a time scale), and the ``flight`` mark (a flight
+on the background worker would wait for the gate that worker itself holds:
+tests/support/flight_gate.py)."""
 
 
 def cores() -> int:
