@@ -13,8 +13,10 @@ bytes in such a kworker, so the emulated valve controller's reads blocked (state
 the player's commands went unanswered for a second. A pty round-trip probe beside
 ``make test`` saw 10 round trips over 30 ms (worst 287 ms) and three flights skipped as
 too loaded; with two workers and no background lane, 0 and 0; with autogroups off
-(root only), 0 and 0. So the starvation comes from the scheduler's group fairness when
-the machine never idles, not from the flights' own load.
+(every task in the root group), 0 and 0; with three equal workers (no nice), 14 (worst
+1076 ms) and a failed demo. So the starvation comes with group scheduling (autogroups) on a
+machine that never idles, not from the flights' own load; the mechanism inside the
+scheduler was not traced further.
 
 The locks are ``flock`` locks on two files in the run's shared temporary folder:
 
