@@ -1,0 +1,265 @@
+"""A run fitted as shooting segments: the use case on arrays (:func:`fit_segments`).
+
+The shared parameters are estimated over every segment at once, each segment from its own
+initial state (:mod:`estimator.shooting.problem`, :mod:`estimator.shooting.solve`). The
+segment length is the caller's, or chosen from the data (:func:`choose_length`): the
+longest of :data:`CANDIDATE_LENGTHS_S` over which the model fitted on 2 s segments still
+predicts the poses within the stated noise (or twice its own 2 s misfit). Stretches where
+the model cannot hold are excluded and named (:mod:`estimator.shooting.events`).
+
+Sigma of each shared parameter, all reported:
+
+- ``noise``: the stated pose noise alone, white residuals assumed;
+- ``clustered``: the segment-clustered sandwich (correlated model error within a segment);
+- ``thrust``: the vehicle's stated force uncertainty (``force_sigma_n``) of every thruster
+  whose efficiency is not estimated, considered at the solution;
+- ``total``: sqrt(clustered^2 + thrust^2): what the output promises.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from common.errors import UserError
+from common.vehicle import Vehicle
+from estimator.shooting.events import find_events, outlier_segments
+from estimator.shooting.inputs import ThrustChannels, vehicle_channels
+from estimator.shooting.problem import LOG_NAMES, ShootingProblem, default_value
+from estimator.shooting.segments import SegmentPlan, plan_segments
+from estimator.shooting.solve import covariances, levenberg_marquardt, reduce_normal, safe_inv
+
+CANDIDATE_LENGTHS_S = (2.0, 3.0, 5.0, 8.0, 12.0)
+"""Segment lengths the automatic choice tries, s."""
+
+BASE_LENGTH_S = 2.0
+"""Segments short enough for any table's model error: the automatic choice starts here."""
+
+
+@dataclass
+class SegmentFit:
+    """The result of :func:`fit_segments` (sklearn style: read-only after the fit).
+
+    ``values``/``sigma``: shared parameter name -> value (SI) / sigma by term
+    (``{"noise", "clustered", "thrust", "total"}``); ``residuals`` (n, 3) m, m, rad at
+    ``t`` (n,) with ``segment`` (n,) of each; ``segment_rms`` (S, 3).
+    """
+
+    names: tuple[str, ...]
+    values: dict[str, float]
+    sigma: dict[str, dict[str, float]]
+    cov: dict[str, np.ndarray]
+    plan: SegmentPlan
+    converged: bool
+    message: str
+    iterations: int
+    t: np.ndarray
+    residuals: np.ndarray
+    segment: np.ndarray
+    segment_rms: np.ndarray
+    elapsed_s: float
+    length_note: str = ""
+    warnings: list[str] = field(default_factory=list)
+    s0: np.ndarray | None = field(default=None, repr=False)
+    theta: np.ndarray | None = field(default=None, repr=False)
+
+    def rms(self) -> np.ndarray:
+        return np.sqrt(np.mean(self.residuals ** 2, axis=0))
+
+    def to_dict(self) -> dict:
+        return {
+            "method": "ls-segments", "converged": self.converged, "message": self.message,
+            "iterations": self.iterations, "elapsed_s": self.elapsed_s,
+            "segments": {"n": self.plan.n, "length_s": self.plan.length_s,
+                         "how": self.length_note, "dropped_short": self.plan.dropped,
+                         "breaks": [{"t": t, "why": w} for t, w in self.plan.breaks]},
+            "excluded": [{"t0": a, "t1": b, "why": w} for a, b, w in self.plan.excluded],
+            "params": {n: {"value": self.values[n], **self.sigma[n]} for n in self.names},
+            "sigma_terms": "total = sqrt(clustered^2 + thrust^2); clustered: segment-clustered "
+                           "sandwich (model error correlated within a segment); thrust: the "
+                           "vehicle's stated force uncertainty",
+            "rms_residuals": {"x_m": float(self.rms()[0]), "y_m": float(self.rms()[1]),
+                              "yaw_rad": float(self.rms()[2])},
+            "warnings": list(self.warnings),
+        }
+
+
+def _theta0(names: Sequence[str], initial: Mapping[str, float], fixed: Mapping[str, float]):
+    out = []
+    for n in names:
+        v = float(initial.get(n, fixed.get(n, default_value(n))))
+        if n in LOG_NAMES:
+            if not v > 0:
+                raise UserError(f"initial {n} must be positive, got {v:g}")
+            v = math.log(v)
+        out.append(v)
+    return np.array(out)
+
+
+def _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta, s0=None, max_iter=60):
+    prob = ShootingProblem(pose_t, pose, plan, ch, names, fixed, sigma)
+    if s0 is None:
+        vals = prob.values(theta[None])
+        s0 = prob.initial_states(float(vals["cx"][0]), float(vals["cy"][0]))
+    return prob, levenberg_marquardt(prob, s0, theta, max_iter=max_iter)
+
+
+def _states_at(prob: ShootingProblem, lm, starts: np.ndarray) -> np.ndarray | None:
+    """(len(starts), 6) the fitted trajectory's states at pose indices ``starts`` (None when
+    a start lies in no segment of ``prob``)."""
+    states = prob.simulate(lm.s0[None], lm.theta[None])[0]
+    seg_of = prob.plan.labels(len(prob.pose_t))
+    node_of = np.full(len(prob.pose_t), -1)
+    node_of[prob.obs] = prob.node
+    if np.any(seg_of[starts] < 0):
+        return None
+    return states[seg_of[starts], node_of[starts]]
+
+
+def choose_length(pose_t, pose, ch, names, fixed, sigma, theta, exclude,
+                  base=None) -> tuple[float, str, tuple]:
+    """The longest candidate length over which the 2 s fit still predicts the poses within
+    max(stated noise, twice its own misfit) (rms of the weighted residuals), and the 2 s
+    fit ``(prob, lm)`` it was judged from."""
+    if base is None:
+        plan = plan_segments(pose_t, pose, BASE_LENGTH_S, exclude)
+        base = _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta)
+    prob, lm = base
+    base_rms = math.sqrt(lm.cost / len(lm.r))
+    limit = max(1.0, 2.0 * base_rms)
+    chosen, seen = BASE_LENGTH_S, []
+    for L in CANDIDATE_LENGTHS_S[1:]:
+        plan = plan_segments(pose_t, pose, L, exclude)
+        s0 = _states_at(prob, lm, plan.bounds[:, 0])
+        if s0 is None:
+            break
+        trial = ShootingProblem(pose_t, pose, plan, ch, names, fixed, sigma)
+        r = trial.residuals(s0, lm.theta)[0]
+        rms = float(np.sqrt(np.mean(r ** 2))) if np.all(np.isfinite(r)) else math.inf
+        seen.append(f"{L:g} s: {rms:.2f}")
+        if rms > limit:
+            break
+        chosen = L
+    note = (f"chosen from the data: the longest segments over which the model fitted on "
+            f"{BASE_LENGTH_S:g} s segments predicts within {limit:.2f} x the stated noise "
+            f"(prediction rms in noise units: {BASE_LENGTH_S:g} s: {base_rms:.2f}"
+            + (", " + ", ".join(seen) if seen else "") + ")")
+    return chosen, note, base
+
+
+def thrust_consider(prob: ShootingProblem, lm, ch: ThrustChannels, names: Sequence[str],
+                    fixed: Mapping[str, float]) -> np.ndarray:
+    """(p, p) covariance of the shared parameters from the stated force sigma of every
+    thruster whose efficiency is not estimated (and not marked dead), at the solution."""
+    extra = [f"eff.{n}" for i, n in enumerate(ch.names)
+             if ch.force_sigma_n[i] > 0 and ch.opens[i] > 0 and f"eff.{n}" not in names
+             and float(fixed.get(f"eff.{n}", 1.0)) != 0.0]
+    p = len(names)
+    if not extra:
+        return np.zeros((p, p))
+    ext = ShootingProblem(prob.pose_t, prob.pose, prob.plan, ch, tuple(names) + tuple(extra),
+                          fixed, prob.sigma)
+    theta = np.concatenate([lm.theta, [float(fixed.get(e, 1.0)) for e in extra]])
+    r, Js, Jg = ext.jacobian(lm.s0, theta)
+    schur = reduce_normal(ext, r, Js, Jg).schur
+    A, B = schur[:p, :p], schur[:p, p:]
+    sens = -safe_inv(A) @ B  # d theta / d efficiency of each considered thruster
+    eff_sigma = np.array([ch.force_sigma_n[ch.names.index(e[4:])] / ch.force_n[ch.names.index(e[4:])]
+                          for e in extra])
+    return sens @ np.diag(eff_sigma ** 2) @ sens.T
+
+
+def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
+                 names: Sequence[str], fixed: Mapping[str, float] | None = None,
+                 initial: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
+                 sigma_yaw_rad: float = math.radians(1.0), length_s: float | None = None,
+                 exclude: Sequence[tuple[float, float]] = (), find_stretches: bool = True,
+                 clamp: bool = False, max_iter: int = 60) -> SegmentFit:
+    """Fit the shared parameters ``names`` of a vehicle run by multiple shooting.
+
+    Args:
+        pose_t: (N,) s; pose: (N, 3) tracked x, y (m), yaw (rad).
+        vehicle: the thrusters (:class:`common.vehicle.Vehicle`); a thruster's
+            ``eff.<name>`` in ``fixed`` scales its stated thrust (0: dead).
+        cmd_t, duty_pct: (Nc,), (Nc, N) the commands.
+        names: estimated shared parameters (problem.GLOBAL_NAMES, ``eff.<thruster>``,
+            ``leak.<thruster>``).
+        length_s: segment length, s (None: :func:`choose_length`; inf: single shooting).
+        exclude: user ranges ``(t0, t1)`` in the poses' seconds, left out.
+        find_stretches: also exclude the stretches :func:`find_events` finds, and segments
+            whose residuals burst far above the others' (then fitted again without them).
+    """
+    t_start = time.perf_counter()
+    fixed = dict(fixed or {})
+    initial = dict(initial or {})
+    names = tuple(names)
+    if not names or len(set(names)) != len(names):
+        raise UserError(f"names must be distinct, got {names}")
+    for n in names:
+        if n.startswith(("eff.", "leak.")) and n.split(".", 1)[1] not in [t.name for t in vehicle.thrusters]:
+            raise UserError(f"{n}: the vehicle has no thruster {n.split('.', 1)[1]!r}")
+    sigma = np.array([sigma_pos_m, sigma_pos_m, sigma_yaw_rad])
+    if not np.all(sigma > 0):
+        raise UserError("measurement sigmas must be positive")
+    pose_t = np.asarray(pose_t, float)
+    pose = np.asarray(pose, float)
+    ch = vehicle_channels(vehicle, cmd_t, duty_pct, clamp=clamp)
+    excl = [(a, b, "excluded by the user (--exclude)") for a, b in exclude]
+    if find_stretches:
+        excl += find_events(pose_t, pose, np.asarray(cmd_t, float), np.asarray(duty_pct, float))
+    theta = _theta0(names, initial, fixed)
+    note = "set by the caller"
+    base = None
+    if length_s is None:
+        length_s, note, base = choose_length(pose_t, pose, ch, names, fixed, sigma, theta, excl)
+        theta = base[1].theta
+    plan = plan_segments(pose_t, pose, length_s, excl)
+    s0 = None
+    if base is not None:
+        s0 = _states_at(*base, plan.bounds[:, 0])
+    prob, lm = _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta, s0, max_iter)
+    if find_stretches and math.isfinite(length_s):
+        bursts = outlier_segments(prob, lm)
+        if bursts:
+            excl += bursts
+            plan = plan_segments(pose_t, pose, length_s, excl)
+            prob, lm = _solve(pose_t, pose, plan, ch, names, fixed, sigma, lm.theta, None, max_iter)
+    return _result(prob, lm, ch, names, fixed, note, t_start)
+
+
+def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> SegmentFit:
+    cov = covariances(prob, lm)
+    cov["thrust"] = thrust_consider(prob, lm, ch, names, fixed)
+    cov["total"] = cov["clustered"] + cov["thrust"]
+    vals = prob.values(lm.theta[None])
+    values, sigma = {}, {}
+    for j, n in enumerate(names):
+        v = float(vals[n][0])
+        d = v if n in LOG_NAMES else 1.0  # log coordinates: sigma of v = v sigma(log v)
+        values[n] = v
+        sigma[n] = {k: float(d * math.sqrt(max(c[j, j], 0.0))) for k, c in cov.items()}
+    res = lm.r.reshape(-1, 3) * prob.sigma
+    seg = prob.seg
+    seg_rms = np.sqrt(np.stack([np.bincount(seg, res[:, k] ** 2, prob.n_seg) /
+                                np.bincount(seg, minlength=prob.n_seg) for k in range(3)], 1))
+    fit = SegmentFit(names, values, sigma, cov, prob.plan, lm.converged, lm.message,
+                     lm.iterations, prob.pose_t[prob.obs], res, seg, seg_rms,
+                     time.perf_counter() - t_start, note, s0=lm.s0, theta=lm.theta)
+    fit.warnings += _misfit(fit, prob.sigma)
+    return fit
+
+
+def _misfit(fit: SegmentFit, sigma: np.ndarray) -> list[str]:
+    """A warning when the residuals are far above the stated noise, with the likely causes."""
+    ratio = fit.rms() / sigma
+    if np.max(ratio) <= 3.0:
+        return []
+    return [f"the segment fit does not fit the run: residual rms {ratio[0]:.1f}x, "
+            f"{ratio[1]:.1f}x, {ratio[2]:.1f}x the stated noise (x, y, yaw); likely causes: an "
+            "unmodelled force (tilt, drag, a tether, a hand), a thruster that does not give its "
+            "stated force (--thruster-health), a valve dead time, or a pose time base that is "
+            "not the poses' capture times; the clustered sigma counts this misfit"]

@@ -1,0 +1,110 @@
+"""The thrusts a vehicle's commands give, per thruster, averaged over each integration step.
+
+The thrust of thruster i is modelled as
+
+    T_i(t) = e_i * (A_i(t - d) - drop * B_i(t - d)) + leak_i * C_i(t - d)
+
+with ``A_i`` the thrust the vehicle file states for the commanded duty (N; its tables, its
+forces, its own known supply drop), ``B_i = A_i (k - 1)`` for an on/off valve with ``k``
+valves of its supply open (the extra supply drop ``drop`` estimated beside the file's),
+``C_i`` the stated force while the valve is commanded CLOSED (a stuck-open or leaking
+valve: ``leak_i`` of its force), ``e_i`` the thruster's efficiency (1 as stated) and ``d``
+the valves' dead time.
+
+Each channel is a hold of the command rows; its average over a step ``[ta, tb]`` is the
+difference of its running integral, which is piecewise linear in time. So the step
+averages are exact for any dead time, and continuous (piecewise linear) in it: a dead
+time is a smooth parameter of the fit, not a rounding to the integration grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.vehicle import Vehicle
+
+
+@dataclass(frozen=True)
+class ThrustChannels:
+    """Command holds of the three channels (module doc).
+
+    Attributes:
+        t: (Nc + 1,) hold start times, s, and one last time after which the last row holds.
+        a, b, c: (Nc, N) channel values on each hold, N.
+        wrench: (3, N) body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per
+            newton of each thruster.
+        names: thruster names.
+        force_n: (N,) the stated nominal force of each thruster (its largest thrust in the
+            run for a table valve), N.
+        force_sigma_n: (N,) its stated 1-sigma (0 where the file states none), N.
+    """
+
+    t: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    wrench: np.ndarray
+    names: tuple[str, ...]
+    force_n: np.ndarray
+    force_sigma_n: np.ndarray
+    opens: np.ndarray  # (N,) rows in which each valve is commanded open
+
+    def cumulative(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(knots (Nc + 2,), integrals (Nc + 2, 3N))``: the running integrals of
+        ``[a | b | c]`` at the hold times (0 before the first), linear between them."""
+        rows = np.concatenate([self.a, self.b, self.c], axis=1)
+        dt = np.diff(self.t)
+        cum = np.concatenate([np.zeros((1, rows.shape[1])), np.cumsum(rows * dt[:, None], axis=0)])
+        # extend: before the first command nothing; after the end the last row holds
+        far = self.t[-1] + 1e6
+        knots = np.concatenate([[self.t[0] - 1e6], self.t, [far]])
+        ints = np.concatenate([np.zeros((1, rows.shape[1])), cum,
+                               cum[-1:] + rows[-1:] * (far - self.t[-1])])
+        return knots, ints
+
+    def step_average(self, ta: np.ndarray, tb: np.ndarray, delay: float,
+                     cum: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """(..., 3, N) the channels' averages over steps ``[ta, tb]`` (``ta``, ``tb`` of any
+        one shape) with every switch ``delay`` s later; 0 where ``tb == ta``."""
+        knots, ints = cum if cum is not None else self.cumulative()
+        shape = np.shape(ta)
+        fa = _interp_rows(np.ravel(ta) - delay, knots, ints)
+        fb = _interp_rows(np.ravel(tb) - delay, knots, ints)
+        h = (np.ravel(tb) - np.ravel(ta))[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            avg = np.where(h > 0, (fb - fa) / np.where(h > 0, h, 1.0), 0.0)
+        n = self.a.shape[1]
+        return avg.reshape(shape + (3, n))
+
+
+def _interp_rows(x: np.ndarray, knots: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """Linear interpolation of every column of ``vals`` (K, M) at ``x`` (n,) -> (n, M)."""
+    i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
+    w = (x - knots[i]) / (knots[i + 1] - knots[i])
+    return vals[i] + (vals[i + 1] - vals[i]) * w[:, None]
+
+
+def vehicle_channels(vehicle: Vehicle, cmd_t: np.ndarray, duty_pct: np.ndarray,
+                     clamp: bool = False) -> ThrustChannels:
+    """The channels of a vehicle's command rows ``(cmd_t (Nc,), duty_pct (Nc, N))``; the
+    last row holds to the end (a run's commands close with an all-zero end row)."""
+    cmd_t = np.asarray(cmd_t, float)
+    duty = np.asarray(duty_pct, float)
+    a = vehicle.thrust_n(duty, clamp=clamp)
+    n = a.shape[1]
+    b = np.zeros_like(a)
+    for supply, idx in vehicle.onoff_supplies().items():
+        k = vehicle.open_counts(duty, supply)
+        b[:, idx] = a[:, idx] * np.maximum(k - 1, 0)[:, None]
+    nominal = np.array([t.force_n if t.force_n is not None else float(np.max(a[:, i], initial=0.0))
+                        for i, t in enumerate(vehicle.thrusters)])
+    c = (duty <= 0) * nominal[None, :]
+    sig = np.array([t.force_sigma_n or 0.0 for t in vehicle.thrusters])
+    t = np.concatenate([cmd_t, [cmd_t[-1] + 1.0]]) if len(cmd_t) else np.array([0.0, 1.0])
+    if not len(cmd_t):
+        a = b = c = np.zeros((1, n))
+    return ThrustChannels(t, a, b, c, vehicle.module_wrench_matrix(),
+                          tuple(th.name for th in vehicle.thrusters), nominal, sig,
+                          np.sum(duty > 0, axis=0))

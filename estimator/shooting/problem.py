@@ -1,0 +1,249 @@
+"""The multiple-shooting problem: every segment integrated from its own initial state with
+the shared parameters, all segments and all Jacobian perturbations in one array pass.
+
+State of a segment ``(x, y, psi, u, v, r)`` of the centre of mass, as the plant's
+(:mod:`estimator.plant.model`): lab-frame position and yaw, body-frame velocities. The
+dynamics are the plant's (thrusters, rigid body in a rotating frame, viscous damping
+``ct``/``cr``, the ball-transfer torque ``kb``, the table tilt ``ax``/``ay``, the centre of
+mass ``cx``/``cy`` off the tracked origin); the thrusts per thruster are
+:mod:`estimator.shooting.inputs`' channels with efficiencies, leaks, a supply drop and the
+dead time.
+
+Integration is classical RK4 on a grid holding every pose time with steps of at most
+:data:`MAX_STEP_S`, the thrust of each step its exact average over the step. Segments are
+padded to one length with empty steps, so each RK4 stage is one array operation over
+(perturbations, segments).
+
+The Jacobian is by forward differences (central for the dead time), all at once: one
+perturbation moves state j of EVERY segment (the segments are independent, so that
+column block is block-diagonal: the block-arrow pattern), one each shared parameter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from estimator.shooting.inputs import ThrustChannels
+from estimator.shooting.segments import SegmentPlan
+
+MAX_STEP_S = 0.02
+"""Longest RK4 step, s."""
+
+GLOBAL_NAMES = ("mass", "izz", "cx", "cy", "ct", "cr", "kb", "ax", "ay", "delay", "drop", "scale")
+"""Shared parameters besides the per-thruster ``eff.<name>`` and ``leak.<name>``."""
+
+LOG_NAMES = ("mass", "izz")
+"""Parameters the fit works on in log space (positive; a step is relative)."""
+
+DEFAULTS = {"mass": 1.0, "izz": 0.01, "cx": 0.0, "cy": 0.0, "ct": 0.0, "cr": 0.0, "kb": 0.0,
+            "ax": 0.0, "ay": 0.0, "delay": 0.0, "drop": 0.0, "scale": 1.0}
+
+STATE_FD = np.array([1e-5, 1e-5, 1e-6, 1e-5, 1e-5, 1e-6])
+"""Forward-difference steps of the segment states (m, rad, m/s, rad/s)."""
+
+PARAM_FD = {"mass": 1e-6, "izz": 1e-6, "cx": 1e-6, "cy": 1e-6, "ct": 1e-5, "cr": 1e-6,
+            "kb": 1e-6, "ax": 1e-7, "ay": 1e-7, "delay": 1e-3, "drop": 1e-5, "scale": 1e-6}
+"""Difference steps of the shared parameters (log for mass and Izz; central for delay)."""
+EFF_FD = 1e-6
+
+
+def default_value(name: str) -> float:
+    if name.startswith("eff."):
+        return 1.0
+    if name.startswith("leak."):
+        return 0.0
+    return DEFAULTS[name]
+
+
+class ShootingProblem:
+    """Residuals and Jacobian of a run cut into segments (module doc).
+
+    Args:
+        pose_t: (N,) pose times, s; pose: (N, 3) tracked x, y (m), yaw (rad).
+        plan: the segments (:func:`estimator.shooting.segments.plan_segments`).
+        channels: the vehicle's thrust channels (:func:`estimator.shooting.inputs.vehicle_channels`).
+        names: the estimated shared parameters.
+        fixed: values of the others (defaults :data:`DEFAULTS`, efficiency 1, leak 0).
+        sigma: (3,) pose noise (m, m, rad) that weights the residuals.
+    """
+
+    def __init__(self, pose_t, pose, plan: SegmentPlan, channels: ThrustChannels,
+                 names: Sequence[str], fixed: Mapping[str, float], sigma) -> None:
+        self.pose_t = np.asarray(pose_t, float)
+        self.pose = np.asarray(pose, float)
+        self.plan = plan
+        self.ch = channels
+        self.names = tuple(names)
+        self.fixed = dict(fixed)
+        self.sigma = np.asarray(sigma, float)
+        self.thrusters = channels.names
+        self._cum = channels.cumulative()
+        self._build_grid()
+        self.islog = np.array([n in LOG_NAMES for n in self.names])
+
+    # ------------------------------------------------------------------ grid
+    def _build_grid(self) -> None:
+        steps, nodes = [], []
+        for a, b in self.plan.bounds:
+            t = self.pose_t[a:b]
+            h_all, node = [], [0]
+            for dt in np.diff(t):
+                k = max(1, int(math.ceil(dt / MAX_STEP_S - 1e-9)))
+                h_all.extend([dt / k] * k)
+                node.append(node[-1] + k)
+            steps.append(h_all)
+            nodes.append(node)
+        kmax = max(len(h) for h in steps)
+        S = len(steps)
+        self.h = np.zeros((S, kmax))
+        self.t0 = np.array([self.pose_t[a] for a, _ in self.plan.bounds])
+        for s, h in enumerate(steps):
+            self.h[s, :len(h)] = h
+        self.ta = self.t0[:, None] + np.concatenate([np.zeros((S, 1)), np.cumsum(self.h, 1)[:, :-1]], 1)
+        self.tb = self.ta + self.h
+        # residual rows: the poses of every segment in order
+        self.seg = np.concatenate([np.full(b - a, s) for s, (a, b) in enumerate(self.plan.bounds)])
+        self.node = np.concatenate([np.asarray(n) for n in nodes])
+        self.obs = np.concatenate([np.arange(a, b) for a, b in self.plan.bounds])
+        self.row_start = np.concatenate([[0], np.cumsum([3 * (b - a) for a, b in self.plan.bounds])])
+
+    @property
+    def n_seg(self) -> int:
+        return self.plan.n
+
+    # ------------------------------------------------------------------ values
+    def values(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Parameter values (P,) each from ``theta`` (P, p) (log names exponentiated)."""
+        theta = np.atleast_2d(theta)
+        P = theta.shape[0]
+        out = {n: np.full(P, float(self.fixed.get(n, default_value(n)))) for n in GLOBAL_NAMES}
+        for tn in self.thrusters:
+            for k in (f"eff.{tn}", f"leak.{tn}"):
+                out[k] = np.full(P, float(self.fixed.get(k, default_value(k))))
+        for j, n in enumerate(self.names):
+            out[n] = np.exp(theta[:, j]) if n in LOG_NAMES else theta[:, j]
+        return out
+
+    def _wrench(self, vals: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(P, S, K, 3) step-average body wrench about the tracked origin."""
+        delays = vals["delay"]
+        P = len(delays)
+        uniq, inv = np.unique(delays, return_inverse=True)
+        avg = np.stack([self.ch.step_average(self.ta, self.tb, float(d), self._cum) for d in uniq])
+        avg = avg[inv]  # (P, S, K, 3, N)
+        eff = np.stack([vals[f"eff.{t}"] for t in self.thrusters], 1) * vals["scale"][:, None]
+        leak = np.stack([vals[f"leak.{t}"] for t in self.thrusters], 1)
+        sh = (P, 1, 1, -1)
+        thrust = (eff.reshape(sh) * (avg[..., 0, :] - vals["drop"].reshape(P, 1, 1, 1) * avg[..., 1, :])
+                  + leak.reshape(sh) * avg[..., 2, :])
+        return thrust @ self.ch.wrench.T
+
+    def simulate(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(P, S, K + 1, 6) states at every grid node from ``s0`` (P, S, 6), ``theta`` (P, p)."""
+        vals = self.values(theta)
+        w = self._wrench(vals)
+        P = s0.shape[0]
+        col = {k: v.reshape(P, 1) for k, v in vals.items()}
+        im, ii = 1.0 / col["mass"], 1.0 / col["izz"]
+        ct, cr, kb, ax, ay = col["ct"], col["cr"], col["kb"], col["ax"], col["ay"]
+        cx, cy = col["cx"], col["cy"]
+        use_kb = bool(np.any(kb != 0))
+        K = self.h.shape[1]
+        out = np.empty((P, self.n_seg, K + 1, 6))
+        s = s0.copy()
+        out[:, :, 0] = s
+
+        def f(s, fx, fy, mz):
+            psi, u, v, r = s[..., 2], s[..., 3], s[..., 4], s[..., 5]
+            c, sn = np.cos(psi), np.sin(psi)
+            d = np.empty_like(s)
+            d[..., 0] = u * c - v * sn
+            d[..., 1] = u * sn + v * c
+            d[..., 2] = r
+            d[..., 3] = (fx - ct * u) * im + r * v + ax * c + ay * sn
+            d[..., 4] = (fy - ct * v) * im - r * u - ax * sn + ay * c
+            m = mz - cr * r
+            if use_kb:
+                m = m + kb * np.hypot(u, v)
+            d[..., 5] = m * ii
+            return d
+
+        for k in range(K):
+            h = self.h[None, :, k, None]
+            fx, fy = w[:, :, k, 0], w[:, :, k, 1]
+            mz = w[:, :, k, 2] - (cx * fy - cy * fx)
+            k1 = f(s, fx, fy, mz)
+            k2 = f(s + 0.5 * h * k1, fx, fy, mz)
+            k3 = f(s + 0.5 * h * k2, fx, fy, mz)
+            k4 = f(s + h * k3, fx, fy, mz)
+            s = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            out[:, :, k + 1] = s
+        return out
+
+    def residuals(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(P, R) weighted residuals (measured - predicted tracked pose) / sigma, rows in
+        segment order, three per pose (x, y, yaw wrapped)."""
+        s0 = np.asarray(s0, float)
+        theta = np.atleast_2d(theta)
+        if s0.ndim == 2:
+            s0 = s0[None]
+        states = self.simulate(s0, theta)
+        vals = self.values(theta)
+        st = states[:, self.seg, self.node]  # (P, n_obs, 6)
+        P = st.shape[0]
+        cx, cy = vals["cx"].reshape(P, 1), vals["cy"].reshape(P, 1)
+        c, sn = np.cos(st[..., 2]), np.sin(st[..., 2])
+        pred_x = st[..., 0] - (c * cx - sn * cy)
+        pred_y = st[..., 1] - (sn * cx + c * cy)
+        meas = self.pose[self.obs]
+        r = np.empty((P, len(self.obs), 3))
+        r[..., 0] = (meas[:, 0] - pred_x) / self.sigma[0]
+        r[..., 1] = (meas[:, 1] - pred_y) / self.sigma[1]
+        r[..., 2] = np.angle(np.exp(1j * (meas[:, 2] - st[..., 2]))) / self.sigma[2]
+        return r.reshape(P, -1)
+
+    def jacobian(self, s0: np.ndarray, theta: np.ndarray):
+        """``(r (R,), Js (R, 6), Jg (R, p))``: the residuals at ``(s0 (S, 6), theta (p,))``,
+        each row's derivative by its own segment's six states, and by the shared parameters."""
+        p = len(self.names)
+        S = self.n_seg
+        s_b = np.repeat(s0[None], 1 + 6 + p + 1, axis=0)
+        th_b = np.repeat(theta[None], 1 + 6 + p + 1, axis=0)
+        for j in range(6):
+            s_b[1 + j, :, j] += STATE_FD[j]
+        steps = np.empty(p)
+        for j, n in enumerate(self.names):
+            steps[j] = PARAM_FD.get(n, EFF_FD)
+            th_b[7 + j, j] += steps[j]
+        jd = self.names.index("delay") if "delay" in self.names else None
+        if jd is not None:
+            th_b[7 + p, jd] -= steps[jd]  # the backward point of the dead time's central difference
+        else:
+            s_b, th_b = s_b[:-1], th_b[:-1]
+        r = self.residuals(s_b, th_b)
+        r0 = r[0]
+        Js = ((r[1:7] - r0) / STATE_FD[:, None]).T  # (R, 6): each row's own segment
+        Jg = ((r[7:7 + p] - r0) / steps[:, None]).T
+        if jd is not None:
+            Jg[:, jd] = (r[7 + jd] - r[7 + p]) / (2 * steps[jd])
+        del S
+        return r0, Js, Jg
+
+    # ------------------------------------------------------------------ start
+    def initial_states(self, cx: float = 0.0, cy: float = 0.0, n_fit: int = 5) -> np.ndarray:
+        """(S, 6) a start for every segment: its first pose (moved to the centre of mass)
+        and the velocities of a straight line through its first ``n_fit`` poses."""
+        out = np.zeros((self.n_seg, 6))
+        for s, (a, b) in enumerate(self.plan.bounds):
+            m = min(n_fit, b - a)
+            t = self.pose_t[a:a + m] - self.pose_t[a]
+            x, y = self.pose[a:a + m, 0], self.pose[a:a + m, 1]
+            psi = np.unwrap(self.pose[a:a + m, 2])
+            vx, vy, r = (np.polyfit(t, q, 1)[0] for q in (x, y, psi))
+            c, sn = math.cos(psi[0]), math.sin(psi[0])
+            out[s] = [x[0] + c * cx - sn * cy, y[0] + sn * cx + c * cy, psi[0],
+                      c * vx + sn * vy, -sn * vx + c * vy, r]
+        return out
