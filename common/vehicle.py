@@ -13,6 +13,9 @@ thrusters; thruster i is valve channel ``d{i}`` of its commands.csv (docs/run-fo
     force_n = 0.44145                  # on/off valve: force while open (duty 100), N
     force_sigma_n = 0.005              # optional 1-sigma of force_n
     supply = "main"                    # optional (default "main")
+    health = "dead"                    # optional: ok (default), weak, dead, reversed,
+                                       # stuck-open (tpods estimate batch --thruster-health
+                                       # --out-vehicle); "dead" gives no thrust everywhere
     # or instead of force_n:  thrust_table = "table.toml" (relative to this file;
     # "default" = the built-in Table 2, which --thrust-table replaces)
     [valves]                           # optional, known
@@ -225,7 +228,14 @@ class Vehicle(ThrusterLayout):
             except UserError as exc:
                 raise UserError(f"supply {supply} ({', '.join(f'd{i + 1}' for i in idx)}): "
                                 f"{exc}") from None
+        dead = self.dead_channels()
+        if dead.size:
+            out[..., dead] = 0.0  # health = "dead": no thrust, whatever it is commanded
         return out
+
+    def dead_channels(self) -> np.ndarray:
+        """Indices of the thrusters marked ``health = "dead"``."""
+        return np.array([i for i, t in enumerate(self.thrusters) if t.dead], dtype=int)
 
     def thruster_sensitivity(self, duty_pct: np.ndarray, clamp: bool = False) -> ThrustSensitivity:
         """The thrust uncertainty per thruster: ``thrust_n`` (..., N), ``jacobian``
@@ -245,9 +255,13 @@ class Vehicle(ThrusterLayout):
             jacs.append(jac)
             names.extend(n if len(groups) == 1 else f"{supply}:{n}" for n in s.names)
             blocks.append(s.covariance)
+        dead = self.dead_channels()
+        if dead.size:
+            for jac in jacs:
+                jac[..., dead, :] = 0.0  # a dead thruster's thrust is 0, whatever its table
         for i in self._onoff():
             t = self.thrusters[i]
-            if t.force_sigma_n and np.any(d[..., i] > 0):
+            if t.force_sigma_n and np.any(d[..., i] > 0) and not t.dead:
                 jac = np.zeros(d.shape + (1,))
                 jac[..., i, 0] = d[..., i] / 100.0 * factor[..., i]
                 jacs.append(jac)

@@ -23,11 +23,14 @@ from common.tomlfile import check_keys, toml_number, toml_pair
 
 TOP_KEYS = ("vehicle", "thrusters", "valves", "supplies", "body")
 VEHICLE_KEYS = ("name",)
-THRUSTER_KEYS = ("name", "position_m", "direction", "force_n", "force_sigma_n", "thrust_table",
+THRUSTER_KEYS = ("name", "position_m", "direction", "force_n", "force_sigma_n", "thrust_table", "health",
                  "supply")
 VALVE_KEYS = ("delay_s", "rise_s")
 SUPPLY_KEYS = ("drop_per_valve", "drop_sigma")
 DEFAULT_SUPPLY = "main"
+HEALTH_VERDICTS = ("ok", "weak", "dead", "reversed", "stuck-open")
+"""``health`` of a thruster (``tpods estimate batch --thruster-health --out-vehicle``): a
+``"dead"`` thruster gives no thrust in every estimator; the others are a record."""
 DEFAULT_TABLE = "default"
 """``thrust_table = "default"``: the built-in Table 2 (what ``--thrust-table`` replaces)."""
 DIRECTION_NORM = (0.9, 1.1)
@@ -48,6 +51,12 @@ class Thruster:
     table: ThrustTable | None = None
     table_path: Path | None = None
     supply: str = DEFAULT_SUPPLY
+    health: str = "ok"
+
+    @property
+    def dead(self) -> bool:
+        """Marked ``health = "dead"``: every estimator takes it as giving no thrust."""
+        return self.health == "dead"
 
     def wrench_column(self) -> np.ndarray:
         """(3,) ``[dx, dy, x dy - y dx]``: Fx, Fy (N) and Mz about the tracked origin (N m)
@@ -106,15 +115,19 @@ def _thruster(t: Any, i: int, base_dir: Path | None,
         raise UserError(f"{where}give either force_n (an on/off valve, N) or thrust_table "
                         f"(a table file or \"{DEFAULT_TABLE}\"), {'not both' if has_f else 'one of them'}")
     supply = _name(t.get("supply", DEFAULT_SUPPLY), f"{where}supply")
+    health = t.get("health", "ok")
+    if health not in HEALTH_VERDICTS:
+        raise UserError(f"{where}health must be one of {', '.join(HEALTH_VERDICTS)}, got {health!r}")
     if has_f:
         force = toml_number(t["force_n"], f"{where}force_n", positive=True)
         sigma = t.get("force_sigma_n")
         sigma = None if sigma is None else toml_number(sigma, f"{where}force_sigma_n", nonneg=True)
-        return Thruster(name, pos, (dx, dy), force, sigma, supply=supply)
+        return Thruster(name, pos, (dx, dy), force, sigma, supply=supply, health=health)
     if "force_sigma_n" in t:
         raise UserError(f"{where}force_sigma_n is for force_n; a table states its own uncertainty")
     table, path = table_entry(t["thrust_table"], where, base_dir, cache, DEFAULT_TABLE)
-    return Thruster(name, pos, (dx, dy), table=table, table_path=path, supply=supply)
+    return Thruster(name, pos, (dx, dy), table=table, table_path=path, supply=supply,
+                    health=health)
 
 
 def parse_vehicle(data: Mapping[str, Any], source: str = "vehicle.toml", base_dir: Path | None = None
@@ -203,6 +216,8 @@ def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves,
             t.table.save(folder / fname)
             d["thrust_table"] = fname
         d["supply"] = t.supply
+        if t.health != "ok":
+            d["health"] = t.health
         out["thrusters"].append(d)
     if valves != Valves():
         out["valves"] = {"delay_s": valves.delay_s, "rise_s": valves.rise_s}

@@ -31,6 +31,7 @@ from estimator.shooting.events import find_events, outlier_segments
 from estimator.shooting.inputs import ThrustChannels, vehicle_channels
 from estimator.shooting.problem import LOG_NAMES, ShootingProblem, default_value
 from estimator.shooting.segments import SegmentPlan, plan_segments
+from estimator.shooting.start import equation_error_start
 from estimator.shooting.solve import covariances, levenberg_marquardt, reduce_normal, safe_inv
 
 CANDIDATE_LENGTHS_S = (2.0, 3.0, 5.0, 8.0, 12.0)
@@ -173,6 +174,20 @@ def thrust_consider(prob: ShootingProblem, lm, ch: ThrustChannels, names: Sequen
     return sens @ np.diag(eff_sigma ** 2) @ sens.T
 
 
+def start_values(vehicle: Vehicle, pose_t, pose, ch: ThrustChannels, initial: Mapping[str, float],
+                 fixed: Mapping[str, float]) -> dict[str, float]:
+    """The start: ``initial``, else the vehicle's stated [body], else the equation error's
+    mass and Izz (:func:`estimator.shooting.start.equation_error_start`), else the vehicle's
+    guess."""
+    body = {k: v for k, v in (("mass", vehicle.body.mass_kg), ("izz", vehicle.body.izz_kgm2))
+            if v is not None}
+    need = {"mass", "izz"} - set(initial) - set(fixed) - set(body)
+    eq = equation_error_start(pose_t, pose, ch) if need else {}
+    if "mass" in fixed and "izz" in eq and "mass" in eq:
+        eq["izz"] *= float(fixed["mass"]) / eq["mass"]  # the same scale as the held mass
+    return {**vehicle.initial_guess(), **eq, **body, **dict(initial)}
+
+
 def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
                  names: Sequence[str], fixed: Mapping[str, float] | None = None,
                  initial: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
@@ -208,6 +223,7 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
     pose_t = np.asarray(pose_t, float)
     pose = np.asarray(pose, float)
     ch = vehicle_channels(vehicle, cmd_t, duty_pct, clamp=clamp)
+    initial = start_values(vehicle, pose_t, pose, ch, initial, fixed)
     excl = [(a, b, "excluded by the user (--exclude)") for a, b in exclude]
     if find_stretches:
         excl += find_events(pose_t, pose, np.asarray(cmd_t, float), np.asarray(duty_pct, float))

@@ -94,10 +94,14 @@ def thruster_health(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
                     exclude: Sequence[tuple[float, float]] = ()) -> HealthReport:
     """Efficiencies, leaks and verdicts of every thruster of a run (module doc)."""
     duty = np.asarray(duty_pct, float)
-    opens = np.any(duty > 0, axis=0)
+    opens = np.any(duty > 0, axis=0) & np.array([not t.dead for t in vehicle.thrusters])
     closes = np.any(duty <= 0, axis=0)
-    initial = dict(initial or {})
-    ref = float(mass_kg if mass_kg is not None else initial.get("mass", vehicle.initial_guess()["mass"]))
+    from estimator.shooting.fit import start_values
+    from estimator.shooting.inputs import vehicle_channels
+
+    ch = vehicle_channels(vehicle, cmd_t, duty)
+    initial = start_values(vehicle, pose_t, pose, ch, dict(initial or {}), dict(fixed or {}))
+    ref = float(mass_kg if mass_kg is not None else initial["mass"])
     fixed = {**dict(fixed or {}), "mass": ref}
     names = _health_names(vehicle, opens, closes, fixed)
     kw = dict(fixed=fixed, initial={k: v for k, v in initial.items() if k != "mass"},

@@ -26,6 +26,7 @@ from common.errors import UserError
 from common.outputs import ResultFolder, not_an_input, result_output
 from tpods.cli import estimate_ekf as cli_ekf
 from tpods.cli import estimate_realism as cli_realism
+from tpods.cli import estimate_segments as cli_segments
 from tpods.cli.estimate_output import (  # noqa: F401 - budget_lines, filter_budget: re-exported
     budget_lines,
     centre_of_mass_lines,
@@ -142,6 +143,7 @@ def register(sub, est, rep) -> None:
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
     cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
+    cli_segments.add_options(p)
 
     c = command(
         est, "crlb", cmd_crlb,
@@ -197,6 +199,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     args.out_folder = result_output(args.out, "estimate.json", force=args.force,
                                     command="tpods estimate batch")
     not_an_input(args.out_folder, args.run_dir, args.thrust_table)
+    if cli_segments.wanted(args):
+        return cli_segments.cmd_segments(args)
     # the run folder and the table are read by estimate_run once the options are checked
     est = estimate_run(
         args.run_dir, args.thrust_table, method=args.method, model=args.model, window=args.window,

@@ -1,0 +1,192 @@
+"""``tpods estimate batch RUN --segments LEN|auto`` and ``--thruster-health``: a whole run
+fitted by multiple shooting (:mod:`estimator.shooting`); a thin shell that reads the run,
+calls the use case and prints or writes what it returns."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from common.errors import UserError
+from estimator.shooting.segments import parse_excludes, parse_segments
+
+MODEL_PARAMS = {None: (), "ideal": (), "friction": ("ct", "cr", "kb"),
+                "friction+tilt": ("ct", "cr", "kb", "ax", "ay")}
+
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The segment fit's options of ``tpods estimate batch``."""
+    p.add_argument("--segments", default=None, metavar="LEN|auto|none",
+                   help="fit the run as shooting segments, each from its own initial state with "
+                        "the physical parameters shared: a length (5s), auto (chosen from the "
+                        "data) or none (single shooting, the default); for whole real runs")
+    p.add_argument("--exclude", action="append", default=None, metavar="T0:T1",
+                   help="with --segments: leave out the poses in T0..T1 (run seconds; repeatable)")
+    p.add_argument("--thruster-health", action="store_true",
+                   help="each thruster's efficiency (relative to the others; absolute with "
+                        "--fixed mass=KG) and a verdict: ok, weak, dead, reversed, stuck-open "
+                        "(fits by segments; --segments auto unless given)")
+    p.add_argument("--out-vehicle", default=None, metavar="NEW.toml",
+                   help="with --thruster-health: write the vehicle file with the verdicts "
+                        "applied (a dead thruster gives no thrust in every estimator)")
+
+
+def wanted(args: argparse.Namespace) -> bool:
+    """True when the command asks for the segment fit."""
+    if args.out_vehicle and not args.thruster_health:
+        raise UserError("--out-vehicle writes the verdicts of --thruster-health: add it")
+    if args.exclude and args.segments is None and not args.thruster_health:
+        raise UserError("--exclude leaves stretches out of a fit by segments: add --segments auto")
+    length = parse_segments(args.segments) if args.segments is not None else None
+    return args.thruster_health or (args.segments is not None and length != math.inf)
+
+
+def _run_and_vehicle(args):
+    from common.runfolder import read_run
+    from estimator.estimate.options import as_window
+    from estimator.shooting.vehicles import run_vehicle
+
+    run = read_run(args.run_dir, structure=args.structure)
+    w = as_window(args.window)
+    if w != (None, None):
+        run = run.window(*w)
+    return run, run_vehicle(run, args.thrust_table)
+
+
+def _names(args) -> tuple[str, ...]:
+    if args.model == "auto":
+        raise UserError("--model auto with --segments: name the model (ideal, friction, "
+                        "friction+tilt) or the parameters (--estimate)")
+    base = tuple(args.estimate) if args.estimate else ("mass", "izz", "cx", "cy")
+    names = base + tuple(n for n in MODEL_PARAMS.get(args.model, ()) if n not in base)
+    return tuple(n for n in names if n not in (args.fixed or {}))
+
+
+def cmd_segments(args: argparse.Namespace) -> int:
+    """The segment fit (and the thruster health) of ``tpods estimate batch``."""
+    from estimator.shooting.fit import fit_segments
+    from estimator.shooting.health import thruster_health
+
+    if args.method != "ls":
+        raise UserError(f"--segments and --thruster-health fit by batch least squares: "
+                        f"drop --method {args.method}")
+    length = parse_segments(args.segments)
+    exclude = parse_excludes(args.exclude)
+    run, vehicle = _run_and_vehicle(args)
+    t0 = float(run.pose_t[0])
+    ex = [(a - 0.0, b - 0.0) for a, b in exclude]
+    common = dict(sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
+                  length_s=length, exclude=ex)
+    initial = dict(args.initial or {})
+    out: dict = {"run": str(run.path), "time_origin_s": t0}
+    lines: list[str] = []
+    if args.thruster_health:
+        fixed = dict(args.fixed or {})
+        rep = thruster_health(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct,
+                              mass_kg=fixed.pop("mass", None), initial=initial, fixed=fixed,
+                              **common)
+        fit = rep.fit
+        out["thruster_health"] = [t.to_dict() for t in rep.thrusters]
+        out["health"] = rep.to_dict()
+        lines += rep.lines()
+        if args.out_vehicle:
+            out["out_vehicle"] = str(_write_vehicle(vehicle, rep, args.out_vehicle, args.force))
+            lines.append(f"  wrote {out['out_vehicle']} (the verdicts as each thruster's health)")
+    else:
+        fit = fit_segments(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct,
+                           names=_names(args), fixed=args.fixed or {}, initial=initial,
+                           clamp=args.clamp, max_iter=max(args.max_iter, 30), **common)
+    out.update(fit.to_dict())
+    _jitter_warning(run, fit)
+    if args.out_folder is not None:
+        _write_outputs(args, out, fit, run)
+    for w in fit.warnings:
+        print(f"tpods: warning: {w}", file=sys.stderr)
+    if not fit.converged:
+        print(f"tpods: warning: {fit.message}; the estimate below is not a converged solution",
+              file=sys.stderr)
+    if args.json:
+        print(json.dumps(out, indent=2, default=float))
+        return 0
+    _print(run, fit, lines)
+    if args.out_folder is not None:
+        print(f"  wrote {args.out_folder.main}")
+    return 0
+
+
+def _print(run, fit, lines) -> None:
+    print(f"batch least squares by segments on {run.path} ({len(fit.t)} poses in {fit.plan.n} "
+          f"segments of {fit.plan.length_s:g} s)")
+    print(f"  segment length {fit.length_note}")
+    print(f"  {fit.message}; {fit.iterations} iterations, {fit.elapsed_s:.2f} s")
+    units = {"mass": "kg", "izz": "kg m^2", "cx": "m", "cy": "m", "ax": "m/s^2", "ay": "m/s^2",
+             "ct": "N s/m", "cr": "N m s/rad", "kb": "N m s/m", "delay": "s", "drop": "per valve"}
+    for n in fit.names:
+        s = fit.sigma[n]
+        print(f"  {n:<8} = {fit.values[n]:.6g} {units.get(n, '')}  +/- {s['total']:.3g} (total; "
+              f"clustered {s['clustered']:.3g}, thrust {s['thrust']:.3g}, noise only "
+              f"{s['noise']:.3g})")
+    rms = fit.rms()
+    print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
+          f"yaw {math.degrees(rms[2]):.3f} deg")
+    for a, b, why in fit.plan.excluded:
+        print(f"  excluded {a:.2f}..{b:.2f} s: {why}")
+    for t, why in fit.plan.breaks:
+        print(f"  segments break at {t:.2f} s: {why}")
+    for line in lines:
+        print(line)
+
+
+def _write_vehicle(vehicle, rep, path: str, force: bool) -> Path:
+    from common.outputs import ResultFile
+    from common.vehicle_toml import vehicle_document
+
+    verdict = {t.name: t.verdict for t in rep.thrusters}
+    new = replace(vehicle, thrusters=tuple(replace(t, health=verdict.get(t.name, t.health))
+                                           for t in vehicle.thrusters))
+    p = Path(path)
+    if p.suffix != ".toml":
+        raise UserError(f"--out-vehicle {path}: give a .toml file name")
+    import tomli_w
+
+    out = ResultFile(p, force=force, option="--out-vehicle")
+    with out.writing() as tmp:
+        tmp.write_text(tomli_w.dumps(vehicle_document(new.name, new.thrusters, new.valves,
+                                                      new.body, p.parent, prefix=p.stem + "_",
+                                                      supplies=new.supplies)))
+    return p
+
+
+JITTER_LIMIT = 0.3
+"""Pose intervals whose 5-95 % spread exceeds this fraction of the median are warned of."""
+
+
+def _jitter_warning(run, fit) -> None:
+    """A warning when the pose intervals jitter far beyond a steady frame rate."""
+    import numpy as np
+
+    dt = np.diff(run.pose_t)
+    if len(dt) < 10:
+        return
+    p5, p50, p95 = np.percentile(dt, [5, 50, 95])
+    if p50 > 0 and (p95 - p5) > JITTER_LIMIT * p50:
+        fit.warnings.append(
+            f"the pose intervals jitter far beyond a steady frame rate (5-95 %: {p5 * 1e3:.1f}-"
+            f"{p95 * 1e3:.1f} ms around {p50 * 1e3:.1f} ms): the times come from a coarse or "
+            "busy clock (each pose's time uncertain by about half that spread), or are not the "
+            "capture times; the fit takes them as exact")
+
+
+def _write_outputs(args, out, fit, run) -> None:
+    from estimator.reports.plots_segments import plot_segment_residuals
+
+    with args.out_folder.writing_main() as (main, d):
+        main.write_text(json.dumps(out, indent=2, default=float) + "\n")
+        if d is not None:
+            plot_segment_residuals(fit, d / "residuals_by_segment.png",
+                                   sigma=(args.sigma_pos, math.radians(args.sigma_yaw_deg)),
+                                   title=f"Residuals by segment: {Path(str(run.path)).name}")
