@@ -36,7 +36,7 @@ DEAD_BELOW = 0.3
 WEAK_MIN_LOSS = 0.03
 LEAK_ABOVE = 0.2
 LR_LIMIT = 9.0
-BODY = ("mass", "izz", "cx", "cy", "ax", "ay", "delay")
+BODY = ("mass", "izz", "cx", "cy", "ax", "ay", "ct", "cr", "delay")
 
 
 @dataclass
@@ -75,8 +75,7 @@ class HealthReport:
         out = [f"thruster health ({what}; {self.fit.plan.n} segments; smallest loss resolved "
                f"{self.resolution * 100:.1f} %):"]
         for t in self.thrusters:
-            out.append(f"  {t.name:<6} efficiency {t.efficiency:6.3f} +- {t.sigma:.3f}, leak "
-                       f"{t.leak:+.3f} +- {t.leak_sigma:.3f}: {t.verdict}"
+            out.append(f"  {t.name:<6} efficiency {t.efficiency:6.3f} +- {t.sigma:.3f}: {t.verdict}"
                        + (f" ({t.why})" if t.why else ""))
         return out
 
