@@ -35,8 +35,8 @@ from estimator.shooting.events import find_events, outlier_segments
 from estimator.shooting.inputs import ThrustChannels, vehicle_channels
 from estimator.shooting.problem import LOG_NAMES, ShootingProblem, default_value
 from estimator.shooting.segments import SegmentPlan, plan_segments
-from estimator.shooting.start import equation_error_start
 from estimator.shooting.solve import covariances, levenberg_marquardt, reduce_normal, safe_inv
+from estimator.shooting.start import equation_error_start
 
 CANDIDATE_LENGTHS_S = (2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 30.0)
 """Segment lengths the automatic choice tries, s."""

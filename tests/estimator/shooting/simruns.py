@@ -7,8 +7,6 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from common.vehicle import Vehicle
 from estimator.plant.inputs import pulse_groups
 from estimator.plant.model import PlantParams
