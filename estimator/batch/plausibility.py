@@ -85,8 +85,22 @@ def no_information(names: Sequence[str], sigma: np.ndarray, thrust_n: np.ndarray
         why = ("no thrust: every valve is closed in every command (or the thrust table gives "
                "0 N)")
     else:
+        # said from the commands and the geometry only, never from where a fit ended
+        from estimator.plant.model import wrench
+
+        w = wrench(np.asarray(thrust_n, dtype=float))
+        scale = float(np.max(np.abs(thrust_n)))
+        has = {"mass": bool(np.any(np.hypot(w[:, 0], w[:, 1]) > 1e-9 * scale)),
+               "izz": bool(np.any(np.abs(w[:, 2]) > 1e-12 * scale))}
         reasons = {"mass": "no net force (the thrusts cancel)",
                    "izz": "no torque (the commands never turn the module)"}
-        why = "; ".join(f"{n}: {reasons.get(n, 'the run does not excite it')}" for n in bad)
+        if all(has.get(n, False) for n in bad):
+            return (f"{', '.join(bad)} {'has' if len(bad) == 1 else 'have'} no information at "
+                    "the point where the fit stopped (infinite sigma), although the commands "
+                    "give net force and torque: the fit diverged, not the run; a long real run "
+                    "cannot be integrated from one initial state: fit it by segments "
+                    "(--segments auto)")
+        why = "; ".join(f"{n}: {reasons.get(n, 'the run does not excite it')}" for n in bad
+                        if not has.get(n, False))
     return (f"{', '.join(bad)} {'has' if len(bad) == 1 else 'have'} no information in this run "
             f"(infinite sigma): {why}")

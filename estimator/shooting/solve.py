@@ -73,6 +73,9 @@ def reduce_normal(prob: ShootingProblem, r: np.ndarray, Js: np.ndarray, Jg: np.n
 def solve_step(red: ReducedNormal) -> tuple[np.ndarray, np.ndarray]:
     """``(d theta (p,), d s0 (S, 6))`` of the reduced system (equilibrated)."""
     A = red.schur
+    if A.size == 0:  # no shared parameter: every segment's own 6x6 system
+        ds = np.einsum("sij,sj->si", red.d_inv, red.bs)
+        return np.zeros(0), -ds
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     An = A / np.outer(d, d)
     try:
@@ -85,6 +88,8 @@ def solve_step(red: ReducedNormal) -> tuple[np.ndarray, np.ndarray]:
 
 
 def safe_inv(A: np.ndarray) -> np.ndarray:
+    if A.size == 0:
+        return A.copy()
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
     try:
         return np.linalg.inv(A / np.outer(d, d)) / np.outer(d, d)
@@ -137,7 +142,7 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
         if math.isfinite(cost_new) and cost_new <= cost:
             sig = np.sqrt(np.maximum(np.diag(safe_inv(reduce_normal(prob, r, Js, Jg).schur)),
                                      1e-300))
-            small = bool(np.all(np.abs(dg) <= tol * sig))
+            small = bool(len(dg) and np.all(np.abs(dg) <= tol * sig))
             fell = (cost - cost_new) <= rtol * cost
             theta, s0, cost = th_new, s_new, cost_new
             mu = max(mu / 5.0, 1e-9)

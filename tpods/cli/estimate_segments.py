@@ -58,12 +58,39 @@ def _run_and_vehicle(args):
 
 
 def _names(args) -> tuple[str, ...]:
-    if args.model == "auto":
-        raise UserError("--model auto with --segments: name the model (ideal, friction, "
-                        "friction+tilt) or the parameters (--estimate)")
     base = tuple(args.estimate) if args.estimate else ("mass", "izz", "cx", "cy")
-    names = base + tuple(n for n in MODEL_PARAMS.get(args.model, ()) if n not in base)
+    model = None if args.model == "auto" else args.model
+    names = base + tuple(n for n in MODEL_PARAMS.get(model, ()) if n not in base)
     return tuple(n for n in names if n not in (args.fixed or {}))
+
+
+def _auto(args, run, vehicle, initial, common, out):
+    """``--model auto``: every candidate fitted, chosen by held-out segments; the spread of
+    the comparable candidates added to the total sigma where it exceeds it."""
+    from estimator.shooting.select import select_model
+
+    if args.thruster_health:
+        raise UserError("--model auto chooses the model of the mass fit: run --thruster-health "
+                        "without it")
+    sel = select_model(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct, base=_names(args),
+                       fixed=args.fixed or {}, initial=initial, **common)
+    fit = sel.fits[sel.chosen]
+    out["model_selection"] = sel.to_dict()
+    for k, (a, b) in sel.spread.items():
+        half = 0.5 * (b - a)
+        sig = fit.sigma.get(k)
+        if sig is not None and half > sig["total"]:
+            sig["model"] = half
+            sig["total"] = math.hypot(sig["total"], half)
+            fit.warnings.append(
+                f"the {k} depends on the model: {a:.4g}..{b:.4g} across the candidates that "
+                f"predict held-out segments about as well as {sel.chosen}; half that range is in "
+                "the total sigma")
+    return fit, [f"  model {sel.chosen} chosen by {FOLDS_TEXT}: held-out rms (noise units) "
+                 + ", ".join(f"{n} {e:.3f}" for n, e in sel.heldout_rms.items())]
+
+
+FOLDS_TEXT = "3-fold cross-validation over segments"
 
 
 def cmd_segments(args: argparse.Namespace) -> int:
@@ -96,6 +123,9 @@ def cmd_segments(args: argparse.Namespace) -> int:
         if args.out_vehicle:
             out["out_vehicle"] = str(_write_vehicle(vehicle, rep, args.out_vehicle, args.force))
             lines.append(f"  wrote {out['out_vehicle']} (the verdicts as each thruster's health)")
+    elif args.model == "auto":
+        fit, more = _auto(args, run, vehicle, initial, common, out)
+        lines += more
     else:
         fit = fit_segments(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct,
                            names=_names(args), fixed=args.fixed or {}, initial=initial,
@@ -127,8 +157,9 @@ def _print(run, fit, lines) -> None:
              "ct": "N s/m", "cr": "N m s/rad", "kb": "N m s/m", "delay": "s", "drop": "per valve"}
     for n in fit.names:
         s = fit.sigma[n]
+        model = f", model {s['model']:.3g}" if "model" in s else ""
         print(f"  {n:<8} = {fit.values[n]:.6g} {units.get(n, '')}  +/- {s['total']:.3g} (total; "
-              f"clustered {s['clustered']:.3g}, thrust {s['thrust']:.3g}, noise only "
+              f"clustered {s['clustered']:.3g}, thrust {s['thrust']:.3g}{model}, noise only "
               f"{s['noise']:.3g})")
     rms = fit.rms()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
