@@ -51,39 +51,57 @@ class ThrustChannels:
     force_sigma_n: np.ndarray
     opens: np.ndarray  # (N,) rows in which each valve is commanded open
 
-    def cumulative(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(knots (Nc + 2,), integrals (Nc + 2, 3N))``: the running integrals of
-        ``[a | b | c]`` at the hold times (0 before the first), linear between them."""
+    def cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(knots (K,), C (K, 3N), D (K, 3N), rate (K, 3N))``: the running integral C of
+        ``[a | b | c]`` and its integral D at the hold times, and the value held from each
+        knot on (0 before the first command; the last row after the end)."""
         rows = np.concatenate([self.a, self.b, self.c], axis=1)
-        dt = np.diff(self.t)
-        cum = np.concatenate([np.zeros((1, rows.shape[1])), np.cumsum(rows * dt[:, None], axis=0)])
-        # extend: before the first command nothing; after the end the last row holds
         far = self.t[-1] + 1e6
         knots = np.concatenate([[self.t[0] - 1e6], self.t, [far]])
-        ints = np.concatenate([np.zeros((1, rows.shape[1])), cum,
-                               cum[-1:] + rows[-1:] * (far - self.t[-1])])
-        return knots, ints
+        rate = np.concatenate([np.zeros((1, rows.shape[1])), rows, rows[-1:], rows[-1:]])
+        dt = np.diff(knots)[:, None]
+        c = np.zeros((len(knots), rows.shape[1]))
+        d = np.zeros_like(c)
+        c[1:] = np.cumsum(rate[:-1] * dt, axis=0)
+        d[1:] = np.cumsum(c[:-1] * dt + 0.5 * rate[:-1] * dt ** 2, axis=0)
+        return knots, c, d, rate
 
     def step_average(self, ta: np.ndarray, tb: np.ndarray, delay: float,
-                     cum: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                     cum: tuple | None = None) -> np.ndarray:
         """(..., 3, N) the channels' averages over steps ``[ta, tb]`` (``ta``, ``tb`` of any
-        one shape) with every switch ``delay`` s later; 0 where ``tb == ta``."""
-        knots, ints = cum if cum is not None else self.cumulative()
+        one shape) with every switch ``delay`` s later and spread over :data:`SWITCH_S`
+        (centred, so its timing is unchanged); 0 where ``tb == ta``. Smooth (C1) in the
+        dead time: a least-squares fit of it does not stall on kinks."""
+        cum = cum if cum is not None else self.cumulative()
         shape = np.shape(ta)
-        fa = _interp_rows(np.ravel(ta) - delay, knots, ints)
-        fb = _interp_rows(np.ravel(tb) - delay, knots, ints)
-        h = (np.ravel(tb) - np.ravel(ta))[:, None]
+        ta, tb = np.ravel(ta) - delay, np.ravel(tb) - delay
+        fa = _smoothed_integral(ta, cum)
+        fb = _smoothed_integral(tb, cum)
+        h = (tb - ta)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             avg = np.where(h > 0, (fb - fa) / np.where(h > 0, h, 1.0), 0.0)
         n = self.a.shape[1]
         return avg.reshape(shape + (3, n))
 
 
-def _interp_rows(x: np.ndarray, knots: np.ndarray, vals: np.ndarray) -> np.ndarray:
-    """Linear interpolation of every column of ``vals`` (K, M) at ``x`` (n,) -> (n, M)."""
+SWITCH_S = 0.01
+"""A valve switch is modelled as a linear ramp of this length, centred on the switch time
+(a real solenoid valve opens in a few ms; the ramp makes the thrust smooth in the dead
+time)."""
+
+
+def _integral2(x: np.ndarray, cum) -> np.ndarray:
+    """D(x) (n, M): the second running integral at ``x`` (exact: quadratic between knots)."""
+    knots, c, d, rate = cum
     i = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, len(knots) - 2)
-    w = (x - knots[i]) / (knots[i + 1] - knots[i])
-    return vals[i] + (vals[i + 1] - vals[i]) * w[:, None]
+    u = (x - knots[i])[:, None]
+    return d[i] + c[i] * u + 0.5 * rate[i] * u * u
+
+
+def _smoothed_integral(x: np.ndarray, cum) -> np.ndarray:
+    """The running integral C box-averaged over :data:`SWITCH_S` about ``x`` (n, M)."""
+    w = SWITCH_S
+    return (_integral2(x + 0.5 * w, cum) - _integral2(x - 0.5 * w, cum)) / w
 
 
 def vehicle_channels(vehicle: Vehicle, cmd_t: np.ndarray, duty_pct: np.ndarray,

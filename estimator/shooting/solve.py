@@ -24,7 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import os
+
 from estimator.shooting.problem import ShootingProblem
+
+DEBUG = bool(os.environ.get("TPODS_LM_DEBUG"))
 
 
 @dataclass
@@ -111,7 +115,7 @@ class LMResult:
 
 
 def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray,
-                        max_iter: int = 60, tol: float = 1e-6, rtol: float = 1e-9,
+                        max_iter: int = 60, tol: float = 1e-3, rtol: float = 1e-10,
                         max_log_step: float = 0.7) -> LMResult:
     """Minimise the sum of squared residuals over every segment's state and ``theta``.
 
@@ -143,6 +147,8 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
             sig = np.sqrt(np.maximum(np.diag(safe_inv(reduce_normal(prob, r, Js, Jg).schur)),
                                      1e-300))
             small = bool(len(dg) and np.all(np.abs(dg) <= tol * sig))
+            if DEBUG:
+                print(it, cost_new, mu, float(np.max(np.abs(dg) / sig)) if len(dg) else 0)
             fell = (cost - cost_new) <= rtol * cost
             theta, s0, cost = th_new, s_new, cost_new
             mu = max(mu / 5.0, 1e-9)
