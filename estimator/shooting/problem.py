@@ -83,7 +83,7 @@ class ShootingProblem:
         self.thrusters = channels.names
         self._cum = channels.cumulative()
         self._build_grid()
-        self.islog = np.array([n in LOG_NAMES for n in self.names])
+        self.islog = np.array([n in LOG_NAMES for n in self.names], dtype=bool)
 
     # ------------------------------------------------------------------ grid
     def _build_grid(self) -> None:

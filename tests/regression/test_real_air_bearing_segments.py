@@ -83,13 +83,26 @@ def test_mass_with_the_written_vehicle_within_3_total_sigma(health, run_dir):
     assert out["params"]["delay"]["total"] < 0.05
 
 
-def test_absolute_efficiencies_with_the_scale_mass(run_dir):
-    r = run_in_process("estimate", "batch", str(run_dir), "--thruster-health", "--fixed",
-                       f"mass={STATED['mass_kg']}", "--json")
+def test_calibrate_thrust_per_thruster_with_the_scale_mass(run_dir, tmp_path):
+    """``calibrate thrust --per thruster --mass 23.09 --segments auto`` converges on the whole
+    run: T2 below 0.3 (marked dead), the others between 0.5 and 1.6, written as forces."""
+    out = tmp_path / "calibrated.toml"
+    r = run_in_process("calibrate", "thrust", str(run_dir), "--mass", str(STATED["mass_kg"]),
+                       "--mass-sigma", "0.1", "--per", "thruster", "--segments", "auto",
+                       "--out", str(out), "--json")
     assert r.returncode == 0, r.stderr
-    out = json.loads(r.stdout)
-    assert out["converged"] and out["health"]["relative"] is False
-    eff = {t["name"]: t["efficiency"] for t in out["thruster_health"]}
+    doc = json.loads(r.stdout)
+    assert doc["converged"] and doc["mass_kg"] == STATED["mass_kg"]
+    eff = {t["name"]: t["efficiency"] for t in doc["thruster_health"]}
     assert eff.pop("T2") < 0.3
     assert all(0.5 < e < 1.6 for e in eff.values()), eff
     assert np.isfinite(list(eff.values())).all()
+    from common.vehicle import Vehicle
+
+    v = Vehicle.load(out)
+    stated = dict(zip([f"T{i}" for i in range(1, 9)], STATED["force_n"], strict=True))
+    for t in v.thrusters:
+        if t.name == "T2":
+            assert t.dead
+        else:
+            assert abs(t.force_n / stated[t.name] - eff[t.name]) < 1e-9

@@ -65,6 +65,11 @@ def register_thrust(cal) -> None:
     p.add_argument("--out", required=True, metavar="NEW.toml|DIR",
                    help="the calibrated table (NEW.toml), or a folder that receives "
                         "thrust_table.toml and calibration.json")
+    p.add_argument("--segments", default=None, metavar="LEN|auto|none",
+                   help="a vehicle of on/off valves: fit the whole run as shooting segments "
+                        "(each its own initial state; length 5s, auto, or none: single "
+                        "shooting, the default); efficiencies with damping, tilt and the dead "
+                        "time, a dead thruster marked")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     add_force(p)
 
@@ -84,6 +89,10 @@ def cmd_thrust(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from tpods.cli import calibrate_thrust_segments as by_segments
+
+    if by_segments.wanted(args):
+        return by_segments.cmd_thrust_segments(args)
     from common.argtypes import vehicle_file
     from common.outputs import not_an_input
     from common.plausible import body_problems
