@@ -20,11 +20,10 @@ Covariances of the shared parameters (all from the same reduced quantities):
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
-
-import os
 
 from estimator.shooting.problem import ShootingProblem
 
