@@ -124,13 +124,12 @@ def _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta, s0=None, max_iter
 def _states_at(prob: ShootingProblem, lm, starts: np.ndarray) -> np.ndarray | None:
     """(len(starts), 6) the fitted trajectory's states at pose indices ``starts`` (None when
     a start lies in no segment of ``prob``)."""
-    states = prob.simulate(lm.s0[None], lm.theta[None])[0]
-    seg_of = prob.plan.labels(len(prob.pose_t))
-    node_of = np.full(len(prob.pose_t), -1)
-    node_of[prob.obs] = prob.node
-    if np.any(seg_of[starts] < 0):
+    states = prob.states_at_obs(lm.s0[None], lm.theta[None])[0]
+    row_of = np.full(len(prob.pose_t), -1)
+    row_of[prob.obs] = np.arange(len(prob.obs))
+    if np.any(row_of[starts] < 0):
         return None
-    return states[seg_of[starts], node_of[starts]]
+    return states[row_of[starts]]
 
 
 def choose_length(pose_t, pose, ch, names, fixed, sigma, theta, exclude,
