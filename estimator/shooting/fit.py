@@ -11,13 +11,14 @@ the model cannot hold are excluded and named (:mod:`estimator.shooting.events`).
 Sigma of each shared parameter, all reported:
 
 - ``noise``: the stated pose noise alone, white residuals assumed;
-- ``clustered``: the segment-clustered sandwich (correlated model error within a segment);
+- ``clustered``: the segment-clustered sandwich (correlated model error within a segment),
+  scaled by t_{G-1}(0.975)/1.96 for G segments (:func:`t_scale`);
 - ``thrust``: the vehicle's stated force uncertainty (``force_sigma_n``) of every thruster
   whose efficiency is not estimated, considered at the solution;
 - ``total``: sqrt(clustered^2 + thrust^2): what the output promises. With fewer than
   :data:`MIN_CLUSTERS` segments (or twice the shared parameters) a clustered covariance is
-  itself too uncertain; the total then takes the noise sigma scaled by the residuals'
-  rms over the stated noise (at least 1) instead, and a note says so.
+  itself too uncertain; the total then takes the larger of it and the noise sigma scaled
+  by the residuals' rms over the stated noise (at least 1), and a note says so.
 """
 
 from __future__ import annotations
@@ -253,16 +254,31 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
 
 
 MIN_CLUSTERS = 10
-"""Fewest segments for the clustered sandwich to count in the total sigma."""
+"""Fewer segments than this (or than twice the shared parameters): the total sigma is the
+larger of the clustered one and the noise sigma inflated by the residuals' misfit."""
+
+
+def t_scale(n_clusters: int) -> float:
+    """``t_{G-1}(0.975) / z(0.975)``: the factor that makes a clustered sigma from G
+    segments promise at 2 sigma what a t interval with G - 1 degrees of freedom does."""
+    from scipy.stats import norm, t
+
+    if n_clusters < 2:
+        return math.inf
+    return float(t.ppf(0.975, n_clusters - 1) / norm.ppf(0.975))
 
 
 def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> SegmentFit:
     cov = covariances(prob, lm)
     cov["thrust"] = thrust_consider(prob, lm, ch, names, fixed)
     few = prob.n_seg < max(MIN_CLUSTERS, 2 * len(names))
+    # few clusters: the sandwich is itself uncertain; its promise at 2 sigma is a Student t
+    # with G - 1 degrees of freedom (Cameron and Miller's small-G practice), so the
+    # clustered sigma is scaled by t_{G-1}(0.975) / z(0.975)
+    cov["clustered"] = cov["clustered"] * t_scale(prob.n_seg) ** 2
     if few:
         inflate = max(1.0, lm.cost / max(len(lm.r) - len(names) - 6 * prob.n_seg, 1))
-        base = cov["noise"] * inflate
+        base = np.maximum(cov["noise"] * inflate, cov["clustered"])
     else:
         base = cov["clustered"]
     cov["total"] = base + cov["thrust"]
@@ -282,8 +298,9 @@ def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> Segme
                      time.perf_counter() - t_start, note, s0=lm.s0, theta=lm.theta)
     fit.warnings += _misfit(fit, prob.sigma)
     if few:
-        fit.sigma_note = (f"{prob.n_seg} segments are too few for a clustered sigma: the total "
-                          "takes the noise sigma scaled by the residuals over the stated noise")
+        fit.sigma_note = (f"{prob.n_seg} segments are too few for a clustered sigma alone: the "
+                          "total takes the larger of it and the noise sigma scaled by the "
+                          "residuals over the stated noise")
     return fit
 
 

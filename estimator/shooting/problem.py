@@ -259,16 +259,20 @@ class ShootingProblem:
         return r0, Js, Jg
 
     # ------------------------------------------------------------------ start
-    def initial_states(self, cx: float = 0.0, cy: float = 0.0, n_fit: int = 5) -> np.ndarray:
+    def initial_states(self, cx: float = 0.0, cy: float = 0.0, window_s: float = 0.5) -> np.ndarray:
         """(S, 6) a start for every segment: its first pose (moved to the centre of mass)
-        and the velocities of a straight line through its first ``n_fit`` poses."""
+        and the velocities at it of a quadratic through its first ``window_s`` of poses
+        (at least five poses): a velocity from two noisy poses 8 ms apart is off by metres
+        per second and turns the yaw a full circle wrong."""
         out = np.zeros((self.n_seg, 6))
         for s, (a, b) in enumerate(self.plan.bounds):
-            m = min(n_fit, b - a)
-            t = self.pose_t[a:a + m] - self.pose_t[a]
+            t = self.pose_t[a:b] - self.pose_t[a]
+            m = max(min(5, b - a), int(np.searchsorted(t, window_s, side="right")))
+            t = t[:m]
             x, y = self.pose[a:a + m, 0], self.pose[a:a + m, 1]
             psi = np.unwrap(self.pose[a:a + m, 2])
-            vx, vy, r = (np.polyfit(t, q, 1)[0] for q in (x, y, psi))
+            deg = 2 if m >= 5 else 1
+            vx, vy, r = (np.polyfit(t, q, deg)[-2] for q in (x, y, psi))
             c, sn = math.cos(psi[0]), math.sin(psi[0])
             out[s] = [x[0] + c * cx - sn * cy, y[0] + sn * cx + c * cy, psi[0],
                       c * vx + sn * vy, -sn * vx + c * vy, r]

@@ -148,7 +148,8 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
             small = bool(len(dg) and np.all(np.abs(dg) <= tol * sig))
             if DEBUG:
                 print(it, cost_new, mu, float(np.max(np.abs(dg) / sig)) if len(dg) else 0)
-            fell = (cost - cost_new) <= rtol * cost
+            # a stalled fall counts only undamped: a heavily damped step is short, not final
+            fell = (cost - cost_new) <= rtol * cost and mu < 1e-2
             theta, s0, cost = th_new, s_new, cost_new
             mu = max(mu / 5.0, 1e-9)
             r, Js, Jg = prob.jacobian(s0, theta)
