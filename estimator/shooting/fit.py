@@ -258,6 +258,10 @@ MIN_CLUSTERS = 10
 larger of the clustered one and the noise sigma inflated by the residuals' misfit."""
 
 
+NO_CLUSTERS = 4
+"""Fewer segments than this: the clustered covariance is left out of the total."""
+
+
 def t_scale(n_clusters: int) -> float:
     """``t_{G-1}(0.975) / z(0.975)``: the factor that makes a clustered sigma from G
     segments promise at 2 sigma what a t interval with G - 1 degrees of freedom does."""
@@ -278,7 +282,9 @@ def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> Segme
     cov["clustered"] = cov["clustered"] * t_scale(prob.n_seg) ** 2
     if few:
         inflate = max(1.0, lm.cost / max(len(lm.r) - len(names) - 6 * prob.n_seg, 1))
-        base = np.maximum(cov["noise"] * inflate, cov["clustered"])
+        # below NO_CLUSTERS segments a clustered covariance cannot be estimated at all
+        base = (cov["noise"] * inflate if prob.n_seg < NO_CLUSTERS
+                else np.maximum(cov["noise"] * inflate, cov["clustered"]))
     else:
         base = cov["clustered"]
     cov["total"] = base + cov["thrust"]
@@ -299,8 +305,10 @@ def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> Segme
     fit.warnings += _misfit(fit, prob.sigma)
     if few:
         fit.sigma_note = (f"{prob.n_seg} segments are too few for a clustered sigma alone: the "
-                          "total takes the larger of it and the noise sigma scaled by the "
-                          "residuals over the stated noise")
+                          "total takes " + ("the noise sigma scaled by the residuals over "
+                                            "the stated noise" if prob.n_seg < NO_CLUSTERS else
+                                            "the larger of it and the noise sigma scaled by the "
+                                            "residuals over the stated noise"))
     return fit
 
 
