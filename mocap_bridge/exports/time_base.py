@@ -91,6 +91,10 @@ def intervals_from_velocities(pos: np.ndarray, vel: np.ndarray, quantum_pos: np.
     status[has & (resolved & gap).any(axis=1)] = DISAGREE
     status[(status == DETERMINED) & ~(np.isfinite(dt) & (dt > 0))] = REJECTED
     if not (status == DETERMINED).any():
+        if (status == DISAGREE).any():
+            raise ValueError(f"the components give different intervals in every row that moves "
+                             f"({int((status == DISAGREE).sum())}): the velocity columns are not finite "
+                             "differences of these positions")
         raise ValueError("no row's velocity determines its interval (the body never moves, or "
                          "the velocity columns are not finite differences of the positions)")
     return _filled(dt, status, "velocities")
