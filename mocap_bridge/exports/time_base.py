@@ -152,7 +152,7 @@ def summary(t_nominal: np.ndarray, t: np.ndarray, iv: Intervals, column: str) ->
             "fill_s": iv.fill_s, "nominal_span_s": nominal, "rebuilt_span_s": span,
             "rate_difference": span / nominal - 1.0 if nominal > 0 else None,
             "mean_interval_s": float(np.mean(iv.dt)),
-            "determined_interval_s": dict(zip(("min", "p5", "median", "p95", "max"), map(float, p)))}
+            "determined_interval_s": dict(zip(("min", "p5", "median", "p95", "max"), map(float, p), strict=True))}
 
 
 _WHY = {"at_rest": "at rest", "missing": "with an empty cell", "disagree": "where x, y and yaw disagree",

@@ -22,7 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import UserError
-from mocap_bridge.exports.generic_csv import column_index, parse_column_map, read_table_text, resolve_unit
+from mocap_bridge.exports.generic_csv import (
+    column_index,
+    parse_column_map,
+    read_table_text,
+    resolve_unit,
+)
 from mocap_bridge.exports.table import ANGLE_RAD, LENGTH_M, TIME_S, parse_cell
 from mocap_bridge.exports.time_base import (
     DETERMINED,

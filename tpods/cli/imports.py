@@ -157,9 +157,9 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from common.interval_jitter import interval_jitter, jitter_warning
     from common.runfolder import POSE_COLUMNS
     from common.runwriter import run_header, write_json_atomic
-    from common.interval_jitter import interval_jitter, jitter_warning
     from mocap_bridge.exports import PoseOptions, read_poses
     from mocap_bridge.exports.generic_csv import POSE_KEYS, parse_column_map
 

@@ -5,7 +5,6 @@ commands of the same rows on one rebuilt clock; user errors one line, exit 2."""
 from __future__ import annotations
 
 import json
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
