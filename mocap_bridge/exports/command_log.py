@@ -19,6 +19,7 @@ Time goes through the same unit rules as the pose columns (:mod:`.generic_csv`).
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -109,9 +110,11 @@ def _form(columns: dict[str, str], form: str | None, first_cell: str | None, n: 
 
 def read_command_log(text: str, columns: dict[str, str], *, n_valves: int | None, form: str | None = None,
                      time_unit: str | None = None, units: tuple[str | None, str | None] = (None, None),
-                     what: str = "file") -> CommandTable:
+                     what: str = "file", time_map: Callable[[np.ndarray], np.ndarray] | None = None
+                     ) -> CommandTable:
     """The commands of a log (see the module doc). ``n_valves`` is required unless the
-    log is a wrench."""
+    log is a wrench. ``time_map``: the rows' source times (s) to a rebuilt clock
+    (:mod:`.time_base`), before the rows are held and the end row placed."""
     if "t" not in columns:
         raise UserError("--columns: give the time column (t=COL)")
     header, rows = read_table_text(text, what)
@@ -175,6 +178,8 @@ def read_command_log(text: str, columns: dict[str, str], *, n_valves: int | None
         t_list.append(t)
         vals.append(v)
     t_s = np.array(t_list) * time_factor(t_unit)
+    if time_map is not None:
+        t_s = time_map(t_s)
     values = np.array(vals, float) * scale
     table = _hold_rows(t_s, values, what)
     table.kind = "wrench" if form == "wrench" else "duty"

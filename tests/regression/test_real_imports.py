@@ -98,3 +98,71 @@ def test_motive_export_rows_rate_and_extent():
     assert t.counts == {"frames": 40, "kept": 40, "occluded": 0, "repeated": 0}
     np.testing.assert_allclose(np.diff(t.t_s), 1 / 120, atol=2e-6)  # 120 Hz, times to 1 us
     assert np.ptp(t.x_m) < 1e-3 and np.ptp(t.y_m) < 1e-3  # the body lies still
+
+
+# ----------------------------------------------------------------------------- the whole run's true times
+
+WHOLE = AEVAR / "real_test_data.csv"
+TIME_FROM = ["--time-from", "vx=Current_VX,x=Current_X,vy=Current_VY,y=Current_Y,wz=Current_Angular_Vel,"
+             "yaw=Current_Yaw", "--time-from-units", "m,rad"]
+CMD_WHOLE = ["--columns", "t=Control_Time,valves=Command_Vector", "--time-unit", "s", "--vehicle",
+             str(AEVAR / "vehicle.toml")]
+
+
+def _import(kind: str, out: Path, *extra: str):
+    from tests.support.cli import run_in_process
+
+    args = ["--columns", POSE_COLUMNS, "--time-unit", "s"] if kind == "poses" else CMD_WHOLE
+    r = run_in_process("import", kind, str(WHOLE), "--out", str(out), *args, *extra)
+    assert r.returncode == 0, r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def whole_runs(tmp_path_factory):
+    """The whole file: poses with --time-from then commands (mapped through the folder's
+    time base), and commands with --time-from then poses (mapped)."""
+    tmp = tmp_path_factory.mktemp("aevar-time-from")
+    first = _import("poses", tmp / "a", *TIME_FROM), _import("commands", tmp / "a")
+    second = _import("commands", tmp / "b", *TIME_FROM), _import("poses", tmp / "b")
+    return {"a": (tmp / "a", first), "b": (tmp / "b", second)}
+
+
+def test_whole_run_pose_times_rebuilt_from_its_velocities(whole_runs):
+    run, (poses, _) = whole_runs["a"]
+    assert "pose times rebuilt from the logged velocities (3063 of 3269 intervals; 206 filled" in poses.stdout
+    assert "208.3 s against the nominal 196.2 s of Control_Time (+6.2 %)" in poses.stdout
+    assert "jitter far beyond a stated frame rate" in poses.stderr
+    tb = json.loads((run / "run.json").read_text())["time_base"]
+    assert tb["nominal_span_s"] == pytest.approx(196.16)
+    assert tb["rebuilt_span_s"] == pytest.approx(208.34, abs=0.02)
+    assert tb["rate_difference"] == pytest.approx(0.062, abs=0.002)
+    # the last 206 rows log velocities that are no finite differences (x, y and yaw disagree)
+    assert tb["filled"] == {"disagree": 206} and tb["determined"] / tb["intervals"] == pytest.approx(0.937, abs=1e-3)
+    assert tb["mean_interval_s"] == pytest.approx(0.0638, abs=0.0002)
+    assert 0.043 < tb["determined_interval_s"]["min"] and tb["determined_interval_s"]["max"] < 0.093
+    t = pd.read_csv(run / "poses.csv").t.to_numpy()
+    assert len(t) == 3270 and t[0] == 0.0 and t[-1] == pytest.approx(tb["rebuilt_span_s"])
+    d = np.diff(t)[:3063]  # 44-92 ms, the determined ones in steps near 1/64 s
+    assert np.mean(d) == pytest.approx(0.0638, abs=0.0002)
+    # dt = dX/VX exactly where the velocities are finite differences
+    src = pd.read_csv(WHOLE)
+    np.testing.assert_allclose(d, np.diff(src.Current_Y)[:3063] / src.Current_VY[1:3064], atol=3e-9)  # %.12g
+
+
+@pytest.mark.parametrize("order", ["a", "b"])
+def test_whole_run_commands_land_on_the_rebuilt_pose_times_in_either_order(whole_runs, order):
+    run, _ = whole_runs[order]
+    poses = pd.read_csv(run / "poses.csv")
+    cmds = pd.read_csv(run / "commands.csv")
+    assert len(cmds) == 3271  # 3270 rows and the end row
+    np.testing.assert_allclose(cmds.t.to_numpy()[:-1], poses.t.to_numpy(), atol=1e-6)
+    assert cmds.t.iloc[-1] == pytest.approx(poses.t.iloc[-1] + 0.063, abs=1e-3)
+    meta = json.loads((run / "run.json").read_text())
+    assert meta["time_origin_s"] == 0.0 and (run / "time_base.csv").exists()
+
+
+def test_both_orders_give_the_same_files(whole_runs):
+    a, b = whole_runs["a"][0], whole_runs["b"][0]
+    for name in ("poses.csv", "commands.csv", "time_base.csv"):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name

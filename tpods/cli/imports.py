@@ -7,7 +7,9 @@ same folder in either order (poses, then the commands of the same recording): ea
 is written beside and renamed (an existing one only with ``--force``), ``run.json`` is
 merged and replaced atomically. Both share one time origin, ``run.json``'s
 ``time_origin_s`` (the source time that is t = 0): the first import sets it (the poses:
-their first kept frame), the second shifts its rows by it.
+their first kept frame), the second shifts its rows by it. ``--time-from`` rebuilds the true times of a file whose
+time column is a nominal counter (:mod:`tpods.cli.imports_time`); the other import maps its
+nominal times through the same rebuilt clock.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import Any
 
 from common.errors import UserError
 from common.outputs import add_force
+from tpods.cli.imports_time import add_time_from, describe_use, keep_time_base, time_map
 from tpods.cli.parser import command, group
 
 _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
@@ -55,6 +58,7 @@ def register(sub) -> None:
     p.add_argument("--rotation", default=None, metavar="KIND",
                    help="the rotation convention when the file does not say and the body tilts: "
                         "euler-xyz|helical (Vicon RX,RY,RZ), intrinsic|extrinsic (Motive Euler)")
+    add_time_from(p, "poses")
     add_force(p, "RUN/poses.csv")
 
     c = command(
@@ -78,6 +82,7 @@ def register(sub) -> None:
                    help="the unit of the time column, unless its name states it")
     c.add_argument("--units", default=None, metavar="FORCE,MOMENT",
                    help="wrench units the column names do not state: N|mN and Nm|mNm")
+    add_time_from(c, "commands")
     add_force(c, "RUN/commands.csv (wrench.csv)")
 
 
@@ -152,17 +157,25 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from common.interval_jitter import interval_jitter, jitter_warning
     from common.runfolder import POSE_COLUMNS
     from common.runwriter import run_header, write_json_atomic
     from mocap_bridge.exports import PoseOptions, read_poses
+    from mocap_bridge.exports.generic_csv import POSE_KEYS, parse_column_map
 
     run = _run_folder(args.out)
     if (run / "poses.csv").exists() and not args.force:
         raise UserError(f"{run / 'poses.csv'} already exists; add --force to replace it or choose another --out")
     opts = PoseOptions(body=args.body, columns=args.columns, units=args.units, time_unit=args.time_unit,
                        plane=args.plane, yaw_sign=args.yaw_sign, rotation=args.rotation)
-    table = read_poses(_read_text(args.file), opts, what=args.file)
+    text = _read_text(args.file)
+    table = read_poses(text, opts, what=args.file)
     meta = _read_meta(run)
+    t_col = parse_column_map(args.columns, POSE_KEYS).get("t") if args.columns else None
+    tm = time_map(args, text, t_col, run, meta, "poses.csv", ("commands.csv", "wrench.csv"))
+    if tm is not None:  # the source's times on the rebuilt clock
+        t_src = tm(table.t_s + table.t0_source_s)
+        table.t0_source_s, table.t_s = float(t_src[0]), t_src - t_src[0]
     origin = _origin(meta, run, "commands.csv") or _origin(meta, run, "wrench.csv")
     t = table.t_s
     before = 0
@@ -181,7 +194,15 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
     fields = {**(meta or {}), **run_header("import-poses")}
     fields.update(source={"file": str(args.file), **table.source}, counts=counts,
                   time_origin_s=origin, status="complete")
+    jitter = interval_jitter(t) if tm is not None else None
+    used = keep_time_base(tm, run, fields, "import-poses", str(args.file))
+    if used is not None:
+        fields["source"]["time_base"] = dict(used, jitter=jitter)
     write_json_atomic(run / "run.json", fields)
+    if tm is not None:
+        print(describe_use(tm, run))
+        if (w := jitter_warning(jitter)) is not None:
+            print(f"tpods: warning: {args.file}: {w}", file=sys.stderr)
     src = table.source
     span = float(t[-1] - t[0]) if len(t) else 0.0
     print(f"wrote {run / 'poses.csv'}: {len(t)} poses over {span:.3f} s ({src['format']}"
@@ -245,13 +266,16 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
     units = tuple((args.units or ",").split(",", 1)) if args.units else (None, None)
     run = _run_folder(args.out)
     columns = parse_column_map(args.columns, command_keys(n or 0))
-    table = read_command_log(_read_text(args.file), columns, n_valves=n, form=args.form,
+    text = _read_text(args.file)
+    meta = _read_meta(run)
+    name = "wrench.csv" if wrench else "commands.csv"
+    tm = time_map(args, text, columns.get("t"), run, meta, name, ("poses.csv",))
+    table = read_command_log(text, columns, n_valves=n, form=args.form,
                              time_unit=args.time_unit, units=(units[0] or None, units[1] or None),
-                             what=args.file)
+                             what=args.file, time_map=tm)
     name = "wrench.csv" if table.kind == "wrench" else "commands.csv"
     if (run / name).exists() and not args.force:
         raise UserError(f"{run / name} already exists; add --force to replace it or choose another --out")
-    meta = _read_meta(run)
     origin = _origin(meta, run, "poses.csv")
     if origin is None:
         origin = float(table.t_s[0])
@@ -272,7 +296,12 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
     fields.setdefault("time_origin_s", origin)
     if table.kind == "wrench":
         fields["wrench_frame"] = args.frame
+    used = keep_time_base(tm, run, fields, "import-commands", str(args.file))
+    if used is not None:
+        fields["commands_source"]["time_base"] = used
     write_json_atomic(run / "run.json", fields)
+    if tm is not None:
+        print(describe_use(tm, run))
     for w in table.warnings:
         print(f"tpods: warning: {args.file}: {w}", file=sys.stderr)
     what = f"wrench in the {args.frame} frame" if table.kind == "wrench" else f"{v.shape[1]} valves"
