@@ -42,3 +42,23 @@ def jitter_warning(j: dict) -> str | None:
             f"{1e3 * j['p5_s']:.1f}-{1e3 * j['p95_s']:.1f} ms around the median {1e3 * j['median_s']:.1f} ms "
             f"(p95/p5 {j['spread']:.2f}, std/median {100 * j['rel_std']:.0f} %); a clock at a stated rate "
             f"holds its intervals within about 1 %")
+
+
+OFF_GRID_LIMIT = 0.2
+"""5-95 % span of the intervals' distance from a whole number of median periods above which
+a run's times jitter (dropped frames leave whole multiples: no jitter)."""
+
+
+def off_grid_span(t: np.ndarray) -> float:
+    """The 5-95 % span of ``dt / median - round(dt / median)`` over the positive intervals of
+    ``t``: 0 for a steady clock with dropped frames, tens of percent for a coarse or busy one
+    (0 with fewer than two intervals)."""
+    t = np.asarray(t, float)
+    dt = np.diff(t[np.isfinite(t)])
+    dt = dt[dt > 0]
+    if len(dt) < 2:
+        return 0.0
+    q = dt / np.median(dt)
+    r = q - np.round(q)
+    p5, p95 = np.percentile(r, [5, 95])
+    return float(p95 - p5)

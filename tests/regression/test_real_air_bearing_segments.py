@@ -6,7 +6,7 @@ segments with its true pose times.
 What the source states: the mass on a scale, 23.09 kg (stated.json). What an independent
 fit found and the toolkit must find by itself: one thruster (T2) gave no thrust. The pose
 times are rebuilt from the file's own finite-difference velocities (its Control_Time is a
-nominal 60 ms counter, 6 % slow)."""
+nominal 60 ms counter, 6 % slow), as `tpods import poses --time-from` does."""
 
 from __future__ import annotations
 
@@ -17,7 +17,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mocap_bridge.exports.time_base import rebuilt_times
 from tests.support.cli import run_in_process
 
 REAL = Path(__file__).resolve().parents[2] / "runs/fixtures/real/aevarofjord-air-bearing"
@@ -27,25 +26,22 @@ STATED = json.loads((REAL / "stated.json").read_text())
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("aevar-whole")
-    d = pd.read_csv(CSV)
-    pos = d[["Current_X", "Current_Y", "Current_Yaw"]].to_numpy()
-    vel = d[["Current_VX", "Current_VY", "Current_Angular_Vel"]].to_numpy()
-    d["t_true"] = rebuilt_times(d["Control_Time"].to_numpy(), pos, vel)
-    span = d["t_true"].iloc[-1] - d["t_true"].iloc[0]
-    nominal = d["Control_Time"].iloc[-1] - d["Control_Time"].iloc[0]
-    assert 1.05 < span / nominal < 1.07  # the nominal clock is about 6 % slow
-    csv = tmp / "with_true_times.csv"
-    d.to_csv(csv, index=False)
-    out = tmp / "run"
-    for argv in (["import", "poses", str(csv), "--out", str(out), "--columns",
-                  "t=t_true,x=Telemetry_X_mm,y=Telemetry_Z_mm,yaw=Telemetry_Yaw_deg",
-                  "--time-unit", "s"],
-                 ["import", "commands", str(csv), "--out", str(out), "--columns",
-                  "t=t_true,valves=Command_Vector", "--time-unit", "s", "--vehicle",
+    """Imported as docs/real-data.md says: the pose times rebuilt from the file's own
+    finite-difference velocities (``--time-from``), the commands on the same clock."""
+    out = tmp_path_factory.mktemp("aevar-whole") / "run"
+    for argv in (["import", "poses", str(CSV), "--out", str(out), "--columns",
+                  "t=Control_Time,x=Telemetry_X_mm,y=Telemetry_Z_mm,yaw=Telemetry_Yaw_deg",
+                  "--time-unit", "s", "--time-from",
+                  "vx=Current_VX,x=Current_X,vy=Current_VY,y=Current_Y,wz=Current_Angular_Vel,"
+                  "yaw=Current_Yaw", "--time-from-units", "m,rad"],
+                 ["import", "commands", str(CSV), "--out", str(out), "--columns",
+                  "t=Control_Time,valves=Command_Vector", "--time-unit", "s", "--vehicle",
                   str(REAL / "vehicle.toml")]):
         r = run_in_process(*argv)
         assert r.returncode == 0, r.stderr
+    t = pd.read_csv(out / "poses.csv")["t"].to_numpy()
+    nominal = pd.read_csv(CSV)["Control_Time"].to_numpy()
+    assert 1.05 < (t[-1] - t[0]) / (nominal[-1] - nominal[0]) < 1.07  # the nominal clock is slow
     return out
 
 

@@ -192,24 +192,21 @@ def _write_vehicle(vehicle, rep, path: str, force: bool) -> Path:
     return p
 
 
-JITTER_LIMIT = 0.3
-"""Pose intervals whose 5-95 % spread exceeds this fraction of the median are warned of."""
-
-
 def _jitter_warning(run, fit) -> None:
-    """A warning when the pose intervals jitter far beyond a steady frame rate."""
-    import numpy as np
+    """A warning when the pose intervals sit off any steady frame grid (dropped frames are
+    whole multiples and do not count): each pose's time is then uncertain."""
+    from common.interval_jitter import OFF_GRID_LIMIT, interval_jitter, off_grid_span
 
-    dt = np.diff(run.pose_t)
-    if len(dt) < 10:
+    span = off_grid_span(run.pose_t)
+    if span <= OFF_GRID_LIMIT:
         return
-    p5, p50, p95 = np.percentile(dt, [5, 50, 95])
-    if p50 > 0 and (p95 - p5) > JITTER_LIMIT * p50:
-        fit.warnings.append(
-            f"the pose intervals jitter far beyond a steady frame rate (5-95 %: {p5 * 1e3:.1f}-"
-            f"{p95 * 1e3:.1f} ms around {p50 * 1e3:.1f} ms): the times come from a coarse or "
-            "busy clock (each pose's time uncertain by about half that spread), or are not the "
-            "capture times; the fit takes them as exact")
+    j = interval_jitter(run.pose_t)
+    fit.warnings.append(
+        f"the pose intervals jitter off any steady frame rate (5-95 %: {j['p5_s'] * 1e3:.1f}-"
+        f"{j['p95_s'] * 1e3:.1f} ms around {j['median_s'] * 1e3:.1f} ms, {span * 100:.0f} % of a "
+        "period off the grid): the times come from a coarse or busy clock (each pose's time "
+        "uncertain by about half that spread), or are not the capture times; the fit takes "
+        "them as exact")
 
 
 def _write_outputs(args, out, fit, run) -> None:

@@ -133,3 +133,13 @@ def test_interval_jitter():
     assert j["large"] and j["spread"] == pytest.approx(5 / 3)
     assert "p95/p5 1.67" in jitter_warning(j)
     assert not interval_jitter(np.array([0.0]))["large"]
+
+
+def test_off_grid_span_tells_jitter_from_dropped_frames():
+    from common.interval_jitter import off_grid_span
+
+    rng = np.random.default_rng(3)
+    steady = np.cumsum(np.where(rng.random(500) < 0.1, 2, 1) / 120.0)  # 10 % frames dropped
+    assert off_grid_span(steady) < 1e-9
+    coarse = np.cumsum(rng.choice([3, 4, 5], 500) / 64.0)  # a 1/64 s clock's intervals
+    assert off_grid_span(coarse) > 0.4
