@@ -57,15 +57,19 @@ def ou_wrench(t: np.ndarray, d: Disturbance, rng: np.random.Generator) -> np.nda
 
 
 def disturbed_run(vehicle: Vehicle, seed: int, duration_s: float, params: PlantParams, *,
-                  dead: str | None = None, delay_s: float = 0.0,
+                  dead: str | None = None, stuck: str | None = None, delay_s: float = 0.0,
                   disturbance: Disturbance = Disturbance(), pose_rate_hz: float = 30.0,
                   noise_pos_m: float = 0.003, noise_yaw_deg: float = 0.3) -> SimResult:
     """A run of ``vehicle`` under random pulse groups (1-3 valves open at once, seeded) with
     the true valve ``delay_s``, thruster ``dead`` giving nothing and ``disturbance``; the
-    plant ``params`` carry the tilt and drag."""
+    plant ``params`` carry the tilt and drag; thruster ``stuck`` pushes all the time (stuck
+    open; the returned commands are the commanded ones)."""
     v = with_dead(vehicle, dead).with_input_params(delay_s=delay_s)
     cmd_t, duty = pulse_groups(duration_s, v.n_channels, seed=seed)
-    thrust_t, virtual = v.input_profile(cmd_t, duty)
+    real = duty.copy()
+    if stuck is not None:
+        real[:, [t.name for t in v.thrusters].index(stuck)] = 100.0
+    thrust_t, virtual = v.input_profile(cmd_t, real)
     rng = np.random.default_rng(10_000 + seed)
     if disturbance.force_n or disturbance.moment_nm:
         grid = np.arange(cmd_t[0], cmd_t[-1], DISTURBANCE_STEP_S)
@@ -77,4 +81,6 @@ def disturbed_run(vehicle: Vehicle, seed: int, duration_s: float, params: PlantP
         thrust_t = t
     cfg = SimConfig(pose_rate_hz=pose_rate_hz, noise_pos_m=noise_pos_m,
                     noise_yaw_rad=math.radians(noise_yaw_deg), seed=seed)
-    return simulate(cmd_t, duty, params, None, cfg, thrust_n=virtual, thrust_t=thrust_t)
+    res = simulate(cmd_t, real, params, None, cfg, thrust_n=virtual, thrust_t=thrust_t)
+    res.duty_pct = duty  # what the valves were commanded, not what they did
+    return res

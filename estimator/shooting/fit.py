@@ -134,7 +134,7 @@ def _states_at(prob: ShootingProblem, lm, starts: np.ndarray) -> np.ndarray | No
 
 
 def choose_length(pose_t, pose, ch, names, fixed, sigma, theta, exclude,
-                  max_iter: int = 60) -> tuple[float, str, tuple]:
+                  max_iter: int = 60, min_segments: int = 1) -> tuple[float, str, tuple]:
     """The longest candidate length whose fit still describes the poses as well as the
     shortest segments do: residual rms at most :data:`LENGTH_RMS_RATIO` times the 2 s
     fit's (not the stated noise: a lab's stated noise is often far above its tracker's). Each candidate starts from the shorter one's
@@ -146,8 +146,8 @@ def choose_length(pose_t, pose, ch, names, fixed, sigma, theta, exclude,
     chosen, seen = BASE_LENGTH_S, [f"{BASE_LENGTH_S:g} s: {base_rms:.2f}"]
     for L in CANDIDATE_LENGTHS_S[1:]:
         plan = plan_segments(pose_t, pose, L, exclude)
-        if plan.n == best[0].plan.n:
-            break  # no stretch is longer: nothing changes
+        if plan.n == best[0].plan.n or plan.n < min_segments:
+            break  # no stretch is longer (nothing changes), or too few segments left
         s0 = _states_at(*best, plan.bounds[:, 0])
         trial = _solve(pose_t, pose, plan, ch, names, fixed, sigma, best[1].theta, s0, max_iter)
         rms = math.sqrt(trial[1].cost / len(trial[1].r)) if math.isfinite(trial[1].cost) else math.inf
@@ -202,7 +202,7 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
                  initial: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
                  sigma_yaw_rad: float = math.radians(1.0), length_s: float | None = None,
                  exclude: Sequence[tuple[float, float]] = (), find_stretches: bool = True,
-                 clamp: bool = False, max_iter: int = 60) -> SegmentFit:
+                 clamp: bool = False, max_iter: int = 60, min_segments: int = 1) -> SegmentFit:
     """Fit the shared parameters ``names`` of a vehicle run by multiple shooting.
 
     Args:
@@ -212,7 +212,8 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
         cmd_t, duty_pct: (Nc,), (Nc, N) the commands.
         names: estimated shared parameters (problem.GLOBAL_NAMES, ``eff.<thruster>``,
             ``leak.<thruster>``).
-        length_s: segment length, s (None: :func:`choose_length`; inf: single shooting).
+        length_s: segment length, s (None: :func:`choose_length`, keeping at least
+            ``min_segments``; inf: single shooting).
         exclude: user ranges ``(t0, t1)`` in the poses' seconds, left out.
         find_stretches: also exclude the stretches :func:`find_events` finds, and segments
             whose residuals burst far above the others' (then fitted again without them).
@@ -240,7 +241,7 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
     note = "set by the caller"
     if length_s is None:
         length_s, note, (prob, lm) = choose_length(pose_t, pose, ch, names, fixed, sigma, theta,
-                                                   excl, max_iter)
+                                                   excl, max_iter, min_segments)
     else:
         plan = plan_segments(pose_t, pose, length_s, excl)
         prob, lm = _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta, None, max_iter)

@@ -33,19 +33,23 @@ MAX_STEP_S = 0.05
 """Longest RK4 step, s (each step's thrust is its exact average, so a switch inside a step
 costs O(F/m h^2/8): 6 um for 0.45 N on 23 kg)."""
 
-GLOBAL_NAMES = ("mass", "izz", "cx", "cy", "ct", "cr", "kb", "ax", "ay", "delay", "drop", "scale")
+GLOBAL_NAMES = ("mass", "izz", "cx", "cy", "ct", "cr", "kb", "ax", "ay", "delay", "drop", "scale",
+                "bias.fx", "bias.fy", "bias.mz")
+"""``bias.*``: a constant body-frame force (N) and moment about the tracked origin (N m) that
+no command explains (a stuck-open valve, a tether, a hose)."""
 """Shared parameters besides the per-thruster ``eff.<name>`` and ``leak.<name>``."""
 
 LOG_NAMES = ("mass", "izz")
 """Parameters the fit works on in log space (positive; a step is relative)."""
 
-DEFAULTS = {"mass": 1.0, "izz": 0.01, "cx": 0.0, "cy": 0.0, "ct": 0.0, "cr": 0.0, "kb": 0.0,
+DEFAULTS = {"bias.fx": 0.0, "bias.fy": 0.0, "bias.mz": 0.0,
+            "mass": 1.0, "izz": 0.01, "cx": 0.0, "cy": 0.0, "ct": 0.0, "cr": 0.0, "kb": 0.0,
             "ax": 0.0, "ay": 0.0, "delay": 0.0, "drop": 0.0, "scale": 1.0}
 
 STATE_FD = np.array([1e-5, 1e-5, 1e-6, 1e-5, 1e-5, 1e-6])
 """Forward-difference steps of the segment states (m, rad, m/s, rad/s)."""
 
-PARAM_FD = {"mass": 1e-6, "izz": 1e-6, "cx": 1e-6, "cy": 1e-6, "ct": 1e-5, "cr": 1e-6,
+PARAM_FD = {"bias.fx": 1e-6, "bias.fy": 1e-6, "bias.mz": 1e-7, "mass": 1e-6, "izz": 1e-6, "cx": 1e-6, "cy": 1e-6, "ct": 1e-5, "cr": 1e-6,
             "kb": 1e-6, "ax": 1e-7, "ay": 1e-7, "delay": 1e-3, "drop": 1e-5, "scale": 1e-6}
 """Difference steps of the shared parameters (log for mass and Izz; central for delay)."""
 EFF_FD = 1e-6
@@ -151,6 +155,9 @@ class ShootingProblem:
             # per channel c and thruster n: its wrench W[:, n]; mixed by each row's coefficients
             out[rows] = np.einsum("pcn,skcn,mn->pskm", coef[rows], avg, self.ch.wrench,
                                   optimize=True)
+        bias = np.stack([vals["bias.fx"], vals["bias.fy"], vals["bias.mz"]], 1)  # (P, 3)
+        if np.any(bias):
+            out += bias[:, None, None, :] * (self.h > 0)[None, :, :, None]
         return out
 
     def simulate(self, s0: np.ndarray, theta: np.ndarray):

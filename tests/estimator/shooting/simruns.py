@@ -19,6 +19,7 @@ def vehicle() -> Vehicle:
 
 
 def sim_run(seed: int, duration_s: float = 60.0, *, dead: str | None = None,
+            stuck: str | None = None,
             mass: float = 23.09, izz: float = 0.31, tilt=(0.0, 0.0), friction=(0.0, 0.0, 0.0),
             delay_s: float = 0.0, disturbance: Disturbance = Disturbance(),
             pose_rate_hz: float = 30.0):
@@ -27,6 +28,6 @@ def sim_run(seed: int, duration_s: float = 60.0, *, dead: str | None = None,
     estimator is given the healthy vehicle)."""
     ct, cr, kb = friction
     params = PlantParams(mass, izz, ct=ct, cr=cr, kb=kb, ax=tilt[0], ay=tilt[1])
-    res = disturbed_run(vehicle(), seed, duration_s, params, dead=dead, delay_s=delay_s,
+    res = disturbed_run(vehicle(), seed, duration_s, params, dead=dead, stuck=stuck, delay_s=delay_s,
                         disturbance=disturbance, pose_rate_hz=pose_rate_hz)
     return res.pose_t, res.pose, res.cmd_t, res.duty_pct

@@ -14,8 +14,8 @@ EFFECTS = dict(tilt=(0.002, -0.001), friction=(0.3, 0.002, 0.0), delay_s=0.05)
 NAMES = ("T1", "T2", "T3", "T4", "T5", "T6", "T7", "T8")
 
 
-def _verdicts(seed, dead):
-    pt, p, ct, d = sim_run(seed, 200.0, dead=dead, **EFFECTS)
+def _verdicts(seed, dead, stuck=None):
+    pt, p, ct, d = sim_run(seed, 200.0, dead=dead, stuck=stuck, **EFFECTS)
     rep = thruster_health(pt, p, vehicle(), ct, d, **SIG)
     return {t.name: t.verdict for t in rep.thrusters}
 
@@ -33,6 +33,13 @@ def test_dead_thruster_found(seed):
 @pytest.mark.parametrize("seed", [21])
 def test_no_false_verdict_on_a_healthy_run(seed):
     assert set(_verdicts(seed, None).values()) == {"ok"}
+
+
+def test_stuck_open_valve_found():
+    """T4 pushes all the time while its commands open and close it: a constant wrench that
+    its own explains."""
+    v = _verdicts(5, None, stuck="T4")
+    assert {n: x for n, x in v.items() if x != "ok"} == {"T4": "stuck-open"}
 
 
 @pytest.mark.slow
