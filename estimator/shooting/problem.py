@@ -208,14 +208,28 @@ class ShootingProblem:
             d1[:, :, k] = f(s, fx, fy, mz)
         return out, d0, d1
 
+    def poses_at_obs(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(P, n_obs, 3) the centre of mass's x, y, psi at every pose of every segment (the
+        cubic Hermite interpolant within a step: position and its lab-frame rate)."""
+        return self._hermite(s0, theta, 3)
+
     def states_at_obs(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """(P, n_obs, 6) the states at every pose of every segment (Hermite within a step)."""
+        return self._hermite(s0, theta, 6)
+
+    def _hermite(self, s0, theta, m: int) -> np.ndarray:
         x, d0, d1 = self.simulate(s0, theta)
-        j, th = self.node, self.frac[None, :, None]
+        P, S, K1, _ = x.shape
+        flat = self.seg * K1 + self.node  # node j of segment seg in (S * (K + 1))
+        flat_d = self.seg * (K1 - 1) + self.node
+        xs = x[..., :m].reshape(P, S * K1, m)
+        ds0 = d0[..., :m].reshape(P, S * (K1 - 1), m)
+        ds1 = d1[..., :m].reshape(P, S * (K1 - 1), m)
+        th = self.frac[None, :, None]
         h = self.hobs[None, :, None]
         th2, th3 = th * th, th * th * th
-        return ((2 * th3 - 3 * th2 + 1) * x[:, self.seg, j] + (th3 - 2 * th2 + th) * h * d0[:, self.seg, j]
-                + (3 * th2 - 2 * th3) * x[:, self.seg, j + 1] + (th3 - th2) * h * d1[:, self.seg, j])
+        return ((2 * th3 - 3 * th2 + 1) * xs[:, flat] + (th3 - 2 * th2 + th) * h * ds0[:, flat_d]
+                + (3 * th2 - 2 * th3) * xs[:, flat + 1] + (th3 - th2) * h * ds1[:, flat_d])
 
     def residuals(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """(P, R) weighted residuals (measured - predicted tracked pose) / sigma, rows in
@@ -224,7 +238,7 @@ class ShootingProblem:
         theta = np.atleast_2d(theta)
         if s0.ndim == 2:
             s0 = s0[None]
-        st = self.states_at_obs(s0, theta)  # (P, n_obs, 6)
+        st = self.poses_at_obs(s0, theta)  # (P, n_obs, 3)
         vals = self.values(theta)
         P = st.shape[0]
         cx, cy = vals["cx"].reshape(P, 1), vals["cy"].reshape(P, 1)
@@ -235,7 +249,7 @@ class ShootingProblem:
         r = np.empty((P, len(self.obs), 3))
         r[..., 0] = (meas[:, 0] - pred_x) / self.sigma[0]
         r[..., 1] = (meas[:, 1] - pred_y) / self.sigma[1]
-        r[..., 2] = np.angle(np.exp(1j * (meas[:, 2] - st[..., 2]))) / self.sigma[2]
+        r[..., 2] = (np.mod(meas[:, 2] - st[..., 2] + np.pi, 2 * np.pi) - np.pi) / self.sigma[2]
         return r.reshape(P, -1)
 
     def jacobian(self, s0: np.ndarray, theta: np.ndarray):

@@ -38,7 +38,6 @@ class ReducedNormal:
         schur: (p, p) S = G - sum_s C_s^T D_s^-1 C_s.
         rhs: (p,) the reduced gradient.
         d_inv: (S, 6, 6) inverse segment blocks; c: (S, 6, p) couplings; bs: (S, 6).
-        h_rows: (R, p) every residual row's contribution to the partialled score.
     """
 
     schur: np.ndarray
@@ -46,31 +45,62 @@ class ReducedNormal:
     d_inv: np.ndarray
     c: np.ndarray
     bs: np.ndarray
-    h_rows: np.ndarray
+
+
+@dataclass
+class NormalBlocks:
+    """The blocks of J^T J and J^T r at one point: per segment D (S, 6, 6), C (S, 6, p),
+    bs (S, 6); shared G (p, p), bg (p,)."""
+
+    D: np.ndarray
+    C: np.ndarray
+    bs: np.ndarray
+    G: np.ndarray
+    bg: np.ndarray
+
+
+def normal_blocks(prob: ShootingProblem, r: np.ndarray, Js: np.ndarray, Jg: np.ndarray
+                  ) -> NormalBlocks:
+    """The blocks, one small matrix product per segment (rows are in segment order)."""
+    S, p = prob.n_seg, Jg.shape[1]
+    D, C, bs = np.empty((S, 6, 6)), np.empty((S, 6, p)), np.empty((S, 6))
+    for k in range(S):
+        a, b = prob.row_start[k], prob.row_start[k + 1]
+        js = Js[a:b]
+        D[k] = js.T @ js
+        C[k] = js.T @ Jg[a:b]
+        bs[k] = js.T @ r[a:b]
+    return NormalBlocks(D, C, bs, Jg.T @ Jg, Jg.T @ r)
 
 
 def reduce_normal(prob: ShootingProblem, r: np.ndarray, Js: np.ndarray, Jg: np.ndarray,
-                  damping: float = 0.0) -> ReducedNormal:
-    """The damped (Marquardt: ``damping * diag``) reduced system of the Gauss-Newton step."""
-    starts = prob.row_start[:-1]
-    D = np.add.reduceat(Js[:, :, None] * Js[:, None, :], starts, axis=0)  # (S, 6, 6)
-    C = np.add.reduceat(Js[:, :, None] * Jg[:, None, :], starts, axis=0)  # (S, 6, p)
-    bs = np.add.reduceat(Js * r[:, None], starts, axis=0)  # (S, 6)
-    G = Jg.T @ Jg
-    bg = Jg.T @ r
+                  damping: float = 0.0, blocks: NormalBlocks | None = None) -> ReducedNormal:
+    """The damped (Marquardt: ``damping * diag``) reduced system of the Gauss-Newton step
+    (``blocks``: :func:`normal_blocks` of the same point, when already formed)."""
+    nb = blocks if blocks is not None else normal_blocks(prob, r, Js, Jg)
+    D = nb.D
     Dd = D + damping * np.einsum("sii->si", D)[:, :, None] * np.eye(6)[None] + 1e-12 * np.eye(6)
     try:
         d_inv = np.linalg.inv(Dd)
     except np.linalg.LinAlgError:
         d_inv = np.linalg.pinv(Dd)
-    dc = d_inv @ C  # (S, 6, p)
-    schur = G - np.einsum("sip,siq->pq", C, dc)
-    schur = schur + damping * np.diag(np.diag(G))
-    rhs = bg - np.einsum("sip,si->p", dc, bs)
-    # the partialled score of every row: Jg_row - Js_row D_s^-1 C_s (times r_row)
-    seg_of_row = np.repeat(np.arange(prob.n_seg), np.diff(prob.row_start))
-    h_rows = (Jg - np.einsum("ri,rip->rp", Js, dc[seg_of_row])) * r[:, None]
-    return ReducedNormal(schur, rhs, d_inv, C, bs, h_rows)
+    dc = d_inv @ nb.C  # (S, 6, p)
+    schur = nb.G - np.einsum("sip,siq->pq", nb.C, dc)
+    schur = schur + damping * np.diag(np.diag(nb.G))
+    rhs = nb.bg - np.einsum("sip,si->p", dc, nb.bs)
+    return ReducedNormal(schur, rhs, d_inv, nb.C, nb.bs)
+
+
+def partialled_scores(prob: ShootingProblem, r: np.ndarray, Js: np.ndarray, Jg: np.ndarray
+                      ) -> np.ndarray:
+    """(R, p) every residual row's score with its own segment's initial state partialled
+    out: (Jg_row - Js_row D_s^-1 C_s) r_row (what the clustered sandwich sums)."""
+    red = reduce_normal(prob, r, Js, Jg)
+    out = np.empty_like(Jg)
+    for k in range(prob.n_seg):
+        a, b = prob.row_start[k], prob.row_start[k + 1]
+        out[a:b] = (Jg[a:b] - Js[a:b] @ (red.d_inv[k] @ red.c[k])) * r[a:b, None]
+    return out
 
 
 def solve_step(red: ReducedNormal) -> tuple[np.ndarray, np.ndarray]:
@@ -130,11 +160,12 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
                         Js, Jg)
     mu = 1e-3
     it = 0
+    blocks = normal_blocks(prob, r, Js, Jg)
     msg = f"not converged after {max_iter} iterations"
     converged = False
     while it < max_iter:
         it += 1
-        red = reduce_normal(prob, r, Js, Jg, mu)
+        red = reduce_normal(prob, r, Js, Jg, mu, blocks)
         dg, ds = solve_step(red)
         big = np.max(np.abs(dg[prob.islog]), initial=0.0)
         if big > max_log_step:
@@ -143,8 +174,8 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
         r_new = prob.residuals(s_new, th_new)[0]
         cost_new = float(r_new @ r_new)
         if math.isfinite(cost_new) and cost_new <= cost:
-            sig = np.sqrt(np.maximum(np.diag(safe_inv(reduce_normal(prob, r, Js, Jg).schur)),
-                                     1e-300))
+            sig = np.sqrt(np.maximum(np.diag(safe_inv(reduce_normal(prob, r, Js, Jg, 0.0,
+                                                                    blocks).schur)), 1e-300))
             small = bool(len(dg) and np.all(np.abs(dg) <= tol * sig))
             if DEBUG:
                 print(it, cost_new, mu, float(np.max(np.abs(dg) / sig)) if len(dg) else 0)
@@ -153,6 +184,7 @@ def levenberg_marquardt(prob: ShootingProblem, s0: np.ndarray, theta: np.ndarray
             theta, s0, cost = th_new, s_new, cost_new
             mu = max(mu / 5.0, 1e-9)
             r, Js, Jg = prob.jacobian(s0, theta)
+            blocks = normal_blocks(prob, r, Js, Jg)
             cost = float(r @ r)
             if small or fell:
                 converged = True
@@ -174,7 +206,7 @@ def covariances(prob: ShootingProblem, lm: LMResult) -> dict[str, np.ndarray]:
     red = reduce_normal(prob, lm.r, lm.Js, lm.Jg)
     inv = safe_inv(red.schur)
     seg_of_row = np.repeat(np.arange(prob.n_seg), np.diff(prob.row_start))
-    meat = S_crosssection(red.h_rows, seg_of_row)
+    meat = S_crosssection(partialled_scores(prob, lm.r, lm.Js, lm.Jg), seg_of_row)
     n_groups = prob.n_seg
     n_obs = len(lm.r)
     k = len(prob.names) + 6 * prob.n_seg
