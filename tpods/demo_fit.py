@@ -84,7 +84,7 @@ def switch_row_json(run_dir: Path, switches_csv: Path, table: ThrustTable) -> di
 
 def _child(conn, run_dir: Path, table: ThrustTable) -> None:
     try:
-        conn.send(("ok", batch_row_json(run_dir, table)))
+        conn.send(("ok", segments_row_json(run_dir, table)))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         conn.send(("error", exc))
     finally:
@@ -121,3 +121,53 @@ class BackgroundFit:
             self._proc.terminate()
             self._proc.join(5)
         self._recv.close()
+
+
+def segments_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
+    """The bench-table fit of the demo's run by segments (what ``tpods estimate batch
+    --segments auto --thruster-health`` runs, :mod:`estimator.shooting`), for another process:
+    m and Izz with their sigma, the misfit the fit names, and the thruster health check's
+    verdicts and resolution (``health``). The thrust table's own stated uncertainty is not in
+    this sigma (``sigma_note`` says so)."""
+    from estimator.shooting.fit import fit_segments
+    from estimator.shooting.health import thruster_health
+    from estimator.shooting.vehicles import module_vehicle
+
+    t0 = time.monotonic()
+    run = read_run(run_dir)
+    v = module_vehicle(table)
+    f = fit_segments(run.pose_t, run.pose, v, run.cmd_t, run.duty_pct, names=("mass", "izz"),
+                     clamp=True)
+    fit_s = time.monotonic() - t0
+    h = thruster_health(run.pose_t, run.pose, v, run.cmd_t, run.duty_pct, clamp=True)
+    s = f.sigma
+    return {"method": "segments", "mass_kg": f.values["mass"], "izz_kgm2": f.values["izz"],
+            "mass_sigma_kg": s["mass"]["total"], "izz_sigma_kgm2": s["izz"]["total"],
+            "mass_sigma_noise_kg": s["mass"]["noise"], "mass_sigma_thrust_kg": s["mass"]["thrust"],
+            "izz_sigma_noise_kgm2": s["izz"]["noise"], "izz_sigma_thrust_kgm2": s["izz"]["thrust"],
+            "converged": f.converged, "segments": f"{f.plan.n} x {f.plan.length_s:g} s",
+            "misfit": list(f.warnings), "sigma_note": f.sigma_note, "fit_s": fit_s,
+            "health": {"lines": h.lines(), "resolution": h.resolution,
+                       "flagged": {t.name: t.verdict for t in h.thrusters if t.verdict != "ok"},
+                       "health_s": time.monotonic() - t0 - fit_s},
+            "res_dict": {**f.to_dict(), "thruster_health": [t.to_dict() for t in h.thrusters]}}
+
+
+def segment_lines(r: dict[str, Any]) -> list[str]:
+    """What a :func:`segments_row_json` row says beyond its numbers: the misfit its fit names,
+    the thrusters the health check flags (or the smallest loss it resolves on this run),
+    what its sigma leaves out. Empty for another row."""
+    if r.get("method") != "segments":
+        return []
+    out = [f"the fit names its misfit: {w}" for w in r["misfit"]]
+    h = r["health"]
+    flagged = h["flagged"]
+    if flagged:
+        out += ["thruster health: " + line.strip() for line in h["lines"][1:]
+                if line.split()[0] in flagged]
+    else:
+        out.append(f"thruster health: no thruster stands out; this run resolves a loss of "
+                   f"{h['resolution'] * 100:.1f} % (3 sigma) or more, not less")
+    if r.get("sigma_note"):
+        out.append(f"sigma: {r['sigma_note']}")
+    return out

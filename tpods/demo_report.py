@@ -140,10 +140,12 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
         "calibrated in situ on the module as a known body, as in a real lab. Every sigma is the "
         "total (measurement noise + the thrust table's stated uncertainty: columns noise, "
         "thrust, total) and the errors are in total sigmas. Before calibration the bench table "
-        "misses the weak thruster: an unmodelled torque that no m and Izz explain, so the fit is "
-        "far off or does not converge (marked, its numbers not shown), and the residuals say "
-        "so; after it, the calibration's covariance (the balance's and the bifilar's "
-        "uncertainties included) is part of the sigma.",
+        "misses the weak thruster: an unmodelled torque that no m and Izz explain; one initial "
+        "state cannot carry it over the whole run, so that fit is by segments (its sigma leaves "
+        "the table's stated uncertainty out, and says so), names its misfit and runs the "
+        "thruster health check, which names the weak thruster where the run resolves a 4 % "
+        "loss and says so where it does not; after it, the calibration's covariance (the "
+        "balance's and the bifilar's uncertainties included) is part of the sigma.",
         "",
         "## 1. Thrust characterisation (emulated valves + OHAUS Scout)",
         "",
@@ -191,6 +193,15 @@ def write_report(out: Path, args, rows, bench, mass, bif, live, batch, figs, tim
 def _batch_lines(out: Path, bench: dict[str, Any], batch: dict[str, Any],
                  cal: dict[str, Any] | None) -> list[str]:
     def one(label: str, table_path, r: dict[str, Any]) -> str:
+        if r.get("method") == "segments":
+            from tpods.demo_fit import segment_lines
+
+            return (f"- {label}: `tpods estimate batch {out / 'run' / 'live'} --thrust-table "
+                    f"{table_path} --segments auto --thruster-health` fits the run by segments "
+                    f"({r['segments']}; {'converged' if r['converged'] else 'NOT converged'}): "
+                    f"m = {r['mass_kg']:.5f} +- {r['mass_sigma_kg']:.2g} kg, Izz = "
+                    f"{r['izz_kgm2']:.6g} +- {r['izz_sigma_kgm2']:.2g} kg m^2. "
+                    + " ".join(f"{x[0].upper()}{x[1:]}." for x in segment_lines(r)))
         if not r.get("converged", True):
             return (f"- {label}: `tpods estimate batch {out / 'run' / 'live'} --thrust-table "
                     f"{table_path}` does NOT converge: the model with this table cannot explain "

@@ -35,8 +35,9 @@ from tpods.demo_fidelity import duty_time_error
 from tpods.demo_fit import (
     BackgroundFit,
     batch_row,
-    batch_row_json,
     save_switches,
+    segment_lines,
+    segments_row_json,
     switch_row_json,
     switch_run,
 )
@@ -235,8 +236,8 @@ def side_fits(out: Path, bench_table, side: SideWork, beside: str = "beside"
     """Two of :func:`stage_batch`'s fits submitted to the side workers (``beside`` names
     what they run beside): the bench-table fit (it does not converge: the longest) and the
     check fit with the plant's true table and valve switches; futures of their rows."""
-    return {"before": side.submit(f"batch: bench-table fit ({beside})", batch_row_json,
-                                  out / "run" / "live", bench_table),
+    return {"before": side.submit(f"batch: bench-table fit by segments ({beside})",
+                                  segments_row_json, out / "run" / "live", bench_table),
             "check": side.submit(f"batch: true-table check fit ({beside})", switch_row_json,
                                  out / "run" / "live", out / "run" / "switches.csv",
                                  plant_table())}
@@ -301,10 +302,13 @@ def _batch_done(d: Path, res, before, after, chk, fig) -> dict[str, Any]:
     for label, r in (("bench table (before calibration)", before), ("calibrated table", after)):
         if r is None:
             continue
-        print(f"   batch LS, {label}: m = {r['mass_kg']:.5f} +- {r['mass_sigma_kg']:.2g} kg "
+        how = f", by segments ({r['segments']})" if r.get("method") == "segments" else ""
+        print(f"   batch LS, {label}{how}: m = {r['mass_kg']:.5f} +- {r['mass_sigma_kg']:.2g} kg "
               f"(noise {r['mass_sigma_noise_kg']:.2g}, thrust {r['mass_sigma_thrust_kg']:.2g}), "
               f"Izz = {r['izz_kgm2']:.6g} +- {r['izz_sigma_kgm2']:.2g} kg m^2 "
               f"({'converged' if r['converged'] else 'NOT converged'}; fit {r['fit_s']:.1f} s)")
+        for line in segment_lines(r):
+            print(f"     {line}")
     print(f"   check with the TRUE thrust table: m = {chk['mass_kg']:.5f} +- "
           f"{chk['mass_sigma_kg']:.2g} kg, Izz = {chk['izz_kgm2']:.6g} +- "
           f"{chk['izz_sigma_kgm2']:.2g} kg m^2 (at the plant's own valve switch times; noise "

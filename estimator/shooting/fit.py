@@ -304,12 +304,16 @@ def _result(prob: ShootingProblem, lm, ch, names, fixed, note, t_start) -> Segme
                      lm.iterations, prob.pose_t[prob.obs], res, seg, seg_rms,
                      time.perf_counter() - t_start, note, s0=lm.s0, theta=lm.theta)
     fit.warnings += _misfit(fit, prob.sigma)
+    tables = [t for t in getattr(ch, "tables", ()) if t.states_uncertainty]
+    if tables:
+        fit.sigma_note = ("the thrust table's stated uncertainty is NOT in this sigma (the fit "
+                          "by segments carries on/off valves' force_sigma_n only)")
     if few:
-        fit.sigma_note = (f"{prob.n_seg} segments are too few for a clustered sigma alone: the "
-                          "total takes " + ("the noise sigma scaled by the residuals over "
-                                            "the stated noise" if prob.n_seg < NO_CLUSTERS else
-                                            "the larger of it and the noise sigma scaled by the "
-                                            "residuals over the stated noise"))
+        how = ("the noise sigma scaled by the residuals over the stated noise"
+               if prob.n_seg < NO_CLUSTERS else "the larger of it and the noise sigma scaled by "
+               "the residuals over the stated noise")
+        note = f"{prob.n_seg} segments are too few for a clustered sigma alone: the total takes {how}"
+        fit.sigma_note = f"{fit.sigma_note}; {note}" if fit.sigma_note else note
     return fit
 
 

@@ -104,7 +104,8 @@ def thruster_health(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
                     mass_kg: float | None = None, initial: Mapping[str, float] | None = None,
                     fixed: Mapping[str, float] | None = None, sigma_pos_m: float = 0.01,
                     sigma_yaw_rad: float = math.radians(1.0), length_s: float | None = None,
-                    exclude: Sequence[tuple[float, float]] = ()) -> HealthReport:
+                    exclude: Sequence[tuple[float, float]] = (), clamp: bool = False
+                    ) -> HealthReport:
     """Efficiencies, leaks and verdicts of every thruster of a run (module doc)."""
     duty = np.asarray(duty_pct, float)
     opens = np.any(duty > 0, axis=0) & np.array([not t.dead for t in vehicle.thrusters])
@@ -112,13 +113,13 @@ def thruster_health(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
     from estimator.shooting.fit import start_values
     from estimator.shooting.inputs import vehicle_channels
 
-    ch = vehicle_channels(vehicle, cmd_t, duty)
+    ch = vehicle_channels(vehicle, cmd_t, duty, clamp=clamp)
     initial = start_values(vehicle, pose_t, pose, ch, dict(initial or {}), dict(fixed or {}))
     ref = float(mass_kg if mass_kg is not None else initial["mass"])
     fixed = {**dict(fixed or {}), "mass": ref}
     names = _health_names(vehicle, opens, closes, fixed)
     kw = dict(fixed=fixed, initial={k: v for k, v in initial.items() if k != "mass"},
-              sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, exclude=exclude)
+              sigma_pos_m=sigma_pos_m, sigma_yaw_rad=sigma_yaw_rad, exclude=exclude, clamp=clamp)
     # at least MIN_CLUSTERS segments: the verdicts' sigma is the clustered one
     fit = fit_segments(pose_t, pose, vehicle, cmd_t, duty, names=names, length_s=length_s,
                        min_segments=MIN_CLUSTERS, **kw)

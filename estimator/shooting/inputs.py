@@ -50,6 +50,7 @@ class ThrustChannels:
     force_n: np.ndarray
     force_sigma_n: np.ndarray
     opens: np.ndarray  # (N,) rows in which each valve is commanded open
+    tables: tuple = ()  # the thrust tables the thrusts come from (their uncertainty unused)
 
     def cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(knots (K,), C (K, 3N), D (K, 3N), rate (K, 3N))``: the running integral C of
@@ -125,4 +126,4 @@ def vehicle_channels(vehicle: Vehicle, cmd_t: np.ndarray, duty_pct: np.ndarray,
         a = b = c = np.zeros((1, n))
     return ThrustChannels(t, a, b, c, vehicle.module_wrench_matrix(),
                           tuple(th.name for th in vehicle.thrusters), nominal, sig,
-                          np.sum(duty > 0, axis=0))
+                          np.sum(duty > 0, axis=0), vehicle.tables())

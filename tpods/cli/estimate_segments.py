@@ -161,6 +161,8 @@ def _print(run, fit, lines) -> None:
         print(f"  {n:<8} = {fit.values[n]:.6g} {units.get(n, '')}  +/- {s['total']:.3g} (total; "
               f"clustered {s['clustered']:.3g}, thrust {s['thrust']:.3g}{model}, noise only "
               f"{s['noise']:.3g})")
+    if fit.sigma_note:
+        print(f"  sigma: {fit.sigma_note}")
     rms = fit.rms()
     print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
           f"yaw {math.degrees(rms[2]):.3f} deg")
