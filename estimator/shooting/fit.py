@@ -34,7 +34,7 @@ from common.errors import UserError
 from common.vehicle import Vehicle
 from estimator.shooting.events import find_events, outlier_segments
 from estimator.shooting.inputs import ThrustChannels, vehicle_channels
-from estimator.shooting.problem import LOG_NAMES, ShootingProblem, default_value
+from estimator.shooting.problem import GLOBAL_NAMES, LOG_NAMES, ShootingProblem, default_value
 from estimator.shooting.segments import SegmentPlan, plan_segments
 from estimator.shooting.solve import covariances, levenberg_marquardt, reduce_normal, safe_inv
 from estimator.shooting.start import equation_error_start
@@ -211,7 +211,7 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
             ``eff.<name>`` in ``fixed`` scales its stated thrust (0: dead).
         cmd_t, duty_pct: (Nc,), (Nc, N) the commands.
         names: estimated shared parameters (problem.GLOBAL_NAMES, ``eff.<thruster>``,
-            ``leak.<thruster>``).
+            ``bias.fx``, ``bias.fy``, ``bias.mz``).
         length_s: segment length, s (None: :func:`choose_length`, keeping at least
             ``min_segments``; inf: single shooting).
         exclude: user ranges ``(t0, t1)`` in the poses' seconds, left out.
@@ -224,9 +224,13 @@ def fit_segments(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
     names = tuple(names)
     if not names or len(set(names)) != len(names):
         raise UserError(f"names must be distinct, got {names}")
+    thrusters = [t.name for t in vehicle.thrusters]
     for n in names:
-        if n.startswith(("eff.", "leak.")) and n.split(".", 1)[1] not in [t.name for t in vehicle.thrusters]:
+        if n.startswith("eff.") and n.split(".", 1)[1] not in thrusters:
             raise UserError(f"{n}: the vehicle has no thruster {n.split('.', 1)[1]!r}")
+        if not n.startswith("eff.") and n not in GLOBAL_NAMES:
+            raise UserError(f"{n}: not a parameter of the segment fit (one of "
+                            f"{', '.join(GLOBAL_NAMES)} or eff.<thruster>)")
     sigma = np.array([sigma_pos_m, sigma_pos_m, sigma_yaw_rad])
     if not np.all(sigma > 0):
         raise UserError("measurement sigmas must be positive")

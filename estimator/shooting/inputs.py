@@ -2,14 +2,14 @@
 
 The thrust of thruster i is modelled as
 
-    T_i(t) = e_i * (A_i(t - d) - drop * B_i(t - d)) + leak_i * C_i(t - d)
+    T_i(t) = e_i * (A_i(t - d) - drop * B_i(t - d))
 
 with ``A_i`` the thrust the vehicle file states for the commanded duty (N; its tables, its
 forces, its own known supply drop), ``B_i = A_i (k - 1)`` for an on/off valve with ``k``
 valves of its supply open (the extra supply drop ``drop`` estimated beside the file's),
-``C_i`` the stated force while the valve is commanded CLOSED (a stuck-open or leaking
-valve: ``leak_i`` of its force), ``e_i`` the thruster's efficiency (1 as stated) and ``d``
-the valves' dead time.
+``e_i`` the thruster's efficiency (1 as stated) and ``d`` the valves' dead time. (A valve
+stuck open is found from a constant wrench, :mod:`estimator.shooting.health`: eight separate
+leaks are not identifiable.)
 
 Each channel is a hold of the command rows; its average over a step ``[ta, tb]`` is the
 difference of its running integral, which is piecewise linear in time. So the step
@@ -28,11 +28,11 @@ from common.vehicle import Vehicle
 
 @dataclass(frozen=True)
 class ThrustChannels:
-    """Command holds of the three channels (module doc).
+    """Command holds of the two channels (module doc).
 
     Attributes:
         t: (Nc + 1,) hold start times, s, and one last time after which the last row holds.
-        a, b, c: (Nc, N) channel values on each hold, N.
+        a, b: (Nc, N) channel values on each hold, N.
         wrench: (3, N) body-frame Fx, Fy (N) and Mz about the tracked origin (N m) per
             newton of each thruster.
         names: thruster names.
@@ -44,7 +44,6 @@ class ThrustChannels:
     t: np.ndarray
     a: np.ndarray
     b: np.ndarray
-    c: np.ndarray
     wrench: np.ndarray
     names: tuple[str, ...]
     force_n: np.ndarray
@@ -53,10 +52,10 @@ class ThrustChannels:
     tables: tuple = ()  # the thrust tables the thrusts come from (their uncertainty unused)
 
     def cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(knots (K,), C (K, 3N), D (K, 3N), rate (K, 3N))``: the running integral C of
-        ``[a | b | c]`` and its integral D at the hold times, and the value held from each
+        """``(knots (K,), C (K, 2N), D (K, 2N), rate (K, 2N))``: the running integral C of
+        ``[a | b]`` and its integral D at the hold times, and the value held from each
         knot on (0 before the first command; the last row after the end)."""
-        rows = np.concatenate([self.a, self.b, self.c], axis=1)
+        rows = np.concatenate([self.a, self.b], axis=1)
         far = self.t[-1] + 1e6
         knots = np.concatenate([[self.t[0] - 1e6], self.t, [far]])
         rate = np.concatenate([np.zeros((1, rows.shape[1])), rows, rows[-1:], rows[-1:]])
@@ -69,7 +68,7 @@ class ThrustChannels:
 
     def step_average(self, ta: np.ndarray, tb: np.ndarray, delay: float,
                      cum: tuple | None = None) -> np.ndarray:
-        """(..., 3, N) the channels' averages over steps ``[ta, tb]`` (``ta``, ``tb`` of any
+        """(..., 2, N) the channels' averages over steps ``[ta, tb]`` (``ta``, ``tb`` of any
         one shape) with every switch ``delay`` s later and spread over :data:`SWITCH_S`
         (centred, so its timing is unchanged); 0 where ``tb == ta``. Smooth (C1) in the
         dead time: a least-squares fit of it does not stall on kinks."""
@@ -82,7 +81,7 @@ class ThrustChannels:
         with np.errstate(invalid="ignore", divide="ignore"):
             avg = np.where(h > 0, (fb - fa) / np.where(h > 0, h, 1.0), 0.0)
         n = self.a.shape[1]
-        return avg.reshape(shape + (3, n))
+        return avg.reshape(shape + (2, n))
 
 
 SWITCH_S = 0.01
@@ -119,11 +118,10 @@ def vehicle_channels(vehicle: Vehicle, cmd_t: np.ndarray, duty_pct: np.ndarray,
         b[:, idx] = a[:, idx] * np.maximum(k - 1, 0)[:, None]
     nominal = np.array([t.force_n if t.force_n is not None else float(np.max(a[:, i], initial=0.0))
                         for i, t in enumerate(vehicle.thrusters)])
-    c = (duty <= 0) * nominal[None, :]
     sig = np.array([t.force_sigma_n or 0.0 for t in vehicle.thrusters])
     t = np.concatenate([cmd_t, [cmd_t[-1] + 1.0]]) if len(cmd_t) else np.array([0.0, 1.0])
     if not len(cmd_t):
-        a = b = c = np.zeros((1, n))
-    return ThrustChannels(t, a, b, c, vehicle.module_wrench_matrix(),
+        a = b = np.zeros((1, n))
+    return ThrustChannels(t, a, b, vehicle.module_wrench_matrix(),
                           tuple(th.name for th in vehicle.thrusters), nominal, sig,
                           np.sum(duty > 0, axis=0), vehicle.tables())

@@ -6,7 +6,8 @@ State of a segment ``(x, y, psi, u, v, r)`` of the centre of mass, as the plant'
 dynamics are the plant's (thrusters, rigid body in a rotating frame, viscous damping
 ``ct``/``cr``, the ball-transfer torque ``kb``, the table tilt ``ax``/``ay``, the centre of
 mass ``cx``/``cy`` off the tracked origin); the thrusts per thruster are
-:mod:`estimator.shooting.inputs`' channels with efficiencies, leaks, a supply drop and the
+:mod:`estimator.shooting.inputs`' channels with efficiencies, a supply drop, a constant
+body-frame wrench and the
 dead time.
 
 Integration is classical RK4 on a grid holding every pose time with steps of at most
@@ -37,7 +38,7 @@ GLOBAL_NAMES = ("mass", "izz", "cx", "cy", "ct", "cr", "kb", "ax", "ay", "delay"
                 "bias.fx", "bias.fy", "bias.mz")
 """``bias.*``: a constant body-frame force (N) and moment about the tracked origin (N m) that
 no command explains (a stuck-open valve, a tether, a hose)."""
-"""Shared parameters besides the per-thruster ``eff.<name>`` and ``leak.<name>``."""
+"""Shared parameters besides the per-thruster ``eff.<name>``."""
 
 LOG_NAMES = ("mass", "izz")
 """Parameters the fit works on in log space (positive; a step is relative)."""
@@ -58,8 +59,6 @@ EFF_FD = 1e-6
 def default_value(name: str) -> float:
     if name.startswith("eff."):
         return 1.0
-    if name.startswith("leak."):
-        return 0.0
     return DEFAULTS[name]
 
 
@@ -71,7 +70,7 @@ class ShootingProblem:
         plan: the segments (:func:`estimator.shooting.segments.plan_segments`).
         channels: the vehicle's thrust channels (:func:`estimator.shooting.inputs.vehicle_channels`).
         names: the estimated shared parameters.
-        fixed: values of the others (defaults :data:`DEFAULTS`, efficiency 1, leak 0).
+        fixed: values of the others (defaults :data:`DEFAULTS`, efficiency 1).
         sigma: (3,) pose noise (m, m, rad) that weights the residuals.
     """
 
@@ -131,21 +130,20 @@ class ShootingProblem:
         P = theta.shape[0]
         out = {n: np.full(P, float(self.fixed.get(n, default_value(n)))) for n in GLOBAL_NAMES}
         for tn in self.thrusters:
-            for k in (f"eff.{tn}", f"leak.{tn}"):
-                out[k] = np.full(P, float(self.fixed.get(k, default_value(k))))
+            k = f"eff.{tn}"
+            out[k] = np.full(P, float(self.fixed.get(k, default_value(k))))
         for j, n in enumerate(self.names):
             out[n] = np.exp(theta[:, j]) if n in LOG_NAMES else theta[:, j]
         return out
 
     def _wrench(self, vals: Mapping[str, np.ndarray]) -> np.ndarray:
         """(P, S, K, 3) step-average body wrench about the tracked origin. The thrusts are
-        linear in the efficiencies, the drop and the leaks, so each channel's wrench is
+        linear in the efficiencies and the drop, so each channel's wrench is
         formed once per distinct dead time and mixed per perturbation."""
         delays = vals["delay"]
         P = len(delays)
         eff = np.stack([vals[f"eff.{t}"] for t in self.thrusters], 1) * vals["scale"][:, None]
-        leak = np.stack([vals[f"leak.{t}"] for t in self.thrusters], 1)
-        coef = np.stack([eff, -eff * vals["drop"][:, None], leak], 1)  # (P, 3, N)
+        coef = np.stack([eff, -eff * vals["drop"][:, None]], 1)  # (P, 2, N)
         S, K = self.h.shape
         out = np.empty((P, S, K, 3))
         uniq, inv = np.unique(delays, return_inverse=True)
