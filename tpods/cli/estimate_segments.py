@@ -69,9 +69,6 @@ def _auto(args, run, vehicle, initial, common, out):
     the comparable candidates added to the total sigma where it exceeds it."""
     from estimator.shooting.select import select_model
 
-    if args.thruster_health:
-        raise UserError("--model auto chooses the model of the mass fit: run --thruster-health "
-                        "without it")
     sel = select_model(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct, base=_names(args),
                        fixed=args.fixed or {}, initial=initial, **common)
     fit = sel.fits[sel.chosen]
@@ -103,6 +100,13 @@ def cmd_segments(args: argparse.Namespace) -> int:
                         f"drop --method {args.method}")
     length = parse_segments(args.segments)
     exclude = parse_excludes(args.exclude)
+    if args.thruster_health and args.model == "auto":
+        raise UserError("--model auto chooses the model of the mass fit: run --thruster-health "
+                        "without it")
+    if args.out_vehicle and Path(args.out_vehicle).suffix != ".toml":
+        raise UserError(f"--out-vehicle {args.out_vehicle}: give a .toml file name")
+    if args.out_vehicle and Path(args.out_vehicle).exists() and not args.force:
+        raise UserError(f"--out-vehicle {args.out_vehicle} exists; add --force to replace it")
     run, vehicle = _run_and_vehicle(args)
     t0 = float(run.pose_t[0])
     ex = [(a - 0.0, b - 0.0) for a, b in exclude]
@@ -182,8 +186,6 @@ def _write_vehicle(vehicle, rep, path: str, force: bool) -> Path:
     new = replace(vehicle, thrusters=tuple(replace(t, health=verdict.get(t.name, t.health))
                                            for t in vehicle.thrusters))
     p = Path(path)
-    if p.suffix != ".toml":
-        raise UserError(f"--out-vehicle {path}: give a .toml file name")
     import tomli_w
 
     out = ResultFile(p, force=force, option="--out-vehicle")
