@@ -148,6 +148,8 @@ def segments_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
             "converged": f.converged, "segments": f"{f.plan.n} x {f.plan.length_s:g} s",
             "misfit": list(f.warnings), "sigma_note": f.sigma_note, "fit_s": fit_s,
             "health": {"lines": h.lines(), "resolution": h.resolution,
+                       "lowest": min(((t.name, t.efficiency) for t in h.thrusters),
+                                     key=lambda x: x[1]),
                        "flagged": {t.name: t.verdict for t in h.thrusters if t.verdict != "ok"},
                        "health_s": time.monotonic() - t0 - fit_s},
             "res_dict": {**f.to_dict(), "thruster_health": [t.to_dict() for t in h.thrusters]}}
@@ -166,8 +168,10 @@ def segment_lines(r: dict[str, Any]) -> list[str]:
         out += ["thruster health: " + line.strip() for line in h["lines"][1:]
                 if line.split()[0] in flagged]
     else:
-        out.append(f"thruster health: no thruster stands out; this run resolves a loss of "
-                   f"{h['resolution'] * 100:.1f} % (3 sigma) or more, not less")
+        low = h["lowest"]
+        out.append(f"thruster health: no thruster stands out; on this run a loss of "
+                   f"{h['resolution'] * 100:.1f} % or more would be named, not less (the lowest, "
+                   f"{low[0]}, gives {low[1] * 100:.1f} % of the median thruster's thrust)")
     if r.get("sigma_note"):
         out.append(f"sigma: {r['sigma_note']}")
     return out

@@ -24,7 +24,8 @@ segment does not count as evidence; :data:`LR_LIMIT` ~ 3 sigma):
   separate leaks are not identifiable: while most valves are closed they add only one
   3-component wrench). A significant bias no thruster explains is a warning (a tether, a
   hose);
-- ``ok`` otherwise. ``resolution`` is the smallest loss the run resolves (3 sigma).
+- ``ok`` otherwise. ``resolution`` is the smallest loss the weak rule can name on this run
+  (the median over the thrusters of its threshold).
 """
 
 from __future__ import annotations
@@ -84,8 +85,8 @@ class HealthReport:
     def lines(self) -> list[str]:
         what = ("relative to the median thruster (the mass is unknown)" if self.relative
                 else f"absolute (mass {self.reference_mass_kg:g} kg)")
-        out = [f"thruster health ({what}; {self.fit.plan.n} segments; smallest loss resolved "
-               f"{self.resolution * 100:.1f} %):"]
+        out = [f"thruster health ({what}; {self.fit.plan.n} segments; a loss of "
+               f"{self.resolution * 100:.1f} % or more is named as weak):"]
         for t in self.thrusters:
             leak = (f", leak {t.leak:.2f} +- {t.leak_sigma:.2f}" if t.verdict == "stuck-open"
                     else "")
@@ -126,7 +127,7 @@ def thruster_health(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
     eff = {t.name: fit.values.get(f"eff.{t.name}", math.nan) for t in vehicle.thrusters}
     known = np.array([v for v in eff.values() if math.isfinite(v)])
     scale = float(np.median(known)) if mass_kg is None and len(known) else 1.0
-    out = []
+    out, thresholds = [], []
     for t in vehicle.thrusters:
         e = eff[t.name] / scale
         s = fit.sigma.get(f"eff.{t.name}", {}).get("total", math.nan) / abs(scale)
@@ -136,10 +137,13 @@ def thruster_health(pose_t, pose, vehicle: Vehicle, cmd_t, duty_pct, *,
         spread = 1.4826 * float(np.median(np.abs(others - np.median(others)))) if len(others) > 2 else 0.0
         verdict, why = _verdict(e, s, lk, ls, spread, opens[vehicle.thrusters.index(t)])
         out.append(ThrusterHealth(t.name, e, s, lk, ls, verdict, None, why))
+        thresholds.append(max(WEAK_MIN_LOSS, 2 * spread, 3 * s) if math.isfinite(s) else math.nan)
     _stuck_open(out, fit, vehicle, scale)
     _confirm(out, fit, pose_t, pose, vehicle, cmd_t, duty, names, scale, length_s, kw)
-    sig = [t.sigma for t in out if math.isfinite(t.sigma)]
-    resolution = 3.0 * float(np.median(sig)) if sig else math.nan
+    # the smallest loss a verdict of weak can be given for on this run: the weak rule's own
+    # threshold (3 %, twice the peers' spread, 3 sigma), the median over the thrusters
+    known = [x for x in thresholds if math.isfinite(x)]
+    resolution = float(np.median(known)) if known else math.nan
     return HealthReport(out, mass_kg is None, ref, fit, resolution)
 
 

@@ -159,51 +159,61 @@ class ShootingProblem:
         return out
 
     def simulate(self, s0: np.ndarray, theta: np.ndarray):
-        """``(states (P, S, K + 1, 6), d0 (P, S, K, 6), d1 (P, S, K, 6))``: the states at every
+        """``(states (K + 1, 6, P, S), d0 (K, 6, P, S), d1 (K, 6, P, S))``: the states at every
         grid node from ``s0`` (P, S, 6), ``theta`` (P, p), and the derivative at each step's
-        start and end under that step's thrust (for the Hermite interpolant)."""
+        start and end under that step's thrust (for the Hermite interpolant). Component-major:
+        each state component of all perturbations and segments is one contiguous array."""
         vals = self.values(theta)
-        w = self._wrench(vals)
+        wk_all = np.ascontiguousarray(np.moveaxis(self._wrench(vals), 2, 0).transpose(0, 3, 1, 2))
         P = s0.shape[0]
         col = {k: v.reshape(P, 1) for k, v in vals.items()}
         im, ii = 1.0 / col["mass"], 1.0 / col["izz"]
         ct, cr, kb, ax, ay = col["ct"], col["cr"], col["kb"], col["ax"], col["ay"]
         cx, cy = col["cx"], col["cy"]
         use_kb = bool(np.any(kb != 0))
+        use_ct, use_cr = bool(np.any(ct != 0)), bool(np.any(cr != 0))
+        use_tilt = bool(np.any(ax != 0) or np.any(ay != 0))
         K = self.h.shape[1]
-        out = np.empty((P, self.n_seg, K + 1, 6))
-        d0 = np.empty((P, self.n_seg, K, 6))
-        d1 = np.empty((P, self.n_seg, K, 6))
-        s = s0.copy()
-        out[:, :, 0] = s
+        out = np.empty((K + 1, 6, P, self.n_seg))
+        d0 = np.empty((K, 6, P, self.n_seg))
+        d1 = np.empty((K, 6, P, self.n_seg))
+        s = np.ascontiguousarray(np.moveaxis(s0, 2, 0))
+        out[0] = s
 
-        def f(s, fx, fy, mz):
-            psi, u, v, r = s[..., 2], s[..., 3], s[..., 4], s[..., 5]
+        def f(s, fx, fy, mz, d):
+            psi, u, v, r = s[2], s[3], s[4], s[5]
             c, sn = np.cos(psi), np.sin(psi)
-            d = np.empty_like(s)
-            d[..., 0] = u * c - v * sn
-            d[..., 1] = u * sn + v * c
-            d[..., 2] = r
-            d[..., 3] = (fx - ct * u) * im + r * v + ax * c + ay * sn
-            d[..., 4] = (fy - ct * v) * im - r * u - ax * sn + ay * c
-            m = mz - cr * r
+            d[0] = u * c - v * sn
+            d[1] = u * sn + v * c
+            d[2] = r
+            au, av = fx * im + r * v, fy * im - r * u
+            if use_ct:
+                au -= ct * u * im
+                av -= ct * v * im
+            if use_tilt:
+                au += ax * c + ay * sn
+                av += ay * c - ax * sn
+            d[3] = au
+            d[4] = av
+            m = mz - cr * r if use_cr else mz
             if use_kb:
                 m = m + kb * np.hypot(u, v)
-            d[..., 5] = m * ii
+            d[5] = m * ii
             return d
 
+        k1, k2, k3, k4 = (np.empty_like(s) for _ in range(4))
         for k in range(K):
-            h = self.h[None, :, k, None]
-            fx, fy = w[:, :, k, 0], w[:, :, k, 1]
-            mz = w[:, :, k, 2] - (cx * fy - cy * fx)
-            k1 = f(s, fx, fy, mz)
-            k2 = f(s + 0.5 * h * k1, fx, fy, mz)
-            k3 = f(s + 0.5 * h * k2, fx, fy, mz)
-            k4 = f(s + h * k3, fx, fy, mz)
+            h = self.h[:, k]
+            fx, fy = wk_all[k, 0], wk_all[k, 1]
+            mz = wk_all[k, 2] - (cx * fy - cy * fx)
+            f(s, fx, fy, mz, k1)
+            f(s + 0.5 * h * k1, fx, fy, mz, k2)
+            f(s + 0.5 * h * k2, fx, fy, mz, k3)
+            f(s + h * k3, fx, fy, mz, k4)
             s = s + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-            out[:, :, k + 1] = s
-            d0[:, :, k] = k1
-            d1[:, :, k] = f(s, fx, fy, mz)
+            out[k + 1] = s
+            d0[k] = k1
+            f(s, fx, fy, mz, d1[k])
         return out, d0, d1
 
     def poses_at_obs(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -217,17 +227,14 @@ class ShootingProblem:
 
     def _hermite(self, s0, theta, m: int) -> np.ndarray:
         x, d0, d1 = self.simulate(s0, theta)
-        P, S, K1, _ = x.shape
-        flat = self.seg * K1 + self.node  # node j of segment seg in (S * (K + 1))
-        flat_d = self.seg * (K1 - 1) + self.node
-        xs = x[..., :m].reshape(P, S * K1, m)
-        ds0 = d0[..., :m].reshape(P, S * (K1 - 1), m)
-        ds1 = d1[..., :m].reshape(P, S * (K1 - 1), m)
-        th = self.frac[None, :, None]
-        h = self.hobs[None, :, None]
+        j, seg = self.node, self.seg
+        th = self.frac[:, None, None]
+        h = self.hobs[:, None, None]
         th2, th3 = th * th, th * th * th
-        return ((2 * th3 - 3 * th2 + 1) * xs[:, flat] + (th3 - 2 * th2 + th) * h * ds0[:, flat_d]
-                + (3 * th2 - 2 * th3) * xs[:, flat + 1] + (th3 - th2) * h * ds1[:, flat_d])
+        # advanced indices on axes 0 and 3: (n_obs, m, P)
+        out = ((2 * th3 - 3 * th2 + 1) * x[j, :m, :, seg] + (th3 - 2 * th2 + th) * h * d0[j, :m, :, seg]
+               + (3 * th2 - 2 * th3) * x[j + 1, :m, :, seg] + (th3 - th2) * h * d1[j, :m, :, seg])
+        return np.moveaxis(out, 2, 0)  # (P, n_obs, m)
 
     def residuals(self, s0: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """(P, R) weighted residuals (measured - predicted tracked pose) / sigma, rows in
