@@ -67,13 +67,6 @@ def switch_run(run: Run, switches_csv: Path) -> Run:
                                thrust_t=None)
 
 
-def batch_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
-    """:func:`batch_row` of a run folder, for another process: the row with the result's
-    JSON (``res_dict``) instead of the result."""
-    row = batch_row(read_run(run_dir), table)
-    return {**{k: v for k, v in row.items() if k != "res"}, "res_dict": row["res"].to_dict()}
-
-
 def switch_row_json(run_dir: Path, switches_csv: Path, table: ThrustTable) -> dict[str, Any]:
     """:func:`batch_row` of a run folder with the plant's own valve switches as its commands
     (:func:`switch_run`: the check fit with the true table), for another process: the row
@@ -92,7 +85,7 @@ def _child(conn, run_dir: Path, table: ThrustTable) -> None:
 
 
 class BackgroundFit:
-    """:func:`batch_row_json` of ``run_dir`` with ``table`` in a process of its own (spawned:
+    """:func:`segments_row_json` of ``run_dir`` with ``table`` in a process of its own (spawned:
     the parent may hold threads), started at once; :meth:`result` waits for it and raises
     what the fit raised; :meth:`stop` ends it early (on every exit path of the caller). A
     script that uses it needs the ``if __name__ == "__main__":`` guard spawning asks for
@@ -123,36 +116,44 @@ class BackgroundFit:
         self._recv.close()
 
 
-def segments_row_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
+def segments_row_json(run_dir: Path, table: ThrustTable, health: bool = True) -> dict[str, Any]:
     """The bench-table fit of the demo's run by segments (what ``tpods estimate batch
     --segments auto --thruster-health`` runs, :mod:`estimator.shooting`), for another process:
-    m and Izz with their sigma, the misfit the fit names, and the thruster health check's
-    verdicts and resolution (``health``). The thrust table's own stated uncertainty is not in
-    this sigma (``sigma_note`` says so)."""
+    m and Izz with their sigma, the misfit the fit names and, with ``health``, the thruster
+    health check (:func:`health_json`; else the caller adds it as ``health``). The thrust
+    table's own stated uncertainty is not in this sigma (``sigma_note`` says so)."""
     from estimator.shooting.fit import fit_segments
-    from estimator.shooting.health import thruster_health
     from estimator.shooting.vehicles import module_vehicle
 
     t0 = time.monotonic()
     run = read_run(run_dir)
-    v = module_vehicle(table)
-    f = fit_segments(run.pose_t, run.pose, v, run.cmd_t, run.duty_pct, names=("mass", "izz"),
-                     clamp=True)
-    fit_s = time.monotonic() - t0
-    h = thruster_health(run.pose_t, run.pose, v, run.cmd_t, run.duty_pct, clamp=True)
+    f = fit_segments(run.pose_t, run.pose, module_vehicle(table), run.cmd_t, run.duty_pct,
+                     names=("mass", "izz"), clamp=True)
     s = f.sigma
     return {"method": "segments", "mass_kg": f.values["mass"], "izz_kgm2": f.values["izz"],
             "mass_sigma_kg": s["mass"]["total"], "izz_sigma_kgm2": s["izz"]["total"],
             "mass_sigma_noise_kg": s["mass"]["noise"], "mass_sigma_thrust_kg": s["mass"]["thrust"],
             "izz_sigma_noise_kgm2": s["izz"]["noise"], "izz_sigma_thrust_kgm2": s["izz"]["thrust"],
             "converged": f.converged, "segments": f"{f.plan.n} x {f.plan.length_s:g} s",
-            "misfit": list(f.warnings), "sigma_note": f.sigma_note, "fit_s": fit_s,
-            "health": {"lines": h.lines(), "resolution": h.resolution,
-                       "lowest": min(((t.name, t.efficiency) for t in h.thrusters),
-                                     key=lambda x: x[1]),
-                       "flagged": {t.name: t.verdict for t in h.thrusters if t.verdict != "ok"},
-                       "health_s": time.monotonic() - t0 - fit_s},
-            "res_dict": {**f.to_dict(), "thruster_health": [t.to_dict() for t in h.thrusters]}}
+            "misfit": list(f.warnings), "sigma_note": f.sigma_note,
+            "fit_s": time.monotonic() - t0, "res_dict": f.to_dict(),
+            **({"health": health_json(run_dir, table)} if health else {})}
+
+
+def health_json(run_dir: Path, table: ThrustTable) -> dict[str, Any]:
+    """The thruster health check of the demo's run with ``table``, for another process: its
+    lines, the flagged thrusters, the loss it would name, the lowest thruster."""
+    from estimator.shooting.health import thruster_health
+    from estimator.shooting.vehicles import module_vehicle
+
+    t0 = time.monotonic()
+    run = read_run(run_dir)
+    h = thruster_health(run.pose_t, run.pose, module_vehicle(table), run.cmd_t, run.duty_pct,
+                        clamp=True)
+    return {"lines": h.lines(), "resolution": h.resolution,
+            "lowest": min(((t.name, t.efficiency) for t in h.thrusters), key=lambda x: x[1]),
+            "flagged": {t.name: t.verdict for t in h.thrusters if t.verdict != "ok"},
+            "thrusters": [t.to_dict() for t in h.thrusters], "health_s": time.monotonic() - t0}
 
 
 def segment_lines(r: dict[str, Any]) -> list[str]:

@@ -35,6 +35,7 @@ from tpods.demo_fidelity import duty_time_error
 from tpods.demo_fit import (
     BackgroundFit,
     batch_row,
+    health_json,
     save_switches,
     segment_lines,
     segments_row_json,
@@ -237,7 +238,9 @@ def side_fits(out: Path, bench_table, side: SideWork, beside: str = "beside"
     what they run beside): the bench-table fit (it does not converge: the longest) and the
     check fit with the plant's true table and valve switches; futures of their rows."""
     return {"before": side.submit(f"batch: bench-table fit by segments ({beside})",
-                                  segments_row_json, out / "run" / "live", bench_table),
+                                  segments_row_json, out / "run" / "live", bench_table, False),
+            "health": side.submit(f"batch: thruster health, bench table ({beside})",
+                                  health_json, out / "run" / "live", bench_table),
             "check": side.submit(f"batch: true-table check fit ({beside})", switch_row_json,
                                  out / "run" / "live", out / "run" / "switches.csv",
                                  plant_table())}
@@ -291,7 +294,8 @@ def _batch_beside(d: Path, run, calibrated_table, fits: dict[str, Any], side: Si
     f_fig = side.submit("batch: residual figure (beside)", residual_figure, res.t,
                         res.residuals, d / "batch_residuals.png",
                         "Batch LS on the recorded run: residuals")
-    before = f_before.result()
+    before = {**f_before.result(), "health": fits["health"].result()}
+    before["res_dict"]["thruster_health"] = before["health"]["thrusters"]
     (d / "estimate_before_calibration.json").write_text(_json(before.pop("res_dict")))
     return _batch_done(d, res, before, after, f_chk.result(), f_fig.result())
 
