@@ -125,14 +125,29 @@ def cmd_thrust(args: argparse.Namespace) -> int:
               "air-table body (kg and kg m^2?)", file=sys.stderr)
     if args.window:
         run = run.window(*args.window)
-    res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,
-                        mass_sigma_kg=args.mass_sigma, izz_sigma_kgm2=args.izz_sigma,
-                        per=args.per, model=args.model, sigma_pos_m=args.sigma_pos,
-                        sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp,
-                        estimate_com=args.estimate_com)
-    if not res.converged:
-        raise UserError(f"{run.path}: the calibration did not converge "
-                        f"({res.iterations} iterations); no table written")
+    # a vehicle of on/off valves, per thruster, Izz estimated: a run single shooting cannot
+    # carry is fitted by segments instead (said), whatever single shooting raised
+    by_parts = (vehicle is not None and args.per == "thruster" and args.izz is None
+                and args.thrust_table is None and args.segments is None
+                and all(t.table is None for t in vehicle.thrusters))
+    try:
+        res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,
+                            mass_sigma_kg=args.mass_sigma, izz_sigma_kgm2=args.izz_sigma,
+                            per=args.per, model=args.model, sigma_pos_m=args.sigma_pos,
+                            sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp,
+                            estimate_com=args.estimate_com)
+        failed = None if res.converged else f"did not converge ({res.iterations} iterations)"
+    except UserError as exc:
+        if not by_parts:
+            raise
+        failed = f"failed ({exc})"
+    if failed and by_parts:
+        print(f"tpods: warning: single shooting {failed}: one initial state cannot carry this "
+              "run; fitting it by segments instead (--segments auto)", file=sys.stderr)
+        args.segments = "auto"
+        return by_segments.cmd_thrust_segments(args)
+    if failed:
+        raise UserError(f"{run.path}: the calibration {failed}; no table written")
     doc = res.to_dict()
     unusable = [n for n, v in zip(res.names, res.values, strict=True) if v <= 0]
     doc.update({"run": str(run.path), "thrust_table": "built-in Table 2" if builtin

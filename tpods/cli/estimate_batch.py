@@ -52,6 +52,9 @@ _INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "c
                  "r": "r", "arm": "arm", "cx": "cx", "cy": "cy"}
 
 
+SEGMENTS_HINT_S = 30.0
+"""A single-shooting fit longer than this that does not converge points to --segments."""
+
 _AT_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "cx": "cx", "cy": "cy", "delay": "delay",
             "drop": "drop"}
 
@@ -240,8 +243,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
                                title=f"Batch LS: measured poses and the fitted model, "
                                      f"{run.path.name}")
     if not res.converged:
-        print(f"tpods: warning: {res.message}; the estimate below is not a converged solution",
-              file=sys.stderr)
+        hint = ("; a run this long cannot be integrated from one initial state unless the model "
+                "is exact: fit it by segments (--segments auto)"
+                if res.t[-1] - res.t[0] > SEGMENTS_HINT_S else "")
+        print(f"tpods: warning: {res.message}; the estimate below is not a converged solution"
+              f"{hint}", file=sys.stderr)
     if args.json:
         _print_json(out)
         return 0
