@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from benchmarks.bench_vehicle import _reference  # one module (m, Izz) on 60 s, timed here
 from benchmarks.host import Window
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 from common.vehicle import Vehicle
@@ -45,14 +46,6 @@ COVERAGE_RUNS = 60
 
 def run() -> list[dict]:
     return [_real_run(), _paper_run(), _coverage()]
-
-
-def _reference() -> float:
-    c1, d1 = make_input("phase-sine", 60.0, 50.0, 20.0, 1.0)
-    one = simulate(c1, d1, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2), config=SimConfig(seed=1))
-    t0 = time.perf_counter()
-    batch_ls(one.pose_t, one.pose, c1, one.thrust_n)
-    return time.perf_counter() - t0
 
 
 def _real_arrays():
