@@ -136,9 +136,10 @@ def _states_at(prob: ShootingProblem, lm, starts: np.ndarray) -> np.ndarray | No
 def choose_length(pose_t, pose, ch, names, fixed, sigma, theta, exclude,
                   max_iter: int = 60, min_segments: int = 1) -> tuple[float, str, tuple]:
     """The longest candidate length whose fit still describes the poses as well as the
-    shortest segments do: residual rms at most :data:`LENGTH_RMS_RATIO` times the 2 s
-    fit's (not the stated noise: a lab's stated noise is often far above its tracker's). Each candidate starts from the shorter one's
-    solution. Returns ``(length, how it was chosen, (problem, fit) at that length)``."""
+    shortest segments do: residual rms at most :data:`LENGTH_RMS_RATIO` times the 2 s fit's
+    (not the stated noise: a lab's stated noise is often far above its tracker's). Each
+    candidate starts from the shorter one's solution; none leaves fewer than
+    ``min_segments``. Returns ``(length, how it was chosen, (problem, fit) at it)``."""
     plan = plan_segments(pose_t, pose, BASE_LENGTH_S, exclude)
     best = _solve(pose_t, pose, plan, ch, names, fixed, sigma, theta, None, max_iter)
     base_rms = math.sqrt(best[1].cost / len(best[1].r))
