@@ -112,3 +112,12 @@ def read_table_lines(path: Path, columns: tuple[str, ...]) -> tuple[np.ndarray, 
         raise UserError(f"{path}: line {lines_arr[i]}: time {t[i]:g} does not increase "
                         f"(previous {t[i - 1]:g})")
     return values, lines_arr
+
+
+def header_of(path: Path) -> list[str]:
+    """The column names of a CSV's first non-blank line (stripped; [] for an empty file)."""
+    text = path.read_bytes().decode("utf-8-sig", errors="replace")
+    for line in _LINE_END.split(text):
+        if line.replace(",", "").replace('"', "").strip():
+            return [c.strip() for c in next(csv.reader([line], skipinitialspace=True))]
+    return []

@@ -217,6 +217,7 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
         cv, clines = read_table_lines(cmd_file, cmd_cols)
         cmd_t, duty = cv[:, 0], cv[:, 1:]
         check_duty_rows(duty, clines, cmd_file)
+        _check_commands_fit(cmd_file, duty, structure)
     else:
         cmd_t = thrust_t
     pv, plines = read_table_lines(path / "poses.csv", POSE_COLUMNS)
@@ -252,6 +253,27 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
         thrust_t, thrust_n = wrench_thrusts(wrench[:, 0], wrench[:, 1:], frame, pose_t, pose[:, 2])
         cmd_t = thrust_t
     return Run(path, cmd_t, duty, pose_t, pose, thrust_t, thrust_n, meta, structure, frame)
+
+
+def _check_commands_fit(cmd_file: Path, duty: np.ndarray, structure) -> None:
+    """:mod:`common.command_rules` on a run's commands: no duty column beyond its vehicle's
+    valves, and on/off valves in percent (UserError naming the file)."""
+    from common.command_rules import columns_problem, onoff_scale_problem
+    from common.csvtable import header_of
+
+    n = len(cmd_cols_of(structure)) - 1
+    what = ("the TPODS module" if structure is None else
+            f"{structure.kind} {getattr(structure, 'name', '')}".strip())
+    problem = columns_problem(header_of(cmd_file), n, what)
+    if problem is None and getattr(structure, "kind", None) == "vehicle":
+        problem = onoff_scale_problem(duty, [i for i, t in enumerate(structure.thrusters)
+                                             if t.table is None and not t.dead])
+    if problem is not None:
+        raise UserError(f"{cmd_file}: {problem}")
+
+
+def cmd_cols_of(structure) -> tuple[str, ...]:
+    return COMMAND_COLUMNS if structure is None else structure.command_columns()
 
 
 def _check_truth(meta_file: Path, truth: Any) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 from common.body import Body, parse_body
 from common.errors import UserError
 from common.layout import table_entry
+from common.plausible_inputs import check_force_n, check_force_sigma_n, check_time_s
 from common.thrust_table import ThrustTable
 from common.tomlfile import check_keys, toml_number, toml_pair
 
@@ -119,9 +120,12 @@ def _thruster(t: Any, i: int, base_dir: Path | None,
     if health not in HEALTH_VERDICTS:
         raise UserError(f"{where}health must be one of {', '.join(HEALTH_VERDICTS)}, got {health!r}")
     if has_f:
-        force = toml_number(t["force_n"], f"{where}force_n", positive=True)
+        force = check_force_n(toml_number(t["force_n"], f"{where}force_n", positive=True),
+                              f"{where}force_n")
         sigma = t.get("force_sigma_n")
-        sigma = None if sigma is None else toml_number(sigma, f"{where}force_sigma_n", nonneg=True)
+        sigma = None if sigma is None else check_force_sigma_n(
+            toml_number(sigma, f"{where}force_sigma_n", nonneg=True), force,
+            f"{where}force_sigma_n")
         return Thruster(name, pos, (dx, dy), force, sigma, supply=supply, health=health)
     if "force_sigma_n" in t:
         raise UserError(f"{where}force_sigma_n is for force_n; a table states its own uncertainty")
@@ -159,7 +163,8 @@ def _parse(data: Mapping[str, Any], base_dir: Path | None
         if not isinstance(vv, Mapping):
             raise UserError("[valves] must be a table")
         check_keys(vv, VALVE_KEYS, "[valves]: ")
-        valves = Valves(**{k: toml_number(vv[k], f"[valves] {k}", nonneg=True) for k in vv})
+        valves = Valves(**{k: check_time_s(toml_number(vv[k], f"[valves] {k}", nonneg=True),
+                                           f"[valves] {k}") for k in vv})
     body = parse_body(data["body"]) if "body" in data else Body()
     return name, thrusters, valves, body, _supplies(data.get("supplies"), thrusters)
 

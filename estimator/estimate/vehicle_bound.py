@@ -42,12 +42,28 @@ AT_NAMES = ("mass", "izz", "cx", "cy", "delay", "drop")
 """The names ``at`` takes (``drop`` sets every on/off supply's)."""
 
 
+def check_at(at, vehicle) -> None:
+    """``--at`` through the same ranges as vehicle.toml (:mod:`common.plausible_inputs`):
+    a zero mass is refused, not taken as "not given"."""
+    from common.plausible_inputs import check_drop, check_positive, check_time_s
+
+    for k in ("mass", "izz"):
+        if k in at:
+            check_positive(at[k], f"--at {k}")
+    if "delay" in at:
+        check_time_s(at["delay"], "--at delay")
+    if "drop" in at:
+        for supply, idx in vehicle.onoff_supplies().items():
+            check_drop(at["drop"], len(idx), f"--at drop (supply {supply})")
+
+
 def _point(run, v, o: BoundOptions, at: Mapping[str, float]) -> tuple[dict, Any, str]:
     """``(plant params, vehicle at the input values, source of the plant)``."""
     bad = [k for k in at if k not in AT_NAMES]
     if bad:
         raise UserError(f"--at: unknown name {bad[0]!r}; use {', '.join(AT_NAMES)}")
     truth, body = run.truth or {}, v.body
+    check_at(at, v)
     mass = at.get("mass") or o.mass_kg or truth.get("mass_kg") or body.mass_kg
     izz = at.get("izz") or o.izz_kgm2 or truth.get("izz_kgm2") or body.izz_kgm2
     if mass is None or izz is None:

@@ -111,8 +111,15 @@ def from_commands_csv(path: str | Path, n_channels: int = 4,
     n_channels) percent (``t,d1..d{n_channels}``: a structure's 4N channels). A duty
     outside 0..100 % (or an open one outside ``valid_pct``, a thrust table's valid range)
     is refused naming the file line."""
+    from common.command_rules import columns_problem
+    from common.csvtable import header_of
+
     v, lines = read_table_lines(Path(path), COMMAND_COLUMNS if n_channels == 4
                                 else command_columns(n_channels))
+    problem = columns_problem(header_of(Path(path)), n_channels,
+                              "the TPODS module" if n_channels == 4 else "the layout")
+    if problem is not None:
+        raise UserError(f"{path}: {problem}")
     check_duty_rows(v[:, 1:], lines, path, valid_pct)
     return v[:, 0], v[:, 1:]
 

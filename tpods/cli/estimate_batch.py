@@ -80,8 +80,26 @@ def key_values(text: str, keys: dict[str, str] | None = None) -> dict[str, float
             raise argparse.ArgumentTypeError(f"not a number: {v!r} (for {k})") from None
         if not math.isfinite(val):
             raise argparse.ArgumentTypeError(f"{k} must be finite")
+        _check_range(keys[k.lower()], val)
         out[keys[k.lower()]] = val
     return out
+
+
+def _check_range(name: str, val: float) -> None:
+    """The ranges vehicle.toml enforces, for a value given on the command line
+    (:mod:`common.plausible_inputs`; a drop's upper bound needs the vehicle: checked where
+    it is known)."""
+    from common.plausible_inputs import check_positive, check_time_s
+
+    try:
+        if name in ("mass", "izz"):
+            check_positive(val, name)
+        elif name == "delay":
+            check_time_s(val, name)
+        elif name == "drop" and val < 0:
+            raise UserError(f"drop must be >= 0, got {val:g}")
+    except UserError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def at_values(text: str) -> dict[str, float]:

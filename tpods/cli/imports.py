@@ -138,6 +138,19 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows, formats, force: bool)
         os.fsync(log.fh.fileno())  # on disk before the rename makes it the run's file
 
 
+def _check_onoff_scale(vehicle_path: str, duty, source: str) -> None:
+    """Refuse 0/1 states read as percent on a vehicle's on/off valves
+    (:mod:`common.command_rules`), before anything is written."""
+    from common.command_rules import onoff_scale_problem
+    from common.vehicle import Vehicle
+
+    v = Vehicle.load(vehicle_path)
+    problem = onoff_scale_problem(duty, [i for i, t in enumerate(v.thrusters)
+                                         if t.table is None and not t.dead])
+    if problem is not None:
+        raise UserError(f"{source}: {problem}")
+
+
 def _origin(meta: dict[str, Any] | None, run: Path, other: str) -> float | None:
     """The run's time origin if the other import (``other``: its file) set it and is there."""
     if meta and "time_origin_s" in meta and (run / other).exists():
@@ -148,6 +161,24 @@ def _origin(meta: dict[str, Any] | None, run: Path, other: str) -> float | None:
 # ----------------------------------------------------------------------------- poses
 
 
+def _leaves_no_new_folder(fn):
+    """A refused import leaves no ``--out`` folder it created (an empty one is removed)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(args: argparse.Namespace) -> int:
+        out = Path(args.out) if args.out else None
+        existed = out is None or out.exists()
+        try:
+            return fn(args)
+        except BaseException:
+            if not existed and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()
+            raise
+    return wrapper
+
+
+@_leaves_no_new_folder
 def cmd_import_poses(args: argparse.Namespace) -> int:
     """Read a pose recording and write RUN/poses.csv (t,x,y,psi in s, m, rad; t from the first kept
     frame) and RUN/run.json (kind import-poses, the source, the counts of skipped frames). Vicon
@@ -244,6 +275,7 @@ def _copy_vehicle(src: str, run: Path, force: bool) -> None:
             shutil.copyfile(Path(src).parent / name, run / name)
 
 
+@_leaves_no_new_folder
 def cmd_import_commands(args: argparse.Namespace) -> int:
     """Read a command log and write RUN/commands.csv (t,d1..dN: duty percent, an on/off valve 0 or
     100, in the vehicle's thruster order) or RUN/wrench.csv (t,fx,fy,mz in N, N m; its frame in
@@ -274,6 +306,8 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
                              time_unit=args.time_unit, units=(units[0] or None, units[1] or None),
                              what=args.file, time_map=tm)
     name = "wrench.csv" if table.kind == "wrench" else "commands.csv"
+    if args.vehicle and table.kind != "wrench":
+        _check_onoff_scale(args.vehicle, table.values, args.file)
     if (run / name).exists() and not args.force:
         raise UserError(f"{run / name} already exists; add --force to replace it or choose another --out")
     origin = _origin(meta, run, "poses.csv")

@@ -193,6 +193,13 @@ def cmd_play(args: argparse.Namespace) -> int:
     else:
         cmd_t, duty = make_input(args.input, args.duration, args.cmd_rate, args.amplitude,
                                  args.omega, n_channels=4 if vehicle is None else vehicle.n_channels)
+        if vehicle is not None:
+            from common.command_rules import onoff_scale_problem
+
+            problem = onoff_scale_problem(duty, [i for i, t in enumerate(vehicle.thrusters)
+                                                 if t.table is None and not t.dead])
+            if problem is not None:
+                raise UserError(f"--input {args.input}: {problem}")
     _check_play_duties(args, duty, lim[0], lim[1])
     if args.capture is True and args.out is None:
         raise UserError("--capture without a folder records into --out: give --out RUN_DIR or --capture DIR")
