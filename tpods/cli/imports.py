@@ -138,6 +138,52 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows, formats, force: bool)
         os.fsync(log.fh.fileno())  # on disk before the rename makes it the run's file
 
 
+_OTHER_HALF = {"poses.csv": (("commands.csv", "commands_source"), ("wrench.csv", "commands_source")),
+               "commands.csv": (("poses.csv", "source"),), "wrench.csv": (("poses.csv", "source"),)}
+"""The files the other import of the same recording writes, and the run.json key that says
+an import wrote them."""
+
+
+def _check_other_half(run: Path, meta: dict | None, name: str) -> None:
+    """Refuse to import beside the other half of a simulated run (its truth belongs to
+    another body): two runs would be mixed in one folder. A recorded half (``tpods mocap
+    record``'s poses) is the lab's own and may take an imported log beside it."""
+    m = meta or {}
+    simulated = m.get("kind") == "simulation" or "truth" in m or (run / "truth.csv").exists()
+    for other, key in _OTHER_HALF[name]:
+        if (run / other).exists() and not m.get(key) and simulated:
+            raise UserError(f"{run / other} belongs to a simulated run (its truth is another "
+                            f"body's): importing {name} beside it would mix two runs; choose "
+                            "another --out")
+
+
+def _without_previous_run(run: Path, meta: dict | None, name: str) -> dict:
+    """run.json's fields less what belongs to a previous run and no import writes: its
+    ``truth`` (another body's), with truth.csv removed (said)."""
+    fields = dict(meta or {})
+    gone = [k for k in ("truth",) if k in fields]
+    for k in gone:
+        del fields[k]
+    if (run / "truth.csv").exists():
+        (run / "truth.csv").unlink()
+        gone.append("truth.csv")
+    if gone:
+        print(f"tpods: warning: {run}: removed {', '.join(gone)} of the previous run (not "
+              f"written by this import of {name})", file=sys.stderr)
+    return fields
+
+
+def _last_time(run: Path, *names: str) -> float | None:
+    """The last time of the first of ``names`` that the run holds (its first column)."""
+    for name in names:
+        f = run / name
+        if f.exists():
+            from common.csvtable import read_table
+
+            return float(read_table(f, ("t",))[-1, 0])
+    return None
+
+
 def _check_onoff_scale(vehicle_path: str, duty, source: str) -> None:
     """Refuse 0/1 states read as percent on a vehicle's on/off valves
     (:mod:`common.command_rules`), before anything is written."""
@@ -197,6 +243,7 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
     run = _run_folder(args.out)
     if (run / "poses.csv").exists() and not args.force:
         raise UserError(f"{run / 'poses.csv'} already exists; add --force to replace it or choose another --out")
+    _check_other_half(run, _read_meta(run), "poses.csv")
     opts = PoseOptions(body=args.body, columns=args.columns, units=args.units, time_unit=args.time_unit,
                        plane=args.plane, yaw_sign=args.yaw_sign, rotation=args.rotation)
     text = _read_text(args.file)
@@ -207,7 +254,9 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
     if tm is not None:  # the source's times on the rebuilt clock
         t_src = tm(table.t_s + table.t0_source_s)
         table.t0_source_s, table.t_s = float(t_src[0]), t_src - t_src[0]
-    origin = _origin(meta, run, "commands.csv") or _origin(meta, run, "wrench.csv")
+    origin = _origin(meta, run, "commands.csv")
+    if origin is None:  # (an origin of exactly 0.0 is an origin: no `or` here)
+        origin = _origin(meta, run, "wrench.csv")
     t = table.t_s
     before = 0
     if origin is not None:  # the commands came first: their origin holds
@@ -215,14 +264,20 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
         keep = t >= 0
         before = int((~keep).sum())
         if not keep.any():
-            raise UserError(f"{args.file}: every pose is before the commands' first row")
+            raise UserError(f"{args.file}: every pose is before the commands' first row: the "
+                            "poses and the commands do not overlap in time")
+        end = _last_time(run, "commands.csv", "wrench.csv")
+        if end is not None and float(np.min(t[keep])) > end:
+            raise UserError(f"{args.file}: every pose is after the commands' last row "
+                            f"({end:g} s on the run's clock): the poses and the commands do not "
+                            "overlap in time")
         t, table.x_m, table.y_m, table.psi_rad = t[keep], table.x_m[keep], table.y_m[keep], table.psi_rad[keep]
     else:
         origin = table.t0_source_s
     rows = np.column_stack([t, table.x_m, table.y_m, table.psi_rad])
     _write_csv(run / "poses.csv", POSE_COLUMNS, rows, "%.12g", args.force)
     counts = dict(table.counts, before_commands=before) if before else table.counts
-    fields = {**(meta or {}), **run_header("import-poses")}
+    fields = {**_without_previous_run(run, meta, "poses.csv"), **run_header("import-poses")}
     fields.update(source={"file": str(args.file), **table.source}, counts=counts,
                   time_origin_s=origin, status="complete")
     jitter = interval_jitter(t) if tm is not None else None
@@ -310,10 +365,15 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
         _check_onoff_scale(args.vehicle, table.values, args.file)
     if (run / name).exists() and not args.force:
         raise UserError(f"{run / name} already exists; add --force to replace it or choose another --out")
+    _check_other_half(run, meta, name)
     origin = _origin(meta, run, "poses.csv")
     if origin is None:
         origin = float(table.t_s[0])
     t, v, dropped = shift_to_origin(table, origin)
+    end = _last_time(run, "poses.csv")
+    if end is not None and float(t[0]) > end:
+        raise UserError(f"{args.file}: every command row is after the last pose ({end:g} s on "
+                        "the run's clock): the log and the poses do not overlap in time")
     import numpy as np
 
     rows = np.column_stack([t, v])
@@ -323,7 +383,8 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
         _write_csv(run / name, ("t", "fx", "fy", "mz"), rows, "%.12g", args.force)
     else:
         _write_csv(run / name, command_columns(v.shape[1]), rows, ["%.9g"] + ["%.6g"] * v.shape[1], args.force)
-    fields = meta if meta is not None else run_header("import-commands", status="complete")
+    fields = (_without_previous_run(run, meta, name) if meta is not None
+              else run_header("import-commands", status="complete"))
     fields["commands_source"] = {"file": str(args.file), **table.source,
                                  **({"vehicle": str(args.vehicle), "thrusters": names} if names else {})}
     fields["commands_counts"] = dict(table.counts, before_poses=dropped)
