@@ -41,8 +41,11 @@ def register(sub) -> None:
     add_sim_duration(d)
     add_cmd_rate(d)
     add_pose_rate(d)
-    d.add_argument("--mass", type=MASS_KG, default=PAPER_MASS_KG, help="assumed mass, kg")
-    d.add_argument("--izz", type=IZZ_KGM2, default=PAPER_IZZ_KGM2, help="assumed Izz, kg m^2")
+    d.add_argument("--mass", type=MASS_KG, default=None,
+                   help="assumed mass, kg (default the paper's module; a --vehicle/--structure: "
+                        "its [body], else needed)")
+    d.add_argument("--izz", type=IZZ_KGM2, default=None,
+                   help="assumed Izz, kg m^2 (default as --mass)")
     d.add_argument("--table-size", type=float_list(2), default=[2.0, 2.0], metavar="W,H",
                    help="table size in metres, module starting at its centre (default 2,2)")
     d.add_argument("--margin", type=nonneg_float, default=0.0,
@@ -135,7 +138,10 @@ def cmd_design(args: argparse.Namespace) -> int:
     _check_design_size(args)
     table = load_thrust_table(args.thrust_table)
     structure = None
-    plant = PlantParams(args.mass, args.izz)
+    if not getattr(args, "structure", None):
+        args.mass = PAPER_MASS_KG if args.mass is None else args.mass
+        args.izz = PAPER_IZZ_KGM2 if args.izz is None else args.izz
+    plant = PlantParams(args.mass or PAPER_MASS_KG, args.izz or PAPER_IZZ_KGM2)
     if getattr(args, "structure", None):
         from common.layout_files import load_layout
 
@@ -146,9 +152,15 @@ def cmd_design(args: argparse.Namespace) -> int:
                             "compares with the phase-shifted sine over all its channels")
         structure = load_layout(args.structure)
         g = structure.initial_guess()
-        given = {a.lstrip("-").split("=")[0] for a in sys.argv if a.startswith("--")}
-        plant = PlantParams(args.mass if "mass" in given else g["mass"],
-                            args.izz if "izz" in given else g["izz"], cx=g["cx"], cy=g["cy"])
+        body = structure.body
+        if structure.kind == "vehicle" and (
+                (args.mass is None and body.mass_kg is None) or (args.izz is None and body.izz_kgm2 is None)):
+            # its initial guess is the paper's 2.3 kg module: a design for another body
+            raise UserError(f"{args.structure}: states no [body] mass_kg and izz_kgm2: give "
+                            "--mass and --izz (the design depends on them; the paper's module "
+                            "is not this vehicle)")
+        plant = PlantParams(args.mass if args.mass is not None else g["mass"],
+                            args.izz if args.izz is not None else g["izz"], cx=g["cx"], cy=g["cy"])
         args.mass, args.izz = plant.mass_kg, plant.izz_kgm2
     settings = DesignSettings(args.duration, args.cmd_rate, args.pose_rate, args.noise_pos,
                               math.radians(args.noise_yaw_deg), plant,

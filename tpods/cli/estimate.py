@@ -99,6 +99,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
     ct, cr, kb = args.friction or (0.0, 0.0, 0.0)
     ax, ay = args.tilt or (0.0, 0.0)
     body = structure.body if structure is not None else None
+    if getattr(structure, "kind", None) == "vehicle" and (
+            (args.mass is None and body.mass_kg is None) or (args.izz is None and body.izz_kgm2 is None)):
+        raise UserError(f"{structure.source}: states no [body] mass_kg and izz_kgm2: give --mass "
+                        "and --izz (the paper's 2.3 kg module is not this vehicle)")
     mass = args.mass or (body and body.mass_kg) or PAPER_MASS_KG
     izz = args.izz or (body and body.izz_kgm2) or PAPER_IZZ_KGM2
     if args.com is not None and structure is None:
