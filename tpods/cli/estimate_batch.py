@@ -72,8 +72,8 @@ def key_values(text: str, keys: dict[str, str] | None = None) -> dict[str, float
             raise argparse.ArgumentTypeError(f"expected NAME=VALUE items, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
         if k.lower() not in keys:
-            raise argparse.ArgumentTypeError(
-                f"unknown name {k!r}; use {', '.join(sorted(set(keys)))}")
+            raise argparse.ArgumentTypeError(f"unknown name {k!r}{_nearest(k, keys)}; use "
+                                             f"{', '.join(sorted(set(keys)))}")
         try:
             val = float(v)
         except ValueError:
@@ -107,13 +107,25 @@ def at_values(text: str) -> dict[str, float]:
     return key_values(text, _AT_KEYS)
 
 
+def _nearest(name: str, choices) -> str:
+    """`` (did you mean X?)`` for the closest of ``choices``, or ''."""
+    import difflib
+
+    close = difflib.get_close_matches(name.lower(), [c.lower() for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def name_list(text: str) -> tuple[str, ...]:
+    from estimator.batch.input_params import INPUT_NAMES
     from estimator.plant.model import PARAM_NAMES
 
     names = tuple(_INITIAL_KEYS.get(n.strip().lower(), n.strip()) for n in text.split(",") if n.strip())
     bad = [n for n in names if n not in PARAM_NAMES]
     if bad or not names or len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(f"expected distinct names from {', '.join(PARAM_NAMES)}, got {text!r}")
+        every = (*PARAM_NAMES, *INPUT_NAMES, "drop.<supply>")
+        hint = _nearest(bad[0], (*PARAM_NAMES, *INPUT_NAMES)) if bad else ""
+        raise argparse.ArgumentTypeError(f"expected distinct names from {', '.join(every)}, got "
+                                         f"{text!r}{hint}")
     return names
 
 
@@ -214,6 +226,9 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
     from estimator.estimate import estimate_run
 
+    if args.delay_scan and args.estimate and "delay" in args.estimate:
+        raise UserError("--delay-scan profiles a dead time the fit holds fixed; --estimate with "
+                        "delay estimates it with the body: give one of them")
     if args.delay_scan and args.method != "ls":
         raise UserError(f"--delay-scan re-fits the batch least squares: it needs --method ls, "
                         f"not {args.method}")
@@ -332,8 +347,11 @@ def _warn_implausible_body(est, args: argparse.Namespace) -> list[str]:
     if fit is None or (est.batch is not None and not est.batch.converged and
                        "no information" in est.batch.message):
         return []  # an uninformative fit is reported as such
+    v = est.run.structure
     if est.run.thrust_n is not None:
         source, unit = f"{est.run.path / 'thrusts.csv'} (in N)", None
+    elif getattr(v, "kind", None) == "vehicle" and not v.tables():
+        source, unit = f"{v.source}: its valves' force_n (in N)", None
     elif args.thrust_table:
         source, unit = args.thrust_table, load_thrust_table(args.thrust_table).unit
     else:

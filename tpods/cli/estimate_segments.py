@@ -136,6 +136,7 @@ def cmd_segments(args: argparse.Namespace) -> int:
                            clamp=args.clamp, max_iter=max(args.max_iter, 30), **common)
     out.update(fit.to_dict())
     _jitter_warning(run, fit)
+    _body_warning(fit, vehicle, args)
     if args.out_folder is not None:
         _write_outputs(args, out, fit, run)
     for w in fit.warnings:
@@ -211,6 +212,22 @@ def _jitter_warning(run, fit) -> None:
         "period off the grid): the times come from a coarse or busy clock (each pose's time "
         "uncertain by about half that spread), or are not the capture times; the fit takes "
         "them as exact")
+
+
+def _body_warning(fit, vehicle, args) -> None:
+    """An implausible mass or Izz (:func:`estimator.batch.plausibility.body_warnings`),
+    naming where the thrusts came from: the vehicle file's forces or its tables."""
+    from estimator.batch.plausibility import body_warnings
+
+    if "mass" not in fit.values and "izz" not in fit.values:
+        return
+    tables = vehicle.tables()
+    if not tables:
+        source, unit = f"{vehicle.source}: its valves' force_n (in N)", None
+    else:
+        source, unit = (args.thrust_table or "the built-in Table 2"), tables[0].unit
+    fit.warnings += body_warnings(fit.values.get("mass", 1.0), fit.values.get("izz"),
+                                  source, unit)
 
 
 def _write_outputs(args, out, fit, run) -> None:
