@@ -18,6 +18,10 @@ import math
 from common.errors import UserError
 
 FORCE_RANGE_N = (1e-3, 50.0)
+"""Refused outside: no air-table thruster gives less than a millinewton or more than 50 N."""
+TYPICAL_FORCE_N = (5e-3, 5.0)
+"""Warned outside, for a force measured rather than typed (a load cell's): cold-gas
+thrusters on air tables give 5 mN to 5 N; grams read as newtons give tens of newtons."""
 TIME_RANGE_S = (0.0, 2.0)
 
 _FORCE_UNITS = (("mN", 1e-3), ("gf", 9.80665e-3), ("kgf", 9.80665), ("lbf", 4.4482216))
@@ -82,3 +86,25 @@ def check_positive(value: float, what: str) -> float:
     if not v > 0:
         raise UserError(f"{what} must be positive, got {v:g}")
     return v
+
+
+LOADCELL_UNITS_N = {"g": 9.80665e-3, "gf": 9.80665e-3, "kg": 9.80665, "kgf": 9.80665, "N": 1.0,
+                    "mN": 1e-3}
+"""Newtons per unit of a load-cell log's force column (a mass reading is gram- or
+kilogram-force)."""
+
+
+def loadcell_force_warning(force_n: float, unit: str | None, what: str) -> str | None:
+    """A warning when a force measured on a load cell lies outside :data:`TYPICAL_FORCE_N`,
+    naming the column unit (``--force-unit``) that would put it inside, or None."""
+    lo, hi = TYPICAL_FORCE_N
+    if not math.isfinite(force_n) or lo <= abs(force_n) <= hi:
+        return None
+    fits = []
+    if unit in LOADCELL_UNITS_N:
+        reading = force_n / LOADCELL_UNITS_N[unit]
+        fits = [f"--force-unit {u}: {reading * k:.4g} N" for u, k in LOADCELL_UNITS_N.items()
+                if u != unit and lo <= abs(reading * k) <= hi and u not in ("gf", "kgf")]
+    hint = f"; with {' or '.join(fits)}" if fits else ""
+    return (f"{what}: {force_n:.4g} N is outside {lo:g}-{hi:g} N (an air-table cold-gas thruster): "
+            f"the log's force column is read as {unit}{hint}")

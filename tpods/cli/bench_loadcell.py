@@ -101,7 +101,7 @@ def cmd_fit_pulses(args: argparse.Namespace) -> int:
                               ("--balance-linearity-g", args.balance_linearity_g),
                               ("--plot-dir", args.plot_dir), ("--criterion", args.criterion != "aicc")) if v]
     warnings = list(res.warnings) + ([f"{', '.join(ignored)}: not used for on/off pulses"]
-                                     if ignored else [])
+                                     if ignored else []) + _force_unit_warnings(args.run_dir, res)
     doc = {**res.to_dict(), "warnings": warnings, "session": str(args.run_dir),
            "vehicle_valves": _vehicle_valves(res)}
     with out.writing_main() as (main, d):
@@ -150,3 +150,21 @@ def _vehicle_valves(res) -> dict | None:
     d, sd = mean_sigma("delay_s")
     r, sr = mean_sigma("rise_s")
     return {"delay_s": d, "delay_sigma_s": sd, "rise_s": r, "rise_sigma_s": sr, "n_valves": n}
+
+
+def _force_unit_warnings(run_dir, res) -> list[str]:
+    """A force per valve no air-table thruster gives, with the --force-unit that would fit
+    (:func:`common.plausible_inputs.loadcell_force_warning`)."""
+    from common.plausible_inputs import loadcell_force_warning
+
+    try:
+        meta = json.loads((Path(run_dir) / "run.json").read_text())
+        unit = meta.get("import", {}).get("force_unit") or meta.get("options", {}).get("force_unit")
+    except (OSError, ValueError, AttributeError):
+        unit = None
+    out = []
+    for v, r in sorted(res.valves.items()):
+        w = loadcell_force_warning(float(r["force_n"]), unit, f"valve {v}")
+        if w:
+            out.append(w)
+    return out
