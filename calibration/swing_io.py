@@ -51,11 +51,20 @@ def _split(path: Path) -> list[list[str]]:
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise UserError(f"{path}: empty file")
-    sample = lines[0] + "\n" + (lines[1] if len(lines) > 1 else "")
-    delim = next((d for d in (",", "\t", ";") if d in sample), None)
+    # the header (no decimals in it) says the separator first: a spreadsheet of a decimal
+    # comma locale writes "t;rate" and "0,01;0,30"
+    head = lines[0]
+    delim = next((d for d in ("\t", ";") if d in head and "," not in head), None)
+    if delim is None:
+        sample = head + "\n" + (lines[1] if len(lines) > 1 else "")
+        delim = next((d for d in (",", "\t", ";") if d in sample), None)
     if delim is None:
         return [ln.split() for ln in lines]
-    return [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delim)]
+    rows = [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delim)]
+    if delim != ",":  # decimal commas: 0,01 is 0.01 (a cell holds no thousands separator)
+        rows = [[c.replace(",", ".") if _is_number(c.replace(",", ".")) else c for c in row]
+                for row in rows]
+    return rows
 
 
 def _is_number(cell: str) -> bool:
@@ -103,7 +112,12 @@ def read_swing_csv(path: str | Path, value_key: str, columns: str | None = None,
     elif "t" in cols:
         it = _index(cols["t"], header, path)
     else:
-        it = next((names.index(n) for n in TIME_NAMES if n in names), 0)
+        it = next((names.index(n) for n in TIME_NAMES if n in names), None)
+        if it is None and header is not None and (len(names) < 2 or names[0] == value_key):
+            raise UserError(f"{path}: no time column (the header has {', '.join(names)}): give "
+                            "one with --columns t=COL, or --sample-rate HZ for a log of samples "
+                            "at a steady rate")
+        it = 0 if it is None else it
     if value_key in cols:
         iv = _index(cols[value_key], header, path)
     elif value_key in names:
@@ -130,4 +144,10 @@ def read_swing_csv(path: str | Path, value_key: str, columns: str | None = None,
             v.append(nums[1] * value_scale)
     if len(v) < 20:
         raise UserError(f"{path}: {len(v)} usable rows; a swing needs at least 20")
+    if it is not None and "t" not in cols and not any(n in names for n in TIME_NAMES) \
+            and np.any(np.diff(t) <= 0):
+        what = f"column {names[it]!r}" if names else "the first column"
+        raise UserError(f"{path}: {what}, taken as the time (no t/time column), does not "
+                        "increase: give the time column with --columns t=COL, or --sample-rate "
+                        "HZ for a log of samples at a steady rate")
     return np.asarray(t), np.asarray(v), skipped

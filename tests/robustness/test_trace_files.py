@@ -1,0 +1,66 @@
+"""A swing log as a spreadsheet of another locale writes it, or without a time column, is
+read or refused with what to fix, not "no column" or "time does not increase"."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration.swing_io import read_swing_csv
+from common.errors import UserError
+
+
+def _write(tmp: Path, name: str, text: str) -> Path:
+    p = tmp / name
+    p.write_text(text)
+    return p
+
+
+def _rows(n=200, dt=0.01):
+    return [(k * dt, 0.3 * math.sin(2 * math.pi * 0.5 * k * dt)) for k in range(n)]
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_decimal_comma_with_semicolons_or_tabs(tmp_path, sep):
+    body = "\n".join(f"{t:.2f}{sep}{r:.5f}".replace(".", ",") for t, r in _rows())
+    p = _write(tmp_path, "log.csv", f"t{sep}rate\n{body}\n")
+    t, v, skipped = read_swing_csv(p, "rate")
+    ref = np.array(_rows())
+    assert skipped == 0 and np.allclose(t, ref[:, 0]) and np.allclose(v, ref[:, 1], atol=1e-5)
+
+
+def test_decimal_points_with_semicolons_still_read(tmp_path):
+    body = "\n".join(f"{t:.2f};{r:.5f}" for t, r in _rows())
+    t, v, _ = read_swing_csv(_write(tmp_path, "log.csv", f"time;rate\n{body}\n"), "rate")
+    assert len(t) == 200 and abs(t[-1] - 1.99) < 1e-9
+
+
+@pytest.mark.parametrize("text", [
+    "rate\n" + "\n".join(f"{r:.5f}" for _, r in _rows()) + "\n",           # one column
+    "rate,gain\n" + "\n".join(f"{r:.5f},1" for _, r in _rows()) + "\n",   # the value first
+])
+def test_no_time_column_is_named(tmp_path, text):
+    with pytest.raises(UserError, match="no time column|taken as the time") as e:
+        read_swing_csv(_write(tmp_path, "log.csv", text), "rate")
+    assert "--sample-rate HZ" in str(e.value) or "--columns t=COL" in str(e.value)
+
+
+def test_a_time_column_after_the_value_is_found(tmp_path):
+    text = "rate,t\n" + "\n".join(f"{r:.5f},{t:.2f}" for t, r in _rows()) + "\n"
+    t, v, _ = read_swing_csv(_write(tmp_path, "log.csv", text), "rate")
+    assert abs(t[1] - 0.01) < 1e-12 and abs(v[25] - 0.3 * math.sin(2 * math.pi * 0.5 * 0.25)) < 1e-5
+
+
+def test_first_column_that_is_not_a_time_is_named(tmp_path):
+    text = "a,b\n" + "\n".join(f"{r:.5f},{k}" for k, (_, r) in enumerate(_rows())) + "\n"
+    with pytest.raises(UserError, match="column 'a', taken as the time"):
+        read_swing_csv(_write(tmp_path, "log.csv", text), "rate")
+
+
+def test_sample_rate_reads_a_one_column_log(tmp_path):
+    text = "rate\n" + "\n".join(f"{r:.5f}" for _, r in _rows()) + "\n"
+    t, v, _ = read_swing_csv(_write(tmp_path, "log.csv", text), "rate", sample_rate_hz=100.0)
+    assert abs(t[1] - 0.01) < 1e-12 and len(v) == 200
