@@ -64,3 +64,14 @@ def test_sample_rate_reads_a_one_column_log(tmp_path):
     text = "rate\n" + "\n".join(f"{r:.5f}" for _, r in _rows()) + "\n"
     t, v, _ = read_swing_csv(_write(tmp_path, "log.csv", text), "rate", sample_rate_hz=100.0)
     assert abs(t[1] - 0.01) < 1e-12 and len(v) == 200
+
+
+@pytest.mark.parametrize("amp", ["91", "200"])
+def test_an_amplitude_no_suspension_swings_is_refused(tmp_path, amp):
+    from tests.support.cli import run_in_process
+
+    body = "\n".join(f"{t:.2f},{r:.5f}" for t, r in _rows())
+    p = _write(tmp_path, "trace.csv", f"t,value\n{body}\n")
+    r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
+                       "1.0", "--trace", str(p), "--amplitude-max", amp)
+    assert r.returncode != 0 and "winds them over each other" in r.stderr, r.stderr

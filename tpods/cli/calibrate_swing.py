@@ -31,6 +31,10 @@ NEW_INPUTS = (
     "more than 3 times the sensor noise (docs/calibration.md).")
 
 
+AMPLITUDE_LIMIT_DEG = 90.0
+"""The largest swing amplitude a suspended body's model holds for (--amplitude-max)."""
+
+
 def register_bifilar(cal) -> None:
     """``tpods calibrate bifilar`` (its help text as before, the new inputs added)."""
     p = cal.add_parser(
@@ -173,6 +177,10 @@ def _check_log_options(args) -> None:
         raise UserError("--rate-unit is for --rates logs")
     if (args.trace_scale is not None or args.amplitude_max != 15.0) and not args.trace:
         raise UserError("--trace-scale and --amplitude-max are for --trace logs")
+    if args.amplitude_max > AMPLITUDE_LIMIT_DEG:
+        raise UserError(f"--amplitude-max {args.amplitude_max:g} deg: a swing of the strings "
+                        f"beyond {AMPLITUDE_LIMIT_DEG:g} deg winds them over each other, where "
+                        "the pendulum model does not hold (swings are released at 5-20 deg)")
     if args.trace_scale is not None and not (math.isfinite(args.trace_scale) and args.trace_scale):
         raise UserError(f"--trace-scale must be a non-zero finite number, got {args.trace_scale}")
 
