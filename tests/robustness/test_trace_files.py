@@ -75,3 +75,32 @@ def test_an_amplitude_no_suspension_swings_is_refused(tmp_path, amp):
     r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
                        "1.0", "--trace", str(p), "--amplitude-max", amp)
     assert r.returncode != 0 and "winds them over each other" in r.stderr, r.stderr
+
+
+def _gyro(tmp: Path, name: str, t_scale: float = 1.0, rate_scale: float = 1.0) -> Path:
+    w = 2 * math.pi / 2.0  # a 2 s swing of 0.17 rad (10 deg)
+    rows = "\n".join(f"{k * 0.01 * t_scale:.4f},{rate_scale * 0.17 * w * math.cos(w * k * 0.01):.6f}"
+                     for k in range(3000))
+    return _write(tmp, name, f"t,rate\n{rows}\n")
+
+
+@pytest.mark.parametrize("t_scale, rate_scale, words", [
+    (1.0, math.degrees(1.0), "--rate-unit deg/s"),   # deg/s read as rad/s
+    (1000.0, 1.0, "--time-unit ms"),                 # ms read as s
+    (0.001, 1.0, "--time-unit s"),                   # s read as ms (a 2 ms swing)
+])
+def test_gyro_units_named(tmp_path, t_scale, rate_scale, words):
+    from tests.support.cli import run_in_process
+
+    p = _gyro(tmp_path, "g.csv", t_scale, rate_scale)
+    r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
+                       "1.0", "--rates", str(p))
+    assert r.returncode != 0 and words in r.stderr, r.stderr
+
+
+def test_gyro_in_the_right_units_fits(tmp_path):
+    from tests.support.cli import run_in_process
+
+    r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
+                       "1.0", "--rates", str(_gyro(tmp_path, "g.csv")))
+    assert r.returncode == 0, r.stderr

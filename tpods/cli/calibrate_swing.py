@@ -14,6 +14,7 @@ import math
 import sys
 from pathlib import Path
 
+from calibration.swing_units import AMPLITUDE_LIMIT_DEG
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
@@ -29,10 +30,6 @@ NEW_INPUTS = (
     "trace fit bounds the damping at zero, models a second mode (the sway at sqrt(g/L)) when it "
     "is there, and falls back to the period method with a wider sigma when its residual is "
     "more than 3 times the sensor noise (docs/calibration.md).")
-
-
-AMPLITUDE_LIMIT_DEG = 90.0
-"""The largest swing amplitude a suspended body's model holds for (--amplitude-max)."""
 
 
 def register_bifilar(cal) -> None:
@@ -216,6 +213,11 @@ def _estimate(args):
             print(f"tpods: warning: {path}: {skipped} rows with an empty cell skipped", file=sys.stderr)
         signal = "rate" if args.rates else ("angle" if args.trace_scale else "signal")
     t, y = _window(args, t, y)
+    from calibration.swing_units import swing_units_problem
+
+    problem = swing_units_problem(t, y, signal)
+    if problem is not None:
+        raise UserError(f"{path}: {problem}")
     try:
         if signal == "angle" and args.poses:
             res = fit_pose_trace(t, y, s, vertical_ke=not args.no_rise_ke)
