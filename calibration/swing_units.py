@@ -32,6 +32,35 @@ def dominant_period_s(t: np.ndarray, y: np.ndarray) -> float | None:
     return 1.0 / f[k] if f[k] > 0 else None
 
 
+PEAK_OVER_MEDIAN = 10.0
+"""A swing's spectral peak stands this far above the spectrum's median (magnitudes); white
+noise's largest peak stands 3-4 times above it."""
+
+
+def swing_presence_problem(t: np.ndarray, y: np.ndarray) -> str | None:
+    """One line when the trace holds no swing (its largest spectral peak is not above the
+    noise), or None."""
+    t = np.asarray(t, float)
+    y = np.asarray(y, float) - np.mean(y)
+    n = len(t)
+    if n < 16 or not t[-1] > t[0]:
+        return None
+    grid = np.linspace(t[0], t[-1], n)
+    yy = np.interp(grid, t, y)
+    yy = yy - np.polyval(np.polyfit(grid, yy, 1), grid)  # a drift is no swing
+    spec = np.abs(np.fft.rfft(yy * np.hanning(n)))[1:]
+    med = float(np.median(spec))
+    if med <= 0:
+        return None
+    ratio = float(spec.max()) / med
+    if ratio >= PEAK_OVER_MEDIAN:
+        return None
+    return (f"the trace does not oscillate (no swing in the trace): its largest spectral peak "
+            f"is only {ratio:.1f} times the "
+            f"median of its spectrum (a swing stands far above it; at least {PEAK_OVER_MEDIAN:g}): "
+            "a log of noise, of the body at rest, or of another channel")
+
+
 def swing_units_problem(t: np.ndarray, y: np.ndarray, signal: str) -> str | None:
     """One line naming the option that fixes a unit mistake, or None. ``signal``: "rate"
     (rad/s), "angle" (rad) or "signal" (any unit: the period only)."""

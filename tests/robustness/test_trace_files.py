@@ -104,3 +104,15 @@ def test_gyro_in_the_right_units_fits(tmp_path):
     r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
                        "1.0", "--rates", str(_gyro(tmp_path, "g.csv")))
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_gyro_log_of_noise_has_no_swing(tmp_path, seed):
+    from tests.support.cli import run_in_process
+
+    rng = np.random.default_rng(seed)
+    rows = "\n".join(f"{k * 0.01:.2f},{x:.6f}" for k, x in enumerate(rng.normal(0, 0.01, 3000)))
+    p = _write(tmp_path, "noise.csv", f"t,rate\n{rows}\n")
+    r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
+                       "1.0", "--rates", str(p))
+    assert r.returncode != 0 and "no swing in the trace" in r.stderr, r.stderr

@@ -213,9 +213,9 @@ def _estimate(args):
             print(f"tpods: warning: {path}: {skipped} rows with an empty cell skipped", file=sys.stderr)
         signal = "rate" if args.rates else ("angle" if args.trace_scale else "signal")
     t, y = _window(args, t, y)
-    from calibration.swing_units import swing_units_problem
+    from calibration.swing_units import swing_presence_problem, swing_units_problem
 
-    problem = swing_units_problem(t, y, signal)
+    problem = swing_presence_problem(t, y) or swing_units_problem(t, y, signal)
     if problem is not None:
         raise UserError(f"{path}: {problem}")
     try:
