@@ -126,8 +126,32 @@ def quiet_expected_warnings() -> None:
                             module=r"(estimator|calibration|bench|common|mocap_bridge|tpods|numpy|scipy)(\.|$)")
 
 
+def short_library_warnings() -> None:
+    """A library's warning (matplotlib's, say) reaches the user as ``tpods: warning:
+    (library) message``, not as an absolute path into the installed package and a source
+    line; the toolkit's own warnings keep Python's form."""
+    import warnings
+
+    shown = warnings.showwarning
+    if getattr(shown, "_tpods_short", False):
+        return  # installed already (main called again in one process)
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        parts = str(filename).replace("\\", "/").split("/")
+        if "site-packages" in parts or "dist-packages" in parts:
+            lib = parts[parts.index("site-packages" if "site-packages" in parts
+                                    else "dist-packages") + 1]
+            print(f"tpods: warning: ({lib}) {message}", file=file or sys.stderr)
+            return
+        shown(message, category, filename, lineno, file, line)
+
+    show._tpods_short = True  # type: ignore[attr-defined]
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     quiet_expected_warnings()
+    short_library_warnings()
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(glue_negative_values(argv, _value_options(parser)))
