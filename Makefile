@@ -59,7 +59,8 @@ bench-long: $(STAMP)
 # the CLI robustness properties with 25x the examples of `make test`, not derandomised
 robustness: $(STAMP)
 	MPLBACKEND=Agg TPODS_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q -p no:cacheprovider \
-		tests/tpods/cli/test_properties.py tests/tpods/cli/test_properties_plausible.py
+		tests/tpods/cli/test_properties.py tests/tpods/cli/test_properties_plausible.py \
+		tests/tpods/cli/test_properties_surfaces.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -104,3 +104,17 @@ def test_a_refused_import_leaves_no_folder(tmp_path, argv):
     r = run_in_process(*argv, "--out", str(out), cwd=tmp_path)
     assert r.returncode != 0
     assert not out.exists()
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_decimal_comma_logs_import(tmp_path, sep):
+    """A spreadsheet of a decimal-comma locale: the header names its columns, numbers use the
+    comma (it used to say "no column 'time'" while the header held it)."""
+    p = tmp_path / "p.csv"
+    t = 0.05 * np.arange(40)
+    p.write_text(sep.join(["time", "x", "y", "yaw"]) + "\n" + "\n".join(
+        sep.join(f"{v:.4f}".replace(".", ",") for v in (a, 0.01 * a, 0.0, 0.0)) for a in t) + "\n")
+    r = _imp_poses(p, tmp_path / "RUN")
+    assert r.returncode == 0, r.stderr
+    got = np.loadtxt(tmp_path / "RUN" / "poses.csv", delimiter=",", skiprows=1)
+    assert np.allclose(got[:, 0], t) and np.allclose(got[:, 1], 0.01 * t, atol=1e-6)
