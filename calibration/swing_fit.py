@@ -38,6 +38,7 @@ from calibration.bifilar_fit import (
 )
 from calibration.suspension import Suspension
 from calibration.swing_lsq import (
+    MAIN_BAND,
     LsqFit,
     find_second_mode,
     fit_model,
@@ -100,6 +101,11 @@ def _linear_fits(t, y, rate: bool, curved: bool, mode2: bool) -> tuple[LsqFit, L
     b = list(f0.beta)
     f1 = fit_model(m1, t, y, [*b[:6], a2, b2, 2 * math.log(w2), 0.0, *b[6:]])
     if f0.ssr - f1.ssr < MODE2_CHI2_DROP * f0.noise**2:
+        return f0, f0
+    # a "second mode" the fit moved onto the swing's own frequency is the swing itself (its
+    # amplitude or damping not quite the model's), not another mode
+    w_main, w_2 = math.exp(0.5 * f1.beta[0]), math.exp(0.5 * f1.beta[8])
+    if abs(w_2 - w_main) < MAIN_BAND * w_main:
         return f0, f0
     return f0, f1
 

@@ -4,6 +4,7 @@ read or refused with what to fix, not "no column" or "time does not increase".""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +117,21 @@ def test_a_gyro_log_of_noise_has_no_swing(tmp_path, seed):
     r = run_in_process("calibrate", "bifilar", "--mass", "0.72", "--spacing", "0.2", "--length",
                        "1.0", "--rates", str(p))
     assert r.returncode != 0 and "no swing in the trace" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("signal", ["rate", "angle"])
+def test_a_single_mode_trace_has_no_second_mode_at_its_own_frequency(signal):
+    """A clean swing with quadratic damping: the fit used to model a "second mode" at the
+    swing's own frequency (0.665 Hz here) and warn of it."""
+    from calibration.bifilar_model import Pendulum
+    from calibration.suspension import Suspension
+    from calibration.swing_fit import fit_swing
+    from calibration.swing_sim import simulate_sensor_trace
+
+    p = Pendulum(0.72, 0.004, 0.2, 1.0, c1=0.01, c2=0.3)
+    t, y = simulate_sensor_trace(p, signal, release_deg=20, duration_s=60, seed=0, noise=1e-4)
+    f = fit_swing(t, y, signal, Suspension("bifilar", 0.72, 0.2, 1.0))
+    main_hz = math.sqrt(0.72 * 9.80665 * 0.2 ** 2 / (4 * 1.0 * 0.004)) / (2 * math.pi)
+    for w in f.warnings:
+        m = re.search(r"second mode at ([0-9.]+) Hz", w)
+        assert not (m and abs(float(m.group(1)) / main_hz - 1) < 0.12), w
