@@ -36,3 +36,10 @@ def test_a_vehicle_with_body_values_designs(tmp_path):
 
     truth = json.loads((tmp_path / "S" / "run.json").read_text())["truth"]
     assert truth["mass_kg"] == 23.09 and truth["izz_kgm2"] == 0.31
+
+
+def test_the_tpods_module_as_a_vehicle_is_the_papers_module(tmp_path):
+    """vehicles/tpods.toml is the paper's module: its defaults are its own."""
+    tpods = EIGHT.parent / "tpods.toml"
+    r = run_in_process("sim", "--vehicle", str(tpods), "--duration", "2", "--out", str(tmp_path / "S"))
+    assert r.returncode == 0, r.stderr

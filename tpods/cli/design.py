@@ -153,7 +153,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         structure = load_layout(args.structure)
         g = structure.initial_guess()
         body = structure.body
-        if structure.kind == "vehicle" and (
+        if structure.kind == "vehicle" and not structure.is_single_at_origin and (
                 (args.mass is None and body.mass_kg is None) or (args.izz is None and body.izz_kgm2 is None)):
             # its initial guess is the paper's 2.3 kg module: a design for another body
             raise UserError(f"{args.structure}: states no [body] mass_kg and izz_kgm2: give "

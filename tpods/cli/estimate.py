@@ -99,7 +99,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     ct, cr, kb = args.friction or (0.0, 0.0, 0.0)
     ax, ay = args.tilt or (0.0, 0.0)
     body = structure.body if structure is not None else None
-    if getattr(structure, "kind", None) == "vehicle" and (
+    if getattr(structure, "kind", None) == "vehicle" and not structure.is_single_at_origin and (
             (args.mass is None and body.mass_kg is None) or (args.izz is None and body.izz_kgm2 is None)):
         raise UserError(f"{structure.source}: states no [body] mass_kg and izz_kgm2: give --mass "
                         "and --izz (the paper's 2.3 kg module is not this vehicle)")
