@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.csv_locale import decimal_commas, header_delimiter, is_number
 from common.errors import UserError
 
 TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
@@ -53,26 +54,14 @@ def _split(path: Path) -> list[list[str]]:
         raise UserError(f"{path}: empty file")
     # the header (no decimals in it) says the separator first: a spreadsheet of a decimal
     # comma locale writes "t;rate" and "0,01;0,30"
-    head = lines[0]
-    delim = next((d for d in ("\t", ";") if d in head and "," not in head), None)
+    delim = header_delimiter(lines[0])
     if delim is None:
-        sample = head + "\n" + (lines[1] if len(lines) > 1 else "")
+        sample = lines[0] + "\n" + (lines[1] if len(lines) > 1 else "")
         delim = next((d for d in (",", "\t", ";") if d in sample), None)
     if delim is None:
         return [ln.split() for ln in lines]
     rows = [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delim)]
-    if delim != ",":  # decimal commas: 0,01 is 0.01 (a cell holds no thousands separator)
-        rows = [[c.replace(",", ".") if _is_number(c.replace(",", ".")) else c for c in row]
-                for row in rows]
-    return rows
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
+    return decimal_commas(rows) if delim != "," else rows
 
 
 def _index(col: str, header: list[str] | None, path: Path) -> int:
@@ -103,7 +92,7 @@ def read_swing_csv(path: str | Path, value_key: str, columns: str | None = None,
     if time_unit not in TIME_UNITS_S:
         raise UserError(f"--time-unit {time_unit}: expected one of {', '.join(TIME_UNITS_S)}")
     rows = _split(path)
-    header = None if all(_is_number(c) or c in EMPTY for c in rows[0]) else rows[0]
+    header = None if all(is_number(c) or c in EMPTY for c in rows[0]) else rows[0]
     data = rows[1:] if header is not None else rows
     cols = parse_columns(columns, ("t", value_key))
     names = [h.strip().strip('"').lower() for h in header] if header else []

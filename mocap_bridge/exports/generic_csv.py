@@ -55,14 +55,6 @@ def parse_column_map(text: str, keys: tuple[str, ...], option: str = "--columns"
     return out
 
 
-def _is_float(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
-
-
 def read_table_text(text: str, what: str) -> tuple[list[str], list[tuple[int, list[str]]]]:
     """The header and the non-empty data rows (with their 1-based line numbers).
 
@@ -70,12 +62,12 @@ def read_table_text(text: str, what: str) -> tuple[list[str], list[tuple[int, li
     decimal-comma locale writes ``time;x;y`` and ``0,05;1,25;...`` (or tabs), whose number
     cells are read with the comma as the decimal point; a cell that is not a number so
     (a vector ``[1, 0]``) is left as it is."""
-    head = text.lstrip("\ufeff").split("\n", 1)[0]
-    delim = next((d for d in (";", "\t") if d in head and "," not in head), ",")
+    from common.csv_locale import decimal_commas, header_delimiter
+
+    delim = header_delimiter(text.lstrip("\ufeff").split("\n", 1)[0]) or ","
     rows = list(csv.reader(io.StringIO(text), delimiter=delim))
     if delim != ",":
-        rows = [[c.replace(",", ".") if "," in c and _is_float(c.replace(",", ".")) else c
-                 for c in r] for r in rows]
+        rows = decimal_commas(rows)
     if not rows or not any(c.strip() for c in rows[0]):
         raise UserError(f"{what}: empty file or empty header line")
     header = [c.strip() for c in rows[0]]
