@@ -47,3 +47,8 @@ def test_implausible_mass_names_the_vehicle_forces(tmp_path):
         r = run_in_process("estimate", "batch", str(run), "--vehicle", str(big), *extra)
         assert "implausible for an air-table body" in r.stderr, (extra, r.stderr)
         assert "big.toml: its valves' force_n" in r.stderr and "Table 2" not in r.stderr
+    r = run_in_process("estimate", "batch", str(run), "--vehicle", str(big), "--segments", "5s",
+                       "--json")
+    import json
+
+    assert any("implausible" in w for w in json.loads(r.stdout)["warnings"])  # --json too

@@ -108,12 +108,10 @@ def cmd_segments(args: argparse.Namespace) -> int:
     if args.out_vehicle and Path(args.out_vehicle).exists() and not args.force:
         raise UserError(f"--out-vehicle {args.out_vehicle} exists; add --force to replace it")
     run, vehicle = _run_and_vehicle(args)
-    t0 = float(run.pose_t[0])
-    ex = [(a - 0.0, b - 0.0) for a, b in exclude]
     common = dict(sigma_pos_m=args.sigma_pos, sigma_yaw_rad=math.radians(args.sigma_yaw_deg),
-                  length_s=length, exclude=ex)
+                  length_s=length, exclude=exclude)  # run seconds, as the poses
     initial = dict(args.initial or {})
-    out: dict = {"run": str(run.path), "time_origin_s": t0}
+    out: dict = {"run": str(run.path)}
     lines: list[str] = []
     if args.thruster_health:
         fixed = dict(args.fixed or {})
@@ -134,9 +132,9 @@ def cmd_segments(args: argparse.Namespace) -> int:
         fit = fit_segments(run.pose_t, run.pose, vehicle, run.cmd_t, run.duty_pct,
                            names=_names(args), fixed=args.fixed or {}, initial=initial,
                            clamp=args.clamp, max_iter=max(args.max_iter, 30), **common)
-    out.update(fit.to_dict())
     _jitter_warning(run, fit)
     _body_warning(fit, vehicle, args)
+    out.update(fit.to_dict())  # after the warnings: --json holds them too
     if args.out_folder is not None:
         _write_outputs(args, out, fit, run)
     for w in fit.warnings:
