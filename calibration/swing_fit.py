@@ -218,7 +218,15 @@ def fit_swing(t_s, y, signal: str, s: Suspension, *, vertical_ke: bool = True,
     details = _details(t, yv, signal, s, f0, lin, nl, primary, izz_period, half)
     details.update(amp_note, izz_gross_kgm2=izz)
     if lin.model.mode2:
-        warnings.append(f"a second mode is in the trace and was modelled: {details['second_mode']['name']}")
+        k = harmonic_of(details["second_mode"]["frequency_hz"], math.exp(0.5 * lin.beta[0]) / (2 * math.pi))
+        if k is not None:  # the swing's own harmonic, not another mode: said in the details
+            details["second_mode"]["name"] = (
+                f"the swing's own harmonic {k} (a large or quadratically damped swing is no pure "
+                f"sine), modelled as a sinusoid; not another mode")
+            details["second_mode"]["harmonic"] = k
+        else:
+            warnings.append(f"a second mode is in the trace and was modelled: "
+                            f"{details['second_mode']['name']}")
     return SwingFit(
         izz_kgm2=net, izz_sigma_kgm2=sigma, method=f"{s.kind}-{method}",
         contributions_kgm2=contrib, inputs={**s.inputs(), "signal": signal},
@@ -274,6 +282,19 @@ def _details(t, y, signal, s: Suspension, f0: LsqFit, lin: LsqFit, nl: LsqFit | 
             "damping_per_s": lin.value("s2_per_s"),
             "residual_to_noise_without": f0.ratio}
     return d
+
+
+HARMONIC_TOLERANCE = 0.03
+"""A second mode within this fraction of 2, 3, 4 or 5 times the swing's frequency is the
+swing's own harmonic."""
+
+
+def harmonic_of(f_hz: float, main_hz: float) -> int | None:
+    """k when ``f_hz`` is within :data:`HARMONIC_TOLERANCE` of k times ``main_hz`` (k = 2..5)."""
+    if not main_hz > 0:
+        return None
+    k = round(f_hz / main_hz)
+    return k if 2 <= k <= 5 and abs(f_hz / (k * main_hz) - 1) < HARMONIC_TOLERANCE else None
 
 
 REFIT_RATIO = 1.5
