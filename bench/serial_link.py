@@ -177,7 +177,7 @@ class SerialLink:
 
 class SerialDevice:
     """A bench driver on a serial link (:class:`bench.valves.ValveController`,
-    :class:`bench.ohaus.OhausScout`): ``open()`` makes the link, ``close()`` ends it, and
+    :class:`bench.ohaus.driver.OhausScout`): ``open()`` makes the link, ``close()`` ends it, and
     ``with Driver(...) as d:`` does both, closing on every exit path."""
 
     def open(self) -> Self:

@@ -43,7 +43,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bench import clock
-from bench.ohaus import OhausScout, Reading
+from bench.ohaus.driver import OhausScout, Reading
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
 from common.plausible import check_duty_range

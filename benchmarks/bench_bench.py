@@ -67,7 +67,7 @@ def _capture_rows(tmp: Path) -> list[dict]:
     """A short session (100 Hz prints) with serial capture on and off, alternated; and the
     cost of writing one transcript line."""
     from bench.capture import Transcript
-    from bench.ohaus import OhausScout
+    from bench.ohaus.driver import OhausScout
     from bench.session import SessionConfig, run_session
     from bench.valves import ValveController
 

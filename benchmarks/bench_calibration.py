@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from calibration.bifilar import Pendulum, fit_swing_trace, simulate_trace
+from calibration.swing.bifilar import Pendulum, fit_swing_trace, simulate_trace
 from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
 
 # (label, mass kg, Izz kg m^2, D m, h m, c1 1/s, c2 1/rad)

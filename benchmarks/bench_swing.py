@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from calibration.bifilar_model import Pendulum
 from calibration.suspension import Suspension
-from calibration.swing_fit import fit_pose_trace, fit_swing
-from calibration.swing_sim import simulate_sensor_trace
+from calibration.swing.bifilar_model import Pendulum
+from calibration.swing.sim import simulate_sensor_trace
+from calibration.swing.trace_fit import fit_pose_trace, fit_swing
 
 I_TRUE = 1.2e-3
 SEEDS = range(8)

@@ -242,7 +242,7 @@ def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]
 
     def check(tab: dict, where: str) -> dict[str, Any] | None:
         """The summary of the pendulum check ``tab`` names (read once per file)."""
-        from calibration.pendulum_check import load_check_summary
+        from calibration.swing.pendulum_check import load_check_summary
 
         name = tab.get("pendulum_check")
         if name is None:

@@ -54,7 +54,7 @@ def plot_trace_fit(fit, path: str | Path) -> Path:
 
 def plot_signal_fit(fit, path: str | Path) -> Path:
     """Any swing trace (yaw, gyro rate, pixels) with the reported model and the damped-sine
-    (period) fit, and their residuals (:class:`calibration.swing_fit.SwingFit`)."""
+    (period) fit, and their residuals (:class:`calibration.swing.trace_fit.SwingFit`)."""
     path = Path(path)
     d = fit.details
     t = fit.t - fit.t[0]

@@ -4,11 +4,11 @@ A trifilar pendulum (three parallel strings of length L at radius R from the cen
 the centre of mass on the axis) lifts its body exactly as a bifilar one of spacing
 D = 2R does: each string's lower end moves on a chord 2 R sin(th/2), the body rises by
 L - sqrt(L^2 - 4 R^2 sin^2(th/2)). So the large-angle model of
-:mod:`calibration.bifilar_model` serves both with ``spacing_m = 2 R``, and the
+:mod:`calibration.swing.bifilar_model` serves both with ``spacing_m = 2 R``, and the
 small-angle formula I = m g R^2 T^2 / (4 pi^2 L) is Eq. 19 with D = 2R.
 :class:`Suspension` carries either with its uncertainties and names its inputs in the
 budget ("spacing" D or "radius" R); :func:`izz_trifilar_from_times` is the trifilar twin
-of :func:`calibration.bifilar_eq19.izz_from_times`.
+of :func:`calibration.swing.bifilar_eq19.izz_from_times`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from calibration.bifilar_eq19 import (
+from calibration.swing.bifilar_eq19 import (
     G_STANDARD,
     IzzResult,
     check_geometry,

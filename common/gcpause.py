@@ -7,7 +7,7 @@ generation (``gc.freeze``): the collections during the run then scan only what t
 made. Measured: the live estimator's one full collection of a 15 s run at 1 kHz took
 12-17 ms (docs/bench.md); after the demo's bench stage a full collection takes 35-46 ms
 on an idle machine, and a 277 ms stall of the in-process plant once put a valve change a
-quarter of a second late and the calibration flight's factors 15 % off (tpods/demo_fidelity.py).
+quarter of a second late and the calibration flight's factors 15 % off (tpods/demo/fidelity.py).
 """
 
 from __future__ import annotations

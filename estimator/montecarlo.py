@@ -6,7 +6,7 @@ under the shared input with 1 cm / 1 deg pose noise (and optional dropped frames
 and is filtered. Everything runs vectorised across runs and streams along time: the
 truth is integrated for all runs at once (:func:`estimator.plant.propagate.rk4_states`,
 split at every pose time and command switch like :func:`estimator.plant.model.integrate_zoh`),
-the poses are drawn, and one :class:`estimator.filters.ekf_vec.VecEKF` filters every run;
+the poses are drawn, and one :class:`estimator.filters.vec.VecEKF` filters every run;
 only per-time statistics are kept, so memory does not grow with runs x time.
 
 Filter initialisation (method ``ekf``): mean (0, 0, 0, 0, 0, 0, m_nom, Izz_nom) and
@@ -43,7 +43,7 @@ from common.errors import UserError
 from common.thrust_table import load_thrust_table
 from estimator.batch.least_squares import batch_ls
 from estimator.filters.ekf import NX, PAPER, EkfConfig
-from estimator.filters.ekf_vec import VecEKF, shared_schedule
+from estimator.filters.vec import VecEKF, shared_schedule
 from estimator.plant.inputs import make_input
 from estimator.plant.model import PARAM_NAMES, wrench
 from estimator.plant.propagate import rk4_states

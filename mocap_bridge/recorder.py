@@ -18,11 +18,11 @@ writes ``complete`` (a clean stop: Ctrl-C or the end of ``--duration``) or ``inc
 the recorder was killed. Readers warn on a recording that is not ``complete``
 (:func:`common.runfolder.warn_if_partial`).
 
-Given an :class:`common.mcap_log.McapLog` (``mcap=``), the recorder also logs every
+Given an :class:`common.mcap.log.McapLog` (``mcap=``), the recorder also logs every
 payload of the subscribed key, stats and malformed ones included, on a channel per Zenoh
-key, with the receive time (:mod:`common.mcap_log`); the CSV files stay the primary
+key, with the receive time (:mod:`common.mcap.log`); the CSV files stay the primary
 format. ``tpods mocap record --out X.mcap`` writes only the MCAP file (:func:`subscribe`
-with a log and no recorder is :func:`common.mcap_log.subscribe`).
+with a log and no recorder is :func:`common.mcap.log.subscribe`).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from common.errors import UserError
-from common.mcap_log import McapLog
+from common.mcap.log import McapLog
 from common.plausible import check_finite_time
 from common.runfolder import POSE_COLUMNS
 from common.runwriter import CsvLog, run_header, write_json_atomic

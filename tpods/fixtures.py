@@ -128,7 +128,7 @@ def _run_values(fixture: Path, keys: tuple[str, ...]) -> dict[str, Any]:
 def _bifilar_values(fixture: Path) -> dict[str, Any]:
     import numpy as np
 
-    from calibration.bifilar import fit_swing_trace
+    from calibration.swing.bifilar import fit_swing_trace
     from common.runfolder import POSE_COLUMNS, read_table
 
     inputs = json.loads((fixture / "bifilar.json").read_text())
@@ -174,7 +174,7 @@ def _bench_values(fixture: Path) -> dict[str, Any]:
     import tempfile
 
     from bench.fit import fit_steps
-    from bench.ohaus import OhausScout
+    from bench.ohaus.driver import OhausScout
     from bench.session import run_session
     from bench.valves import ValveController
 
@@ -223,7 +223,7 @@ def _pcap_values(fixture: Path) -> dict[str, Any]:
 
 
 def _mcap_values(fixture: Path) -> dict[str, Any]:
-    from common.mcap_log import read_mcap
+    from common.mcap.log import read_mcap
 
     path = _recording_file(fixture, (".mcap",))
     rec = read_mcap(path)
@@ -311,7 +311,7 @@ def check_whole(src: Path, kind: str) -> None:
     """Refuse a recording that did not end cleanly: its golden would be of a mid-run state
     (an MCAP file cut by a kill or closed with a status other than complete or success;
     a run folder whose run.json says it is partial)."""
-    from common.mcap_log import end_status
+    from common.mcap.log import end_status
     from common.runfolder import WHOLE_STATUSES, partial_status
 
     why = "; record it again, or replay what it holds with tpods replay"

@@ -2,7 +2,7 @@
 
 A calibration run must open the thrusters in different combinations and numbers: the
 paper's phase-shifted sine keeps all four open and cannot tell a nozzle-count scale from
-the efficiencies' common level (:mod:`estimator.batch.thrust_calibration`). The family
+the efficiencies' common level (:mod:`estimator.batch.thrust_calibration.calibrate`). The family
 here is the *gated* phase-shifted sine
 
     d_i(t) = mean + A sin(w t + phase_i),   closed (0 %) where d_i(t) < low,
@@ -28,7 +28,7 @@ from common.errors import UserError
 from common.thrust_table import ThrustTable
 from estimator.batch.crlb import marginal_information, safe_inverse
 from estimator.batch.design import DesignSettings
-from estimator.batch.thrust_calibration import (
+from estimator.batch.thrust_calibration.calibrate import (
     MODEL_EXTRAS,
     N_CHANNELS,
     CalibrationFit,

@@ -3,7 +3,7 @@ ones a run can give (:func:`factor_names`), the table with given factors
 (:func:`with_factors`), the thrusts' derivatives with respect to them
 (:func:`factor_jacobian`) and the table uncertainty terms they absorb
 (:func:`absorbed_terms`, :func:`remaining_uncertainty`). Used by
-:mod:`estimator.batch.thrust_calibration`.
+:mod:`estimator.batch.thrust_calibration.calibrate`.
 """
 
 from __future__ import annotations

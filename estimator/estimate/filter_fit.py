@@ -24,7 +24,7 @@ from estimator.estimate.result import Estimate
 from estimator.estimate.structure_run import _structure_consider, com_keys
 from estimator.filters.ekf import STATE_NAMES as FILTER_STATE_NAMES
 from estimator.filters.ekf import estimate_filter, initial_rates
-from estimator.filters.ekf_ext import ExtEkfConfig, estimate_ext
+from estimator.filters.ext import ExtEkfConfig, estimate_ext
 
 
 def _truth(run: Run) -> tuple[float, float] | None:
@@ -173,7 +173,7 @@ def _ideal_filter(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelecti
 def _extended_filter(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelection | None,
                      knowledge: BodyKnowledge | None = None) -> Estimate:
     """``--method ekf|ls-ekf`` under the friction/tilt models or on a structure: the
-    extended filter (:mod:`estimator.filters.ekf_ext`). ``o`` the resolved options, as for
+    extended filter (:mod:`estimator.filters.ext`). ``o`` the resolved options, as for
     :func:`_ideal_filter`; ``knowledge`` a structure's [body] knowledge."""
     method, model, window, clamp = o.method, o.model, o.window, o.clamp
     names, fixed, initial, opts = o.estimate, o.fixed, o.initial, o.filter_options

@@ -13,7 +13,7 @@ from estimator.batch.crlb import CRLBResult
 from estimator.batch.least_squares import BatchResult
 from estimator.batch.model_select import ModelSelection
 from estimator.filters.ekf import EkfConfig, FilterEstimate
-from estimator.filters.ekf_ext import ExtEkfConfig, ExtEkfResult
+from estimator.filters.ext import ExtEkfConfig, ExtEkfResult
 
 
 @dataclass

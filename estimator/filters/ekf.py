@@ -16,28 +16,28 @@ Two implementations of one filter:
 
 Each part has its module; this one re-exports them:
 
-- :mod:`estimator.filters.ekf_config`: the state layout, :class:`EkfConfig`, :data:`PAPER`,
+- :mod:`estimator.filters.config`: the state layout, :class:`EkfConfig`, :data:`PAPER`,
   :data:`PRESETS`, :func:`parse_state_values`;
-- :mod:`estimator.filters.ekf_kernels`: propagation, predict and update on plain arrays
+- :mod:`estimator.filters.kernels`: propagation, predict and update on plain arrays
   (underweighting, the 1/m form :func:`inverse_correction`, the off-centre pose update) and
   the filter's conventions;
-- :mod:`estimator.filters.ekf_result`: :class:`EkfResult` (:class:`FilterHistory`) and its
+- :mod:`estimator.filters.result`: :class:`EkfResult` (:class:`FilterHistory`) and its
   divergence and consistency tests;
-- :mod:`estimator.filters.ekf_loop`: :func:`make_schedule`, :func:`run_filter` (the loop for
-  any parameter set, the extended filter of :mod:`estimator.filters.ekf_ext` too),
+- :mod:`estimator.filters.loop`: :func:`make_schedule`, :func:`run_filter` (the loop for
+  any parameter set, the extended filter of :mod:`estimator.filters.ext` too),
   :func:`run_ekf`;
-- :mod:`estimator.filters.ekf_plausibility`: what a run says about itself (issue 16);
-- :mod:`estimator.filters.ekf_methods`: ``ekf`` and ``ls-ekf`` on a whole run
+- :mod:`estimator.filters.plausibility`: what a run says about itself (issue 16);
+- :mod:`estimator.filters.methods`: ``ekf`` and ``ls-ekf`` on a whole run
   (:func:`estimate_filter`, :class:`FilterEstimate`), :func:`initial_rates`.
 
 A re-export is a second name for the same object: to monkeypatch a function, patch it in
-the module that defines it (e.g. ``estimator.filters.ekf_loop.run_filter``), where its
+the module that defines it (e.g. ``estimator.filters.loop.run_filter``), where its
 callers look it up.
 """
 
 from __future__ import annotations
 
-from estimator.filters.ekf_config import (
+from estimator.filters.config import (
     INV_IDX,
     NX,
     NZ,
@@ -49,9 +49,9 @@ from estimator.filters.ekf_config import (
     EkfConfig,
     parse_state_values,
 )
-from estimator.filters.ekf_config import _known_plant as _known_plant
-from estimator.filters.ekf_kernels import _JAC_POS as _JAC_POS
-from estimator.filters.ekf_kernels import (
+from estimator.filters.config import _known_plant as _known_plant
+from estimator.filters.kernels import _JAC_POS as _JAC_POS
+from estimator.filters.kernels import (
     MIN_INV_RATIO,
     TWO_PI,
     ekf_predict,
@@ -62,38 +62,38 @@ from estimator.filters.ekf_kernels import (
     uw_ratio,
     wrap_residual,
 )
-from estimator.filters.ekf_kernels import _dot as _dot
-from estimator.filters.ekf_kernels import _eye as _eye
-from estimator.filters.ekf_kernels import _h as _h
-from estimator.filters.ekf_kernels import _inv_sym3 as _inv_sym3
-from estimator.filters.ekf_kernels import _max_eig_sym3 as _max_eig_sym3
-from estimator.filters.ekf_kernels import _offset_spec as _offset_spec
-from estimator.filters.ekf_kernels import _predict as _predict
-from estimator.filters.ekf_kernels import _rhs_jac as _rhs_jac
-from estimator.filters.ekf_kernels import _update as _update
-from estimator.filters.ekf_kernels import _update_offset as _update_offset
-from estimator.filters.ekf_loop import (
+from estimator.filters.kernels import _dot as _dot
+from estimator.filters.kernels import _eye as _eye
+from estimator.filters.kernels import _h as _h
+from estimator.filters.kernels import _inv_sym3 as _inv_sym3
+from estimator.filters.kernels import _max_eig_sym3 as _max_eig_sym3
+from estimator.filters.kernels import _offset_spec as _offset_spec
+from estimator.filters.kernels import _predict as _predict
+from estimator.filters.kernels import _rhs_jac as _rhs_jac
+from estimator.filters.kernels import _update as _update
+from estimator.filters.kernels import _update_offset as _update_offset
+from estimator.filters.loop import (
     Schedule,
     initial_estimate,
     make_schedule,
     run_ekf,
     run_filter,
 )
-from estimator.filters.ekf_methods import (
+from estimator.filters.methods import (
     FILTER_METHODS,
     LS_STARTS,
     FilterEstimate,
     estimate_filter,
     initial_rates,
 )
-from estimator.filters.ekf_methods import _checked as _checked
-from estimator.filters.ekf_plausibility import (
+from estimator.filters.methods import _checked as _checked
+from estimator.filters.plausibility import (
     INFO_FRACTION,
     filter_plausibility,
     pose_scatter,
     residual_rms,
 )
-from estimator.filters.ekf_result import NIS_BLOCK, EkfResult, FilterHistory
+from estimator.filters.result import NIS_BLOCK, EkfResult, FilterHistory
 
 __all__ = [
     "FILTER_METHODS", "INFO_FRACTION", "INV_IDX", "LS_STARTS", "MIN_INV_RATIO", "NIS_BLOCK", "NX",

@@ -6,7 +6,7 @@ analytic transition matrix) and filterpy's Joseph-form update with an angle-wrap
 residual; :func:`run_filterpy` runs it over a whole run. The tests use it as the
 reference for the lean filter and the vectorised one.
 
-It imports the filter's modules (:mod:`estimator.filters.ekf_config`, ``ekf_kernels``,
+It imports the filter's modules (:mod:`estimator.filters.config`, ``ekf_kernels``,
 ``ekf_loop``, ``ekf_result``), never :mod:`estimator.filters.ekf`, which loads this module
 on first use of ``TpodsEKF`` or ``run_filterpy`` (no import cycle).
 """
@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimator.filters.ekf_config import NX, NZ, PAPER, EkfConfig
-from estimator.filters.ekf_kernels import inverse_correction, uw_ratio, wrap_residual
-from estimator.filters.ekf_loop import initial_estimate, make_schedule
-from estimator.filters.ekf_result import EkfResult
+from estimator.filters.config import NX, NZ, PAPER, EkfConfig
+from estimator.filters.kernels import inverse_correction, uw_ratio, wrap_residual
+from estimator.filters.loop import initial_estimate, make_schedule
+from estimator.filters.result import EkfResult
 from estimator.plant.propagate import propagate_stm
 
 
@@ -62,7 +62,7 @@ class TpodsEKF(ExtendedKalmanFilter):
 
     def update_pose(self, pose) -> None:
         """Pose update; with ``cfg.param_form == "inverse"`` the correction of m and Izz is
-        made on 1/m and 1/Izz (:func:`estimator.filters.ekf_kernels.inverse_correction`)."""
+        made on 1/m and 1/Izz (:func:`estimator.filters.kernels.inverse_correction`)."""
         prior = self.x.ravel().copy()
         self._update_pose(pose)
         if self.cfg._inv:

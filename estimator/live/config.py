@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 from common.errors import UserError
-from estimator.filters.ekf_config import PAPER, EkfConfig
+from estimator.filters.config import PAPER, EkfConfig
 from estimator.live.counters import Counters
 
 LIVE_METHODS = ("ekf", "ls-ekf")

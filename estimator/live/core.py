@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from common.errors import UserError
-from estimator.filters.ekf_kernels import ekf_predict, ekf_update
+from estimator.filters.kernels import ekf_predict, ekf_update
 from estimator.live.align import LiveAligner
 from estimator.live.config import (
     DEFAULT_MAX_WAIT_S,

@@ -21,7 +21,7 @@ import numpy as np
 
 from common.wire import EST_FMT as _EST_FMT
 from common.wire import EST_SCHEMA, encode_estimate
-from estimator.filters.ekf_config import STATE_NAMES
+from estimator.filters.config import STATE_NAMES
 
 
 class EstimateMessages:

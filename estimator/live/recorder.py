@@ -2,7 +2,7 @@
 
 With ``--mcap`` (or ``--out X.mcap``) the streams themselves are recorded too:
 :func:`record_streams` logs every message of the body's pose, command and estimate keys,
-as received (the estimates: as published), into a :class:`common.mcap_log.McapLog`.
+as received (the estimates: as published), into a :class:`common.mcap.log.McapLog`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
-from common.mcap_log import McapLog
-from common.mcap_log import subscribe as _subscribe
+from common.mcap.log import McapLog
+from common.mcap.log import subscribe as _subscribe
 from common.runwriter import CommandLog, CsvLog, write_json_atomic
 from estimator.filters.ekf import STATE_NAMES
 

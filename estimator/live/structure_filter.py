@@ -4,7 +4,7 @@ of mass; its report.
 On a structure the live estimator runs the extended filter's model: mass, Izz about the
 centre of mass and the centre of mass (cx, cy) in the tracked frame (a cx or cy that the
 structure's [body] gives as known is fixed), the offset-aware pose update
-(:func:`estimator.filters.ekf_kernels._update_offset`) in the direct parameter form, the
+(:func:`estimator.filters.kernels._update_offset`) in the direct parameter form, the
 process noise added after every RK4 step. :meth:`StructureFilter.com_m` and the estimate
 message's centre-of-mass keys (:meth:`StructureFilter._com_keys`) report it.
 
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
-from estimator.filters.ekf_kernels import _offset_spec, _predict, _update_offset, filter_plant
+from estimator.filters.kernels import _offset_spec, _predict, _update_offset, filter_plant
 from estimator.live.valve_segments import has_timing, timed_segments
 
 STRUCTURE_NAMES = ("mass", "izz", "cx", "cy")
@@ -57,7 +57,7 @@ class StructureFilter:
         structure's [body] gives as known is fixed; a [body] value with a sigma is a prior
         of the LS window's fit, as in ``tpods estimate batch``), the known terms of the
         EkfConfig fixed; the process noise of its first 8 states (added after every RK4
-        step, as :func:`estimator.filters.ekf_ext.run_ext_ekf` does), none on cx, cy; the
+        step, as :func:`estimator.filters.ext.run_ext_ekf` does), none on cx, cy; the
         direct parameter form (the 1/m form was overconfident with cx, cy estimated, see
         estimator.estimate._extended_filter)."""
         cfg = self.config.ekf

@@ -50,7 +50,7 @@ from common.thrust_table import ThrustTable
 from estimator.batch.crlb import crlb, safe_inverse
 from estimator.batch.least_squares import batch_ls
 from estimator.batch.model_select import select_model
-from estimator.filters.ekf_ext import ExtEkfConfig, estimate_ext
+from estimator.filters.ext import ExtEkfConfig, estimate_ext
 from estimator.plant.inputs import translate_rotate
 from estimator.plant.model import STATE_NAMES, PlantParams
 from estimator.plant.parameter_sets import MODELS, PARAM_UNITS, fixed_for

@@ -11,7 +11,7 @@ import serial
 import bench.serial_link  # noqa: F401  registers replay://
 from bench.capture import FORMAT, read_transcript
 from bench.fit import fit_steps
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.serial_link import SerialLink
 from bench.session import SessionConfig, run_session
 from bench.valves import ValveController

@@ -6,7 +6,7 @@ import time
 import pytest
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-from bench.ohaus import OhausScout, parse_weight_line
+from bench.ohaus.driver import OhausScout, parse_weight_line
 from bench.valves import ValveController
 from common.errors import DeviceError
 from common.thrust_table import ThrustTable

@@ -2,7 +2,7 @@
 
 import pytest
 
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError
 from tests.support.fakeport import ScriptedPort

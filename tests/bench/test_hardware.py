@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.valves import ValveController
 
 pytestmark = pytest.mark.hardware

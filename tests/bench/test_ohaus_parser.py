@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bench.ohaus import Reading, parse_line, parse_weight_line
+from bench.ohaus.driver import Reading, parse_line, parse_weight_line
 
 
 @pytest.mark.parametrize("line, value, unit, stable", [

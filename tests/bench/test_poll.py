@@ -10,7 +10,7 @@ import pytest
 
 from bench.emulators import EmulatedScout, serve_pty
 from bench.fit import fit_steps
-from bench.ohaus import OhausScout, parse_weight_line
+from bench.ohaus.driver import OhausScout, parse_weight_line
 from bench.session import SessionConfig, read_session, run_session
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError

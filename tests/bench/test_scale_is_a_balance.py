@@ -8,7 +8,7 @@ import time
 import pytest
 
 from bench.emulators import EmulatedValveController, serve_pty
-from bench.ohaus import NotABalance, OhausScout
+from bench.ohaus.driver import NotABalance, OhausScout
 from tpods.cli import main
 
 

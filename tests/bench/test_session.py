@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from bench.fit import max_error_pct_full_scale
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.session import SessionConfig, plan_steps, read_session, run_session, summarize_steps
 from bench.valves import ValveController
 from common.errors import DeviceError, UserError

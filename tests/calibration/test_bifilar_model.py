@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 from scipy.special import ellipk
 
-from calibration.bifilar import Pendulum, model_theta, simulate_swing, swing_accel, swing_energy
+from calibration.swing.bifilar import (
+    Pendulum,
+    model_theta,
+    simulate_swing,
+    swing_accel,
+    swing_energy,
+)
 
 GEOMS = [Pendulum(0.72, 1.2e-3, 0.10, 1.0), Pendulum(2.268, 3.78e-3, 0.30, 0.5),
          Pendulum(3.0, 0.05, 0.30, 1.5)]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calibration.composite import combine, load_parts, plausibility_warnings
-from calibration.pendulum_check import check_series, simulate_series
+from calibration.swing.pendulum_check import check_series, simulate_series
 from common.errors import UserError
 from tests.support.cli import run_in_process
 

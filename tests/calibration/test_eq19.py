@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from calibration.bifilar import (
+from calibration.swing.bifilar import (
     eq19_budget,
     izz_eq19,
     izz_from_times,

@@ -1,5 +1,5 @@
-"""The test-mass check (calibration.pendulum_check) and the scale-free period of a swing
-trace (calibration.pendulum_check_periods) on simulated data."""
+"""The test-mass check (calibration.swing.pendulum_check) and the scale-free period of a swing
+trace (calibration.swing.pendulum_periods) on simulated data."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from calibration.pendulum_check import (
+from calibration.swing.pendulum_check import (
     PendulumGeometry,
     check_series,
     izz_from_periods,
     simulate_series,
 )
-from calibration.pendulum_check_periods import swing_period
+from calibration.swing.pendulum_periods import swing_period
 from common.errors import UserError
 
 RADII = np.arange(0.25, 0.751, 0.05)

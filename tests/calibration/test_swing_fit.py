@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from calibration.bifilar_model import Pendulum
 from calibration.suspension import Suspension, izz_trifilar, izz_trifilar_from_times
-from calibration.swing_fit import NOISE_LIMIT, fit_pose_trace, fit_swing
-from calibration.swing_sim import simulate_sensor_trace
+from calibration.swing.bifilar_model import Pendulum
+from calibration.swing.sim import simulate_sensor_trace
+from calibration.swing.trace_fit import NOISE_LIMIT, fit_pose_trace, fit_swing
 
 I_TRUE = 1.2e-3
 P = Pendulum(0.72, I_TRUE, 0.10, 1.0, c1=0.004, c2=0.01)

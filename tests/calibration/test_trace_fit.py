@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from calibration.bifilar import Pendulum, fit_swing_trace, simulate_trace, swing_and_estimate
+from calibration.swing.bifilar import Pendulum, fit_swing_trace, simulate_trace, swing_and_estimate
 from common.errors import UserError
 
 # (mass kg, Izz kg m^2, D m, h m, c1 1/s, c2 1/rad): a lone module (D/h 0.1), the nominal

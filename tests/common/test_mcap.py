@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
-from common.mcap_log import (
+from common.mcap.log import (
     MESSAGE_ENCODING,
     RAW_ENCODING,
     SCHEMA_ENCODING,
@@ -290,7 +290,7 @@ def test_estimate_live_records_its_streams(sim_run, tmp_path, tpods_exe):
             probe = session.declare_publisher(cmd_key("tpods1"))
             assert wait_for(lambda: matching(probe), 30.0), "live estimator never subscribed"
             probe.undeclare()
-            from common.mcap_replay import replay
+            from common.mcap.replay import replay
 
             replay(session, f, speed=4)
         finally:

@@ -1,4 +1,4 @@
-"""McapProcessLog (common/mcap_process.py): the live estimator's MCAP recording, written by
+"""McapProcessLog (common/mcap/process.py): the live estimator's MCAP recording, written by
 a process of its own: the same file as McapLog, a clean file after the caller is killed,
 and a writer that dies is said at close."""
 
@@ -14,8 +14,8 @@ import time
 import pytest
 
 from common.errors import UserError
-from common.mcap_log import McapLog, end_status, has_summary, read_mcap
-from common.mcap_process import McapProcessLog
+from common.mcap.log import McapLog, end_status, has_summary, read_mcap
+from common.mcap.process import McapProcessLog
 from common.wire import encode_command, encode_pose
 
 
@@ -64,7 +64,7 @@ def test_flush_puts_what_was_written_in_the_file(tmp_path):
 
 _KILLED = """
 import os, signal, sys
-from common.mcap_process import McapProcessLog
+from common.mcap.process import McapProcessLog
 from common.wire import encode_pose
 log = McapProcessLog(sys.argv[1])
 for k in range(300):

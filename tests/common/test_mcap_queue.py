@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 import time
 
-from common.mcap_log import McapLog, read_mcap
+from common.mcap.log import McapLog, read_mcap
 from common.wire import encode_pose
 
 

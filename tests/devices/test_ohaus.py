@@ -44,7 +44,7 @@ import time
 import pytest
 
 from bench.emulators import EmulatedScout, serve_pty
-from bench.ohaus import NotALoadReading, OhausScout, Reading, parse_line, parse_weight_line
+from bench.ohaus.driver import NotALoadReading, OhausScout, Reading, parse_line, parse_weight_line
 from bench.session import SessionConfig, run_session
 from bench.valves import ValveController
 from tests.support.bench import Bench, run_json

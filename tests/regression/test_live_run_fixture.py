@@ -12,7 +12,7 @@ import json
 
 import pandas as pd
 
-from common.mcap_log import read_mcap
+from common.mcap.log import read_mcap
 from tests.support import golden
 from tests.support.cli import run_in_process
 from tests.support.replay_live import replay_final_estimate

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibration.swing_io import read_swing_csv
+from calibration.swing.trace_io import read_swing_csv
 from common.errors import UserError
 
 
@@ -123,10 +123,10 @@ def test_a_gyro_log_of_noise_has_no_swing(tmp_path, seed):
 def test_a_single_mode_trace_has_no_second_mode_at_its_own_frequency(signal):
     """A clean swing with quadratic damping: the fit used to model a "second mode" at the
     swing's own frequency (0.665 Hz here) and warn of it."""
-    from calibration.bifilar_model import Pendulum
     from calibration.suspension import Suspension
-    from calibration.swing_fit import fit_swing
-    from calibration.swing_sim import simulate_sensor_trace
+    from calibration.swing.bifilar_model import Pendulum
+    from calibration.swing.sim import simulate_sensor_trace
+    from calibration.swing.trace_fit import fit_swing
 
     p = Pendulum(0.72, 0.004, 0.2, 1.0, c1=0.01, c2=0.3)
     t, y = simulate_sensor_trace(p, signal, release_deg=20, duration_s=60, seed=0, noise=1e-4)
@@ -141,10 +141,10 @@ def test_the_third_harmonic_of_a_damped_swing_is_no_second_mode():
     """A scale-free trace of a quadratically damped 20 deg swing holds its own third harmonic
     (2.0 Hz against 0.67 Hz); it is modelled and named in the details, without a warning of
     "an unidentified second mode"."""
-    from calibration.bifilar_model import Pendulum
     from calibration.suspension import Suspension
-    from calibration.swing_fit import fit_swing
-    from calibration.swing_sim import simulate_sensor_trace
+    from calibration.swing.bifilar_model import Pendulum
+    from calibration.swing.sim import simulate_sensor_trace
+    from calibration.swing.trace_fit import fit_swing
 
     p = Pendulum(0.72, 0.004, 0.2, 1.0, c1=0.01, c2=0.3)
     t, y = simulate_sensor_trace(p, "signal", release_deg=20, duration_s=60, seed=1, noise=0.01)

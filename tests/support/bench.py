@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-from bench.ohaus import parse_weight_line
+from bench.ohaus.driver import parse_weight_line
 
 
 class Bench:

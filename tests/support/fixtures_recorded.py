@@ -9,11 +9,11 @@ regression tests and ``tpods fixture add`` use):
 - ``live-run``: :func:`record_live_run`: a simulated module (:class:`tpods.plant_loop.SimulatedModule`,
   60 Hz poses, 1 cm / 1 deg noise) in this process, ``tpods run play`` (phase-sine, 10 s of
   lab time at time scale 2) and ``tpods estimate live --method ekf --out DIR --mcap``
-  as subprocesses over a private loopback Zenoh endpoint (as tpods/demo_stages.py
+  as subprocesses over a private loopback Zenoh endpoint (as tpods/demo/stages.py
   stage_run does); the live estimator's run folder and ``recording.mcap`` are kept.
 - ``bifilar-swing``: :func:`record_bifilar`: a bifilar swing simulated by
-  :func:`calibration.bifilar.simulate_trace` (the trace of
-  :func:`calibration.bifilar.swing_and_estimate`) as ``poses.csv`` + ``bifilar.json``
+  :func:`calibration.swing.bifilar.simulate_trace` (the trace of
+  :func:`calibration.swing.bifilar.swing_and_estimate`) as ``poses.csv`` + ``bifilar.json``
   (the inputs of ``tpods calibrate bifilar``).
 - ``structure-run``: :func:`record_structure`: ``tpods sim --structure structure.toml
   --duration 30`` (two modules); ``truth.csv`` is left out to keep the fixture small.
@@ -147,7 +147,7 @@ def record_bifilar(out: Path) -> Path:
     """An emulated bifilar swing as ``poses.csv`` (t, x, y, psi) + ``bifilar.json``."""
     import numpy as np
 
-    from calibration.bifilar import Pendulum, simulate_trace
+    from calibration.swing.bifilar import Pendulum, simulate_trace
 
     p = Pendulum(BIFILAR["mass_kg"], BIFILAR_TRUTH_IZZ, BIFILAR["spacing_m"], BIFILAR["length_m"],
                  c1=0.004, c2=0.01)
@@ -165,7 +165,7 @@ strings D = {d['spacing_m']} m apart, h = {d['length_m']} m long, released from
 {BIFILAR_SIM['release_deg']:g} deg, {BIFILAR_SIM['duration_s']:g} s of mocap yaw at
 {BIFILAR_SIM['rate_hz']:g} Hz with {BIFILAR_SIM['noise_deg']:g} deg noise (seed
 {BIFILAR_SIM['seed']}; viscous c1 = 0.004, quadratic c2 = 0.01): `poses.csv` (t, x, y, psi in
-rad) from `calibration.bifilar.simulate_trace` (the trace `swing_and_estimate` fits) and
+rad) from `calibration.swing.bifilar.simulate_trace` (the trace `swing_and_estimate` fits) and
 `bifilar.json`, the other inputs of `tpods calibrate bifilar`.
 
 Golden: `golden/values.json`, Izz and its sigma of `tpods calibrate bifilar --poses .
@@ -175,7 +175,7 @@ Golden: `golden/values.json`, Izz and its sigma of `tpods calibrate bifilar --po
 Made by `python -m tests.support.fixtures_recorded bifilar-swing`
 (tests/support/fixtures_recorded.py, `record_bifilar`).
 """)
-    write_fixture_json(out, "bifilar", source="calibration.bifilar.simulate_trace",
+    write_fixture_json(out, "bifilar", source="calibration.swing.bifilar.simulate_trace",
                        how="python -m tests.support.fixtures_recorded bifilar-swing")
     return out
 

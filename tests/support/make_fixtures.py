@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.fit import fit_steps
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.session import SessionConfig, run_session
 from bench.valves import ValveController
 from tests.support.bench import Bench

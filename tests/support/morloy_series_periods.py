@@ -6,7 +6,7 @@
 SOURCE is a checkout of https://github.com/morloy/trifilar-mass-prop at commit
 f4989ebb99832d8cfb7e52de13c9e1adc3747224. Each trace ``<series>/<radius>.csv`` (tab-separated
 ``x y`` pixel coordinates of the dot, 240 frames per second) gives one period by
-:func:`calibration.pendulum_check_periods.swing_period` on the x coordinate; the periods of a series go
+:func:`calibration.swing.pendulum_periods.swing_period` on the x coordinate; the periods of a series go
 to ``periods-<series>.csv`` (``radius_m,period_s,period_sigma_s``).
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.pendulum_check_periods import SwingPeriod, swing_period
+from calibration.swing.pendulum_periods import SwingPeriod, swing_period
 
 FPS = 240.0
 SERIES = ("5s", "10s", "20s")

@@ -46,7 +46,7 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
     # error lies within 3 TOTAL sigma (noise + thrust table), the parts shown beside it
     factors = {f["name"]: f for f in s["calibration"]["factors"]}
     # the flight opens each valve a few dozen times: one late close on a loaded machine moves
-    # a factor by more than its sigma while the mean lag stays small (tpods/demo_fidelity.py)
+    # a factor by more than its sigma while the mean lag stays small (tpods/demo/fidelity.py)
     open_err = s["calibration"]["duty_time_error"]["max_abs_pct"]
     if open_err > 100.0 * min(f["sigma"] for f in factors.values()):
         pytest.skip(f"this machine is too loaded to judge the calibration: an emulated valve was "
@@ -65,7 +65,7 @@ def test_demo_quick_writes_the_report(tpods_exe, tmp_path):
 
 
 def test_switch_lag_is_the_gap_to_the_nearest_command_with_the_same_duties(tmp_path):
-    from tpods.demo_procs import switch_lag_ms
+    from tpods.demo.procs import switch_lag_ms
 
     (tmp_path / "run.json").write_text(json.dumps({"t0_lab": 100.0}))
     (tmp_path / "commands.csv").write_text("t,d1,d2\n0.0,50,0\n0.5,0,50\n1.0,50,0\n3.0,0,50\n")
@@ -82,7 +82,7 @@ def test_switch_lag_is_the_gap_to_the_nearest_command_with_the_same_duties(tmp_p
 
 
 def test_stage_times_table_and_run_json(capsys):
-    from tpods.demo_timing import StageTimes
+    from tpods.demo.timing import StageTimes
 
     meta: dict = {}
     times = StageTimes(meta)

@@ -1,4 +1,4 @@
-"""The demo's duty-time check of its emulated valves (tpods/demo_fidelity.py)."""
+"""The demo's duty-time check of its emulated valves (tpods/demo/fidelity.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tpods.demo_fidelity import duty_time_error
+from tpods.demo.fidelity import duty_time_error
 
 
 def _play(tmp_path, rows):

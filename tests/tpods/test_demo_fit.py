@@ -1,4 +1,4 @@
-"""The demo's check fit with the true thrust table (:mod:`tpods.demo_fit`): at the plant's own
+"""The demo's check fit with the true thrust table (:mod:`tpods.demo.fit`): at the plant's own
 valve switch times its noise-only sigma (the run's CRLB) covers the error, which a few lab
 milliseconds of valve lag behind the player's stamps do not allow on a spinning module."""
 
@@ -12,8 +12,8 @@ from common.runfolder import Run
 from estimator.batch.crlb import crlb
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams, integrate_zoh
-from tpods.demo_fit import batch_row, save_switches, switch_run
-from tpods.demo_stages import plant_table
+from tpods.demo.fit import batch_row, save_switches, switch_run
+from tpods.demo.stages import plant_table
 
 T0_LAB_S = 1795704722.3649786  # a lab clock's epoch seconds: 9 digits would keep 10 s
 

@@ -1,11 +1,11 @@
-"""The demo's child-process helpers (tpods/demo_procs.py)."""
+"""The demo's child-process helpers (tpods/demo/procs.py)."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 
-from tpods.demo_procs import child_failed, wait_recorded
+from tpods.demo.procs import child_failed, wait_recorded
 
 
 def test_a_failed_child_is_named_with_what_it_said(tmp_path):

@@ -83,7 +83,7 @@ def _switch_lag_ms(run_dir) -> float:
     """Mean gap, lab ms, between a valve row the simulated plant applied (run/plant/
     switches.csv) and the player's stamp of the same duties (run/play/commands.csv): 1-2 ms
     here (module 2's controller is written after module 1's)."""
-    from tpods.demo_procs import switch_lag_ms
+    from tpods.demo.procs import switch_lag_ms
 
     sw = np.loadtxt(run_dir / "plant" / "switches.csv", delimiter=",", skiprows=1, ndmin=2)
     return switch_lag_ms([(row[0], row[1:]) for row in sw], run_dir / "play")["mean"]

@@ -22,7 +22,7 @@ from estimator.plant.model import PlantParams, integrate_zoh
 from tests.support.cli import run_in_process
 from tests.support.net import free_port, matching, wait_for
 from tpods.clock import LabClock
-from tpods.demo_procs import switch_lag_ms
+from tpods.demo.procs import switch_lag_ms
 from tpods.plant_loop import MocapNoise, PlantLoop
 from tpods.plant_vehicle import TimedPlantLoop, vehicle_plant
 

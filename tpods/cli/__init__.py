@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     from tpods.cli.replay import register as register_replay
     from tpods.cli.run import register as register_run
     from tpods.cli.view import register as register_view
-    from tpods.demo import register as register_demo
+    from tpods.demo.lab_day import register as register_demo
 
     parser = _Parser(
         prog="tpods",

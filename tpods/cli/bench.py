@@ -160,7 +160,7 @@ def _replace_empty_failed_session(out: str | Path | None) -> None:
 
 def cmd_characterize(args: argparse.Namespace) -> int:
     from bench.capture import capture_folder
-    from bench.ohaus import OhausScout
+    from bench.ohaus.driver import OhausScout
     from bench.session import (
         SessionConfig,
         Terminated,

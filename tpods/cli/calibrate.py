@@ -77,9 +77,9 @@ def _scale_readings(args) -> tuple[list[float], int]:
     from calibration.mass import take_readings
 
     try:
-        from bench.ohaus import NotALoadReading, OhausScout
+        from bench.ohaus.driver import NotALoadReading, OhausScout
     except ImportError:
-        raise UserError("--scale needs the OHAUS driver (bench/ohaus.py), which is not installed; "
+        raise UserError("--scale needs the OHAUS driver (bench/ohaus/driver.py), which is not installed; "
                         "use --readings-from FILE or --values") from None
     from tqdm import tqdm
 

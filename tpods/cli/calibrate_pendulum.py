@@ -1,5 +1,5 @@
 """``tpods calibrate pendulum-check``: the test-mass check of an inertia pendulum (thin shell
-over :mod:`calibration.pendulum_check`)."""
+over :mod:`calibration.swing.pendulum_check`)."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def register_pendulum_check(cal) -> None:
 
 
 def _geometry(args: argparse.Namespace):
-    from calibration.pendulum_check import PendulumGeometry
+    from calibration.swing.pendulum_check import PendulumGeometry
 
     missing = [o for o, v in (("--string-radius or --spacing", args.string_radius or args.spacing),
                               ("--length", args.length), ("--mass", args.mass)) if v is None]
@@ -64,7 +64,7 @@ def _geometry(args: argparse.Namespace):
 
 def check_from_args(args: argparse.Namespace):
     """Read SERIES.csv and run the check (periods through the geometry options)."""
-    from calibration.pendulum_check import check_series, izz_from_periods, read_series
+    from calibration.swing.pendulum_check import check_series, izz_from_periods, read_series
 
     cols = read_series(args.series)
     scale_rel = 0.0
@@ -99,7 +99,7 @@ def cmd_pendulum_check(args: argparse.Namespace) -> int:
     doc = {**res.to_dict(), "series": str(args.series)}
     files = []
     if out is not None:
-        from calibration.pendulum_plots import plot_pendulum_check
+        from calibration.swing.pendulum_plots import plot_pendulum_check
 
         with out.writing_main() as (main, d):
             main.write_text(json.dumps(doc, indent=2, default=float) + "\n")

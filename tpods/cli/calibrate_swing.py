@@ -2,8 +2,8 @@
 
 Sources: stopwatch timings (--times), a mocap yaw trace (--poses), a gyro's yaw rate
 (--rates) or any signal proportional to the angle (--trace: pixels, a laser spot,
-encoder counts). The fits are in :mod:`calibration.swing_fit`, the readers in
-:mod:`calibration.swing_io`; the printing of a result is :mod:`tpods.cli.calibrate_swing_print`.
+encoder counts). The fits are in :mod:`calibration.swing.trace_fit`, the readers in
+:mod:`calibration.swing.trace_io`; the printing of a result is :mod:`tpods.cli.calibrate_swing_print`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 import sys
 from pathlib import Path
 
-from calibration.swing_units import AMPLITUDE_LIMIT_DEG
+from calibration.swing.units import AMPLITUDE_LIMIT_DEG
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
@@ -184,10 +184,10 @@ def _check_log_options(args) -> None:
 
 def _estimate(args):
     """The result and a one-line description of its source."""
-    from calibration import bifilar
     from calibration.suspension import izz_trifilar_from_times
-    from calibration.swing_fit import fit_pose_trace, fit_swing
-    from calibration.swing_io import RATE_UNITS_RAD_S, read_swing_csv
+    from calibration.swing import bifilar
+    from calibration.swing.trace_fit import fit_pose_trace, fit_swing
+    from calibration.swing.trace_io import RATE_UNITS_RAD_S, read_swing_csv
 
     s = _suspension(args)
     if args.times is not None:
@@ -213,7 +213,7 @@ def _estimate(args):
             print(f"tpods: warning: {path}: {skipped} rows with an empty cell skipped", file=sys.stderr)
         signal = "rate" if args.rates else ("angle" if args.trace_scale else "signal")
     t, y = _window(args, t, y)
-    from calibration.swing_units import swing_presence_problem, swing_units_problem
+    from calibration.swing.units import swing_presence_problem, swing_units_problem
 
     problem = swing_presence_problem(t, y) or swing_units_problem(t, y, signal)
     if problem is not None:

@@ -7,7 +7,7 @@ import sys
 
 
 def print_result(res, source: str) -> None:
-    """Print an :class:`calibration.bifilar_eq19.IzzResult` of any of the pendulum methods."""
+    """Print an :class:`calibration.swing.bifilar_eq19.IzzResult` of any of the pendulum methods."""
     rel = res.izz_sigma_kgm2 / res.izz_kgm2
     print(f"Izz = {res.izz_kgm2:.6g} +- {res.izz_sigma_kgm2:.2g} kg m^2 ({100 * rel:.2g} %, k=1)"
           f"  [{res.method}: {source}]")
@@ -18,7 +18,7 @@ def print_result(res, source: str) -> None:
         if d["worst_trial_dev"] > 0.05:
             print(f"  warning: a timing differs by {100 * d['worst_trial_dev']:.0f} % from the "
                   "median: a miscounted oscillation?", file=sys.stderr)
-    elif "signal" not in d:  # the bifilar yaw fit of calibration.bifilar_fit
+    elif "signal" not in d:  # the bifilar yaw fit of calibration.swing.bifilar_fit
         print(f"  small-angle period {d['period0_s']:.5g} s; swing {d['amplitude_start_deg']:.1f} -> "
               f"{d['amplitude_end_deg']:.1f} deg over {d['n_oscillations']:g} oscillations; "
               f"residual rms {d['residual_rms_deg']:.2g} deg")

@@ -1,6 +1,6 @@
 """``tpods calibrate thrust``: the in-situ thrust calibration from a run of a body of known
 mass (and Izz, or Izz estimated with the factors), and ``tpods design --for
-thrust-calibration`` (thin shell over :mod:`estimator.batch.thrust_calibration`)."""
+thrust-calibration`` (thin shell over :mod:`estimator.batch.thrust_calibration.calibrate`)."""
 
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     from common.plausible import body_problems
     from common.runfolder import read_run
     from common.thrust_table import ThrustTable
-    from estimator.batch.thrust_calibration import calibrate_run
+    from estimator.batch.thrust_calibration.calibrate import calibrate_run
 
     run = read_run(args.run_dir, vehicle_file(args.vehicle) if args.vehicle else None)
     vehicle = run.structure if hasattr(run.structure, "thrusters") else None
@@ -160,7 +160,7 @@ def cmd_thrust(args: argparse.Namespace) -> int:
                 import tomli_w
 
                 from common.vehicle_toml import vehicle_document
-                from estimator.batch.thrust_calibration_vehicle import calibrated_vehicle
+                from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
 
                 v = calibrated_vehicle(vehicle, res.names, res.values, res.cov, str(main))
                 main.write_text(f"# tpods calibrate thrust {run.path}: in-flight factors "

@@ -26,7 +26,7 @@ def cmd_thrust_segments(args: argparse.Namespace) -> int:
     from common.outputs import result_output
     from common.runfolder import read_run
     from common.vehicle_toml import vehicle_document
-    from estimator.batch.thrust_calibration_vehicle import calibrated_vehicle
+    from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
     from estimator.shooting.health import thruster_health
 
     if args.per != "thruster":

@@ -73,7 +73,7 @@ def register(est) -> None:
 def cmd_live(args: argparse.Namespace) -> int:
     import tpods
     from common.console import Console as _Console
-    from common.mcap_process import McapProcessLog
+    from common.mcap.process import McapProcessLog
     from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
     from estimator.live.recorder import record_streams

@@ -57,7 +57,7 @@ def crlb_lines(c) -> list[str]:
 
 def report_ext(est, args: argparse.Namespace) -> int:
     """Write and print ``estimate batch --method ekf|ls-ekf --model friction|friction+tilt``."""
-    from estimator.filters.ekf_ext import SIGMA0
+    from estimator.filters.ext import SIGMA0
 
     r, run, out = est.ext, est.run, est.to_dict()
     out_folder = getattr(args, "out_folder", None)

@@ -1,4 +1,4 @@
-"""``tpods export mcap RUN_DIR --out FILE.mcap``: a run folder as MCAP (:mod:`common.mcap_export`)."""
+"""``tpods export mcap RUN_DIR --out FILE.mcap``: a run folder as MCAP (:mod:`common.mcap.export`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def cmd_export_mcap(args: argparse.Namespace) -> int:
     <prefix>/<body>/estimate) and truth.csv (tpods.truth/1 on <prefix>/<body>/truth) where
     present, in time order, with their JSON schemas. `tpods replay` publishes the file."""
 
-    from common.mcap_export import export_run
+    from common.mcap.export import export_run
     from common.outputs import ResultFile, is_mcap
 
     if not is_mcap(args.out):

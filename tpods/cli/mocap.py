@@ -172,7 +172,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     arrive; with --mcap also OUT/recording.mcap (every message on the key, one channel per Zenoh
     key); --out X.mcap writes only that MCAP file."""
 
-    from common.mcap_log import McapLog
+    from common.mcap.log import McapLog
     from common.outputs import is_mcap, stream_file
     from common.plausible import check_finite_time
     from mocap_bridge.recorder import Recorder, subscribe
@@ -226,7 +226,7 @@ def nothing_received(key: str) -> str:
 
 def _record_mcap_only(args: argparse.Namespace, path: Path) -> int:
     """``tpods mocap record --out X.mcap``: every message on the key into one MCAP file."""
-    from common.mcap_log import McapLog, subscribe
+    from common.mcap.log import McapLog, subscribe
 
     console = Console(args.quiet)
     stop = threading.Event()

@@ -1,4 +1,4 @@
-"""``tpods replay FILE.mcap``: a recording back onto Zenoh (:mod:`common.mcap_replay`)."""
+"""``tpods replay FILE.mcap``: a recording back onto Zenoh (:mod:`common.mcap.replay`)."""
 
 from __future__ import annotations
 
@@ -38,8 +38,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     the recorded pace. A file cut by a kill (no summary) is replayed up to its last complete
     chunk."""
 
-    from common.mcap_log import iter_messages
-    from common.mcap_replay import remapper, replay
+    from common.mcap.log import iter_messages
+    from common.mcap.replay import remapper, replay
 
     remap = remapper(args.prefix)
     next(iter(iter_messages(args.file)), None)  # a missing or non-MCAP file: one line, before Zenoh

@@ -14,7 +14,7 @@ from common.thrust_table import ThrustTable
 from estimator.batch.delay_scan import batch_delay_scan, profile, shift_commands
 from estimator.batch.least_squares import batch_ls
 from estimator.batch.misfit import MISFIT_RATIO, RUNS_Z, misfit_warnings, runs_z
-from estimator.batch.thrust_calibration import calibrate_thrust
+from estimator.batch.thrust_calibration.calibrate import calibrate_thrust
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate

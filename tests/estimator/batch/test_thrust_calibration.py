@@ -22,7 +22,7 @@ from estimator.batch.consider import output_sensitivity, segment_jacobian
 from estimator.batch.crlb import make_grid, reference_states
 from estimator.batch.design import DesignSettings
 from estimator.batch.least_squares import estimate_run
-from estimator.batch.thrust_calibration import (
+from estimator.batch.thrust_calibration.calibrate import (
     absorbed_terms,
     calibrate_thrust,
     factor_jacobian,

@@ -10,7 +10,7 @@ import pytest
 
 from common.errors import UserError
 from common.thrust_table import ThrustTable
-from estimator.batch.thrust_calibration import calibrate_thrust
+from estimator.batch.thrust_calibration.calibrate import calibrate_thrust
 from estimator.plant.inputs import translate_rotate
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from common.vehicle import Vehicle
-from estimator.batch.thrust_calibration import calibrate_thrust
-from estimator.batch.thrust_calibration_vehicle import VehicleThrust
+from estimator.batch.thrust_calibration.calibrate import calibrate_thrust
+from estimator.batch.thrust_calibration.vehicle import VehicleThrust
 from estimator.plant.inputs import make_input
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate

@@ -14,8 +14,8 @@ from common.errors import UserError
 from common.structure import Body, Module, Structure
 from common.thrust_table import ThrustTable
 from common.thrust_uncertainty import ThrustUncertainty
-from estimator.batch.thrust_calibration import calibrate_thrust
-from estimator.batch.thrust_calibration_vehicle import VehicleThrust
+from estimator.batch.thrust_calibration.calibrate import calibrate_thrust
+from estimator.batch.thrust_calibration.vehicle import VehicleThrust
 from estimator.plant.inputs import make_input
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate

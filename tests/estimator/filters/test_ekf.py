@@ -242,7 +242,7 @@ def test_broken_down_covariance_is_diverged_and_reported_without_a_crash():
 def test_extended_filter_with_a_negative_variance_is_diverged():
     """The extended filter clamps a negative variance to a zero sigma; it must not pass as
     a converged estimate with sigma 0."""
-    from estimator.filters.ekf_ext import ExtEkfConfig, run_ext_ekf
+    from estimator.filters.ext import ExtEkfConfig, run_ext_ekf
 
     res = sim_run(1.9, 3.2e-3, seed=1, duration=2.0)
     r = run_ext_ekf(res.pose_t, res.pose, res.cmd_t, res.thrust_n,
@@ -277,7 +277,7 @@ def test_extended_filter_that_blows_up_stops_with_nan_not_a_traceback():
     and no numpy warnings on the terminal."""
     import warnings
 
-    from estimator.filters.ekf_ext import ExtEkfConfig, run_ext_ekf
+    from estimator.filters.ext import ExtEkfConfig, run_ext_ekf
     from estimator.plant.inputs import translate_rotate
     from estimator.plant.model import PlantParams
     from estimator.plant.sim import SimConfig, simulate

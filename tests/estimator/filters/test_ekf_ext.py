@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from estimator.filters.ekf import PAPER, run_ekf
-from estimator.filters.ekf_ext import ExtEkfConfig, estimate_ext, joseph_update, run_ext_ekf
+from estimator.filters.ext import ExtEkfConfig, estimate_ext, joseph_update, run_ext_ekf
 from estimator.plant.parameter_sets import MODELS
 from estimator.reports.realism import FRICTION, IZZ_KGM2, MASS_KG, simulate_run, truth_params
 

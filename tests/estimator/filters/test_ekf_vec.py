@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimator.filters.ekf import PAPER, run_filterpy
-from estimator.filters.ekf_vec import run_ekf_vec
+from estimator.filters.vec import run_ekf_vec
 from estimator.montecarlo import (
     MC_FILTER,
     McConfig,
@@ -85,7 +85,7 @@ def test_small_monte_carlo_ekf_is_consistent_near_the_truth():
 
 def test_fused_batch_physics_matches_model():
     from estimator.filters.ekf import _JAC_POS, propagate
-    from estimator.filters.ekf_vec import propagate_batch, rhs_batch, rhs_jac_batch
+    from estimator.filters.vec import propagate_batch, rhs_batch, rhs_jac_batch
     from estimator.plant.model import dynamics, jac_params, jac_state, wrench
 
     rng = np.random.default_rng(2)

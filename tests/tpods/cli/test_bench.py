@@ -6,7 +6,7 @@ import time
 import pandas as pd
 import pytest
 
-from bench.ohaus import OhausScout
+from bench.ohaus.driver import OhausScout
 from bench.valves import ValveController
 from common.thrust_table import ThrustTable
 from tests.support.cli import run, run_in_process

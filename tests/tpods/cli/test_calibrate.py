@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibration.bifilar import Pendulum, simulate_trace
+from calibration.swing.bifilar import Pendulum, simulate_trace
 from common.runfolder import write_run
 from tests.support.cli import run_in_process
 from tpods.cli import main

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from calibration.pendulum_check import simulate_series
+from calibration.swing.pendulum_check import simulate_series
 from tests.support.cli import run_in_process
 from tpods.cli import main
 

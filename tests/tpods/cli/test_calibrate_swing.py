@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from calibration.bifilar_model import Pendulum
-from calibration.swing_sim import simulate_sensor_trace
+from calibration.swing.bifilar_model import Pendulum
+from calibration.swing.sim import simulate_sensor_trace
 from tests.support.cli import run_in_process
 from tpods.cli import main
 

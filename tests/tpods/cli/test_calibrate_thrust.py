@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from common.thrust_table import ThrustTable
-from estimator.batch.thrust_calibration import with_factors
+from estimator.batch.thrust_calibration.calibrate import with_factors
 from estimator.plant.inputs import phase_sine, translate_rotate
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate, write_sim_run

@@ -172,7 +172,7 @@ OUT_MODES = st.sampled_from(["none", "none", "none", "none", "fresh", "existing"
 @pytest.fixture(scope="module")
 def base(tmp_path_factory) -> dict[str, Path]:
     """Valid small inputs, made once: a 3 s simulated run, a bifilar swing, the work root."""
-    from calibration.bifilar import Pendulum, simulate_trace
+    from calibration.swing.bifilar import Pendulum, simulate_trace
     from common.runfolder import write_run
 
     root = tmp_path_factory.mktemp("robust")
