@@ -61,11 +61,11 @@ def _plain_rk4_pass(s0, dts, w, m, izz) -> list:
 
 
 FIT_TARGET_S = 0.5
-"""The single-module fit's time before the centre-of-mass and structure work (issue 26)."""
+"""The single-module fit's time before the centre-of-mass and structure work."""
 PASSES_TARGET = 7.7
 """The fit in plain RK4 passes over the run (the machine's speed, measured beside it): 0.5 s
 +10 % is 7.7 passes of 71 ms on the 2-core bench machine; the fit with every effect compiled
-in (zeros included) took 8.5, after issue 26 6.1-6.3."""
+in (zeros included) took 8.5 before the fit was made faster, 6.1-6.3 after."""
 GENERALITY_TARGET = 1.10
 """Fit with every inactive effect given at zero (friction, tilt, a centre of mass at the
 tracked origin: a one-module structure) over the plain fit: inactive effects cost nothing
@@ -152,7 +152,7 @@ def run() -> list[dict]:
     sp, sy = SIGMA_POS_M, SIGMA_YAW_RAD
     fit_rows, cpu_fit, fit = _fit_rows(sim)
     ours_far, t_far, w_far = fit_from_paper_guess(sim)
-    # issue 17: the thrust table's uncertainty as a consider term, at most 1.5x the fit alone
+    # the thrust table's uncertainty as a consider term, at most 1.5x the fit alone
     table = _uncertain_table()
     sens = thrust_sensitivity(table, duty)
     t_cons = []

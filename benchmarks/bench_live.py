@@ -211,7 +211,7 @@ def run() -> list[dict]:
                 cmd = [exe, "estimate", "live", "--body", BODY, "--connect", ep, "--no-multicast",
                        "--rate", "0", "--exit-on-end", "--quiet", "--json", "--method", method,
                        "--ls-window", "5", "--duration", str(seconds * 4 + 60)]
-                if capture:  # issue 19: the run folder and the MCAP recording written as it goes
+                if capture:  # the run folder and the MCAP recording written as it goes
                     cmd += ["--out", str(Path(capture_dir.name) / "live"), "--mcap"]
                 if _batch_ms() is not None:
                     cmd += ["--zenoh-batch-ms", str(_batch_ms())]

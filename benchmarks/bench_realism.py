@@ -1,4 +1,4 @@
-"""Realism (issue 9): cost of the jointly estimated friction+tilt fit.
+"""Realism: cost of the jointly estimated friction+tilt fit.
 
 Row: the batch fit of the friction+tilt model on the paper's 14 s experiment against the
 ideal fit of the same run (time ratio: what the 5 extra parameters cost). The 200-run

@@ -1,4 +1,4 @@
-"""Realism (issue 9): a 200-run Monte Carlo of the friction+tilt model (``make bench-long``).
+"""Realism: a 200-run Monte Carlo of the friction+tilt model (``make bench-long``).
 
 Rows: the Monte Carlo over friction, bias and tilt values with its average NEES against the
 two-sided 95 % chi-square bounds (7 parameters; m and Izz), and the spread of error/sigma.

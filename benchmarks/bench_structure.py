@@ -1,4 +1,4 @@
-"""A structure's batch estimate (issue 18): two modules on a truss, 60 s at 120 Hz; and its
+"""A structure's batch estimate: two modules on a truss, 60 s at 120 Hz; and its
 live update time per pose against a module's.
 
 Unknowns m, Izz about the centre of mass, cx, cy and the initial state, from the structure's

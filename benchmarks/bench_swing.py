@@ -1,4 +1,4 @@
-"""Swing fits of other labs' sensors (issue 25): is the stated sigma honest?
+"""Swing fits of other labs' sensors: is the stated sigma honest?
 
 Simulated swings of the nominal module (m 0.72 kg, Izz 1.2e-3 kg m^2, D 0.10 m, h 1.0 m,
 viscous and quadratic damping), released at 5-15 deg (drawn per seed), recorded as a gyro's

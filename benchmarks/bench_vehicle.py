@@ -1,4 +1,4 @@
-"""A vehicle described as data (issue 24 "Done when"): eight on/off thrusters at arbitrary
+"""A vehicle described as data: eight on/off thrusters at arbitrary
 positions (vehicles/example-8-onoff.toml, its bench forces taken as exact), a known valve
 dead time of 30 ms and first-order rise of 15 ms, the ``pulses`` input, 60 s at 120 Hz.
 Ten seeds, each simulated and fitted by batch LS (m, Izz, cx, cy and the initial state from

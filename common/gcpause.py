@@ -1,4 +1,4 @@
-"""Shorter garbage-collector pauses for the latency-critical loops (issue 26): the live
+"""Shorter garbage-collector pauses for the latency-critical loops: the live
 estimator, the emulated lab's plant and valve controllers, the player.
 
 A full collection scans every container object of the process. Before a run starts,

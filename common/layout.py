@@ -1,4 +1,4 @@
-"""What structures and vehicles share (issues 18 and 24): the wrench of one TPODS module
+"""What structures and vehicles share: the wrench of one TPODS module
 (:func:`module_wrench_1`, its exact pseudo-inverse :func:`pinv_w1`), the plant's *virtual*
 thrusts and the base class :class:`ThrusterLayout` that gives every consumer the same
 interface for a :class:`common.structure.Structure` and a :class:`common.vehicle.Vehicle`.

@@ -1,4 +1,4 @@
-"""Which thruster layout a file or a run folder holds (issue 24): ``structure.toml`` or
+"""Which thruster layout a file or a run folder holds: ``structure.toml`` or
 ``vehicle.toml`` -- :func:`load_layout` (by ``--vehicle`` or by the file's content),
 :func:`as_layout`, :func:`folder_layout` (a run folder's file) and
 :func:`load_structure_only` (for the commands that take no vehicle yet) and

@@ -1,7 +1,7 @@
 """Plausibility rules, one per physical quantity, shared by every command that takes it.
 
 A value outside what a lab day on an air table can produce is a typo, a unit mistake or a
-damaged file; each rule here says so in one line (issue 26). Two strengths:
+damaged file; each rule here says so in one line. Two strengths:
 
 - *impossible* values are refused: the ``check_*`` functions raise :class:`UserError`
   (the CLI prints ``tpods: error: ...``, exit 2) naming the file and line, or the option;
@@ -180,7 +180,7 @@ MISFIT_CAUSES = (
     "'--model auto' (damping, tilt), 'tpods calibrate thrust --per thruster' with the mass "
     "known (a dead, weak or reversed thruster) and '--per nozzles' (a shared-supply drop)")
 """What a model misfit (residuals, a factor far from 1) may mean, and the checks that tell
-the causes apart (issue 24, item 7)."""
+the causes apart."""
 
 FACTOR_RANGE = (0.5, 1.5)
 """A thrust calibration factor (efficiency, nozzle scale): a thruster giving less than half

@@ -277,7 +277,7 @@ def cmd_cols_of(structure) -> tuple[str, ...]:
 
 
 def _check_truth(meta_file: Path, truth: Any) -> None:
-    """A ``truth`` block readers use must hold finite numbers (issue 16: a null mass ended
+    """A ``truth`` block readers use must hold finite numbers (a null mass ended
     in a TypeError traceback)."""
     if truth is None:
         return

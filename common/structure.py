@@ -1,4 +1,4 @@
-"""Rigid structures moved by several TPODS modules (issue 18): ``structure.toml``.
+"""Rigid structures moved by several TPODS modules: ``structure.toml``.
 
 A structure is one rigid body whose pose motion capture reports (the *tracked frame*,
 origin O, axes xs/ys) carrying N modules. Module m sits at ``position_m`` (its centre, m,
@@ -21,7 +21,7 @@ The file (docs/run-format.md, "Structure runs")::
     [[modules]]
     name = "sat"
     position_m = [0.4, 0.0]
-    vehicle = "sat.toml"                 # optional (issue 24): a vehicle.toml whose
+    vehicle = "sat.toml"                 # optional: a vehicle.toml whose
                                          # thrusters this module carries (its own tables)
     ...
     [body]                               # optional: known values or priors of the whole
@@ -109,7 +109,7 @@ class Module:
         table_path: the file the table came from, or None for the default (Table 2).
         mass_kg, izz_kgm2: known mass and Izz about the module centre, or None.
         vehicle: a :class:`common.vehicle.Vehicle` whose thrusters the module carries
-            instead of the TPODS geometry (issue 24: structures compose vehicles), its
+            instead of the TPODS geometry (structures compose vehicles), its
             tracked origin at ``position_m`` turned by ``yaw_deg``; None for a TPODS module.
         vehicle_path: the file it came from.
     """

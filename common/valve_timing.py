@@ -1,4 +1,4 @@
-"""Known valve timing of a vehicle (issue 24, vehicle.toml ``[valves]``) applied to a
+"""Known valve timing of a vehicle (vehicle.toml ``[valves]``) applied to a
 zero-order-hold input: a dead time (:func:`delayed`) and a first-order rise
 (:func:`first_order_rise`). Both return a new zero-order hold ``(t, values)`` that the
 plant's segments integrate as usual (the hold segments split at every switch time inside

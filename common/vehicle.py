@@ -1,4 +1,4 @@
-"""Any planar vehicle described as data (issue 24): ``vehicle.toml``.
+"""Any planar vehicle described as data: ``vehicle.toml``.
 
 A vehicle is one rigid body whose pose motion capture reports (the tracked frame) with N
 thrusters; thruster i is valve channel ``d{i}`` of its commands.csv (docs/run-format.md,

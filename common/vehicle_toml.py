@@ -1,4 +1,4 @@
-"""The parts of a vehicle and its file (issue 24, docs/run-format.md "Vehicle runs"):
+"""The parts of a vehicle and its file (docs/run-format.md "Vehicle runs"):
 :class:`Thruster`, :class:`Valves`, :class:`Supply` (a shared supply's drop), the parser of ``vehicle.toml``
 (:func:`parse_vehicle`: one UserError naming the file and the key, unknown keys with a
 did-you-mean) and its writer (:func:`vehicle_document`). :class:`common.vehicle.Vehicle`

@@ -1,4 +1,4 @@
-"""A wrench input (issue 24; docs/run-format.md "Wrench runs"): testbeds that log the
+"""A wrench input (docs/run-format.md "Wrench runs"): testbeds that log the
 realised force and torque instead of valve commands write ``wrench.csv`` ``t,fx,fy,mz``
 (N, N, N m about the tracked origin; a zero-order hold, the last row marks the end) with
 the frame in run.json ``"wrench_frame"``: ``"body"`` (default) or ``"lab"``.

@@ -1,4 +1,4 @@
-"""Monte Carlo of batch least squares on a structure (issue 18: ``tpods estimate
+"""Monte Carlo of batch least squares on a structure (``tpods estimate
 montecarlo --structure F``).
 
 The module Monte Carlo (:mod:`estimator.montecarlo`) runs the vectorised 8-state EKF of one

@@ -191,7 +191,7 @@ class PlantLoop:
                 self._truth_s.append(s.copy())
                 k += 1
                 occ = nz.occlusion_prob > 0 and self.rng.random() < nz.occlusion_prob
-                # mocap tracks its frame, not the centre of mass (a structure: issue 18)
+                # mocap tracks its frame, not the centre of mass (a structure)
                 p0 = tracked_pose(s, self.params.cx, self.params.cy) if self.params.com_offset else s
                 x = p0[0] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
                 y = p0[1] + (self.rng.normal(0.0, nz.pos_m) if nz.pos_m > 0 else 0.0)
@@ -212,7 +212,7 @@ class PlantLoop:
 
 
 class StructureValves:
-    """Several emulated controllers seen as one (a structure, issue 18): ``duties`` is every
+    """Several emulated controllers seen as one (a structure): ``duties`` is every
     module's duties in the structure's channel order, and a listener hears every change of
     any of them with the whole row."""
 

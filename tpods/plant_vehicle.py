@@ -1,4 +1,4 @@
-"""Plant in the loop for a vehicle (issue 24): one emulated N-channel valve driver, the
+"""Plant in the loop for a vehicle: one emulated N-channel valve driver, the
 vehicle's thrusters as the plant's virtual thrusts, its valve dead time and rise.
 
 :class:`LayoutThrust` maps a row of duties to the virtual thrusts of a structure or vehicle

@@ -97,7 +97,7 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
          heartbeat_s: float = 0.1, lead_s: float = 0.2, stop: threading.Event | None = None,
          meta: dict[str, Any] | None = None, progress: bool = False) -> PlayResult:
     """Play ``(cmd_t (N,), duty_pct (N, n))`` on an open :class:`bench.valves.ValveController`
-    or, for a structure (issue 18), on several: ``valves`` a sequence of ``(module name,
+    or, for a structure, on several: ``valves`` a sequence of ``(module name,
     controller)`` whose channel blocks are ``duty_pct``'s columns in that order.
 
     Row ``i`` is sent at lab time ``t_start + cmd_t[i] - cmd_t[0]`` with ``t_start`` =

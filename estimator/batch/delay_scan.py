@@ -1,4 +1,4 @@
-"""A valve dead time, tested (issue 24, item 7): the profile likelihood of a delay between
+"""A valve dead time, tested: the profile likelihood of a delay between
 the commands and the thrust.
 
 The commands are shifted later by each delay of a grid (:func:`shift_commands`: valves

@@ -84,7 +84,7 @@ class DesignSettings:
     margin_m: float = 0.0
     max_yaw_rate_rad_s: float | None = None
     structure: Any = None
-    """A :class:`common.structure.Structure` (issue 18): its modules' duties are designed
+    """A :class:`common.structure.Structure`: its modules' duties are designed
     together, the thrust is its virtual thrust and the criterion is on (m, Izz, cx, cy)
     less the values its [body] gives as known (no sigma: the estimators fix them);
     ``plant`` then carries the assumed cx, cy."""

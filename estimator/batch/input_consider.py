@@ -1,4 +1,4 @@
-"""The total sigma of the joint valve fit (issue 24): what the vehicle's STATED force
+"""The total sigma of the joint valve fit: what the vehicle's STATED force
 uncertainty adds to :func:`estimator.batch.input_params.fit_input_params` (the body, the
 valve dead time and the supply drop estimated together).
 

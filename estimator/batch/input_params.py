@@ -1,4 +1,4 @@
-"""Valve dead time and shared-supply drop estimated WITH the body (issue 24): batch least
+"""Valve dead time and shared-supply drop estimated WITH the body: batch least
 squares of the initial state, the plant parameters (mass, Izz, cx, cy, ...) and the input
 parameters of a vehicle's thrust profile, and their Cramér-Rao bound.
 

@@ -1,4 +1,4 @@
-"""A start for a batch fit when nothing gives the mass or Izz (issue 24), on arrays.
+"""A start for a batch fit when nothing gives the mass or Izz, on arrays.
 
 A vehicle's vehicle.toml may say nothing of its mass and Izz, and it may be ten times the
 paper's module (an air-bearing satellite of 23 kg), from which the fit does not converge.

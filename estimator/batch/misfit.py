@@ -1,4 +1,4 @@
-"""When the model does not fit a run, say so (issue 24, item 7): the residuals of a fit
+"""When the model does not fit a run, say so: the residuals of a fit
 against the stated mocap noise, and their structure.
 
 Two checks on the residuals ``r_k`` (pose minus prediction) normalised by the stated noise

@@ -1,4 +1,4 @@
-"""Model uncertainty of a batch fit (issue 24, real runs): how far the mass and Izz move
+"""Model uncertainty of a batch fit: how far the mass and Izz move
 between the candidate models of ``--model auto`` (ideal, friction, friction+tilt), beside
 the sigma of the answer, which covers the pose noise and the stated forces but not the
 choice of model.

@@ -1,4 +1,4 @@
-"""Signs a physical parameter cannot have, said out loud (issue 24, real runs): a linear or
+"""Signs a physical parameter cannot have, said out loud: a linear or
 rotational damping ``ct``, ``cr`` below zero (drag that pushes) or a shared-supply drop
 below zero (thrust that grows with more valves open). On a real run the fit can reach such
 a value when the model absorbs an unmodelled effect into the parameter; it is a warning

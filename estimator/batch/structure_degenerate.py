@@ -1,4 +1,4 @@
-"""Structure runs that cannot determine their unknowns (issue 18): refused, naming them.
+"""Structure runs that cannot determine their unknowns: refused, naming them.
 
 A structure's fit estimates mass, Izz about the centre of mass and the centre of mass
 ``(cx, cy)`` in the tracked frame. Its yaw rate obeys ``rdot = (Mz - (cx Fy - cy Fx)) / Izz``

@@ -68,7 +68,7 @@ def _least_squares(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelect
                             str(run.path), fixed=tuple(fixed), structure=run.structure)
         _structure_consider(res, _windowed(run, window), table, clamp, sigma_pos_m, sigma_yaw_rad)
     if not (not res.converged and "no information" in res.message):
-        # the model's misfit: residuals far above the noise, or structured (issue 24, item 7)
+        # the model's misfit: residuals far above the noise, or structured
         res.warnings += misfit_warnings(res.residuals, sigma_pos_m, sigma_yaw_rad,
                                         what="the batch fit")
     res.warnings += result_sign_warnings(res)  # negative damping: said, not clamped

@@ -129,7 +129,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
     """
     o = with_overrides(options, EstimateOptions, overrides, "estimate_run")
     if o.estimate is not None and any(is_input_name(n) for n in o.estimate):
-        # a vehicle's valve delay / supply drop estimated with the body (issue 24)
+        # a vehicle's valve delay / supply drop estimated with the body
         from estimator.estimate.vehicle_inputs import estimate_with_inputs
 
         return estimate_with_inputs(run, table, o, *split_names(o.estimate), log=log)
@@ -224,7 +224,7 @@ def estimate_run(run: Run | str | Path, table: ThrustTable | str | Path | None =
                               initial=initial, sigma_pos_m=sigma_pos_m,
                               sigma_yaw_rad=sigma_yaw_rad)
             initial, note = _start_at(fits[model], initial, note)
-    if method != "ls" and is_structure:  # the extended filter carries cx, cy (issue 18)
+    if method != "ls" and is_structure:  # the extended filter carries cx, cy
         return _extended_filter(inputs, resolved(), selection=selection, knowledge=knowledge)
     if method != "ls":
         return _ideal_filter(inputs, resolved(), selection=selection, note=note, log=log)

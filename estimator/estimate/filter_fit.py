@@ -143,7 +143,7 @@ def _ideal_filter(inputs: Inputs, o: EstimateOptions, *, selection: ModelSelecti
     except ValueError as exc:
         raise UserError(str(exc)) from None
     r = fe.result
-    if log is not None:  # plausibility (issue 16): as after a batch fit
+    if log is not None:  # plausibility: as after a batch fit
         for w in ([fe.no_information + "; not converged"] if fe.no_information else []) + fe.warnings:
             log(f"tpods: warning: {w}")
     out: dict[str, Any] = {"run": str(run.path)}
@@ -256,7 +256,7 @@ def _extended_filter(inputs: Inputs, o: EstimateOptions, *, selection: ModelSele
     if selection is not None:
         out["model_selection"] = selection.to_dict()
     if run.structure is not None:
-        # the centre of mass and Izz about the tracked origin (issue 18), as for ls
+        # the centre of mass and Izz about the tracked origin, as for ls
         out.update(com_keys({**cfg.base_params(), **final}, cfg.names, r.P, run))
     if knowledge is not None:
         out.update(knowledge.to_dict())

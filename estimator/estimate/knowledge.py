@@ -1,4 +1,4 @@
-"""What a structure's ``[body]`` table makes of the unknowns (issue 18, partly known
+"""What a structure's ``[body]`` table makes of the unknowns (partly known
 properties): :class:`BodyKnowledge` and :func:`body_knowledge`, shared by the estimates
 (:func:`estimator.estimate.estimate_run`) and the bound
 (:func:`estimator.estimate.bound_sequence`)."""
@@ -54,7 +54,7 @@ class BodyKnowledge:
 
 def body_knowledge(structure, estimate: Sequence[str] | None,
                    fixed: Mapping[str, float]) -> BodyKnowledge:
-    """The unknowns of a structure run from its ``[body]`` (issue 18, partly known
+    """The unknowns of a structure run from its ``[body]`` (partly known
     properties): a known value (no sigma, or sigma 0) is fixed, a value with a sigma is a
     Gaussian prior. ``estimate`` (None: :data:`STRUCTURE_ESTIMATE`) and ``fixed`` are the
     caller's and win: a known value named in ``estimate`` is estimated (the fit starts at

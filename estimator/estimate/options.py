@@ -22,7 +22,7 @@ from estimator.filters.ekf import PRESETS, EkfConfig
 
 METHODS = ("ls", "ekf", "ls-ekf")
 STRUCTURE_ESTIMATE = ("mass", "izz", "cx", "cy")
-"""Default unknowns of a structure run (issue 18): mass, Izz about the centre of mass and
+"""Default unknowns of a structure run: mass, Izz about the centre of mass and
 the centre of mass (cx, cy) in the tracked frame (m)."""
 Window = tuple[float | None, float | None]
 Inputs = Callable[[], tuple[Run, ThrustTable]]

@@ -1,4 +1,4 @@
-"""The helpers of a structure run (issue 18) in the estimates: is a run one, its
+"""The helpers of a structure run in the estimates: is a run one, its
 :class:`common.structure.Structure`, its JSON keys (centre of mass, Izz about the tracked
 origin: :func:`structure_keys`, :func:`com_keys`) and the thrust-table part of its fit's
 covariance (:func:`_structure_consider`)."""

@@ -1,4 +1,4 @@
-"""``tpods estimate crlb RUN --vehicle V --estimate mass,izz,cx,cy,delay,drop`` (issue 24):
+"""``tpods estimate crlb RUN --vehicle V --estimate mass,izz,cx,cy,delay,drop``:
 the Cramér-Rao bound of the joint parameter set that ``estimate batch`` fits with a
 vehicle's valve dead time and supply drop, from the same information matrix
 (:func:`estimator.batch.input_params.crlb_input_params`: the batch fit's Jacobian).

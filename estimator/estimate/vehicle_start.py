@@ -1,4 +1,4 @@
-"""A start for a vehicle's batch fit when nothing gives one (issue 24): a vehicle's
+"""A start for a vehicle's batch fit when nothing gives one: a vehicle's
 vehicle.toml may say nothing of its mass and Izz, and it may be ten times the paper's module
 (an air-bearing satellite of 23 kg), from which the fit does not converge. A short scan
 (:func:`scan_start`): the first :data:`SCAN_SPAN_S` of the run fitted from a few masses a

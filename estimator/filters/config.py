@@ -49,7 +49,7 @@ class EkfConfig:
         arm_m, ct, cr, kb, ax, ay: known plant terms (see :mod:`estimator.plant.model`).
         param_form: ``"inverse"`` (default): the measurement update corrects 1/m and 1/Izz
             (:func:`inverse_correction`); ``"direct"``: it corrects m and Izz (the paper's
-            filter, and this toolkit's before issue 17).
+            filter).
     """
 
     x0: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 5e-3)

@@ -26,7 +26,7 @@ Each part has its module; this one re-exports them:
 - :mod:`estimator.filters.loop`: :func:`make_schedule`, :func:`run_filter` (the loop for
   any parameter set, the extended filter of :mod:`estimator.filters.ext` too),
   :func:`run_ekf`;
-- :mod:`estimator.filters.plausibility`: what a run says about itself (issue 16);
+- :mod:`estimator.filters.plausibility`: what a run says about itself;
 - :mod:`estimator.filters.methods`: ``ekf`` and ``ls-ekf`` on a whole run
   (:func:`estimate_filter`, :class:`FilterEstimate`), :func:`initial_rates`.
 

@@ -256,7 +256,7 @@ def _update(z, P, meas, R, underweight: float, uw_trigger: float, symmetrize: bo
 
 
 def _offset_spec(plant: AugmentedPlant):
-    """How the pose measurement sees the centre of mass's offset (issue 18): None when the
+    """How the pose measurement sees the centre of mass's offset: None when the
     tracked frame is the centre of mass (the fast update), else ``(ix, iy, cx, cy)``: the
     state indices of cx, cy when estimated (None when fixed) and their fixed values."""
     fixed = dict(plant.fixed)

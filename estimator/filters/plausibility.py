@@ -1,4 +1,4 @@
-"""What a filter run says about itself (issue 16): information, residuals, the poses' scatter.
+"""What a filter run says about itself: information, residuals, the poses' scatter.
 
 :func:`filter_plausibility` tells whether each parameter learnt from the run (thrust, net
 force, torque, the sigma's shrinkage) and whether the post-update residuals match the stated

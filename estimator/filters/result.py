@@ -83,7 +83,7 @@ class EkfResult:
         and LS+EKF) gave a largest tail mean of 3.6 among the 339 filters whose final m and
         Izz were inside 4 sigma, and above 4 for 61 of the 111 filters that ended more than
         4 sigma off without tripping :attr:`diverged`. Such an estimate's sigma is not
-        trustworthy. Also true when :attr:`nis_block_excess` is above 1 (issue 17: a filter
+        trustworthy. Also true when :attr:`nis_block_excess` is above 1 (a filter
         inconsistent on the way can end with a normal tail around a wrong value).
         """
         from common import chi2  # lazy: scipy.special, not loaded by `tpods --help` (PRESETS)

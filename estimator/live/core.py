@@ -77,7 +77,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         body: the body name (estimate messages, sanity check of incoming messages).
         publish: called with each estimate message (a dict).
         recorder: optional :class:`LiveRecorder`.
-        structure: a :class:`common.structure.Structure` (issue 18): the commands come
+        structure: a :class:`common.structure.Structure`: the commands come
             from its modules (each message's ``body`` a module name, four duties), merged
             into the structure's 4N duties (:class:`estimator.live.merge.ModuleMerger`);
             the thrusts are its virtual thrusts; the unknowns are mass, Izz about the
@@ -87,7 +87,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             no estimate is made before the LS window's fit (from the structure's
             geometric start the EKF alone diverges; docs/estimators.md). ``table`` is then
             unused (give the structure its tables). A :class:`common.vehicle.Vehicle`
-            (issue 24) is taken the same way, its N duties on the body's one command
+            is taken the same way, its N duties on the body's one command
             stream (``config.n_channels`` = N), its valve timing in the hold segments.
     """
 

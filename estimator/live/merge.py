@@ -1,6 +1,6 @@
 """Merge the command streams of a structure's modules into one structure command (pure logic).
 
-A structure (issue 18) is driven by N modules, each publishing its own four duties on
+A structure is driven by N modules, each publishing its own four duties on
 ``tpods/<module>/cmd``. The live estimator needs the structure's command: the 4N duties in
 force, module by module in the structure file's order (the columns of a structure run's
 commands.csv). :class:`ModuleMerger` keeps each module's commands as a zero-order hold and

@@ -49,7 +49,7 @@ class LiveRecorder:
       behind, it means the process died; then the live run's ``success``, ``stopped``,
       ``aborted`` or ``failed``), counters and the final estimate. Anything but
       ``success`` marks a partial run: readers warn (docs/run-format.md).
-    - a structure (``structure``, issue 18): ``structure.toml`` (self-contained) makes the
+    - a structure (``structure``): ``structure.toml`` (self-contained) makes the
       folder a structure run; commands.csv has the merged ``d1..d{4N}``; estimates.csv
       ends with :data:`COM_COLUMNS`.
     """

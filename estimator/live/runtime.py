@@ -12,7 +12,7 @@ its module:
   a background worker, :mod:`estimator.live.worker`) and the catch-up of the second filter;
 - :mod:`estimator.live.align`: commands as a zero-order hold, poses released in order;
 - :mod:`estimator.live.merge`: a structure's module command streams merged into its
-  4N-duty command (issue 18);
+  4N-duty command;
 - :mod:`estimator.live.recorder`: :class:`LiveRecorder`, the run folder of what the
   estimator saw, written as it goes;
 - :mod:`estimator.live.zenoh_run`: :func:`run_live` on a Zenoh session (:func:`keys`,

@@ -1,5 +1,5 @@
-"""Background job of the live ``ls-ekf`` on a vehicle whose mass and Izz nothing gives
-(issue 24): a short mass scan (:func:`estimator.batch.mass_scan.scan_masses`) for the start,
+"""Background job of the live ``ls-ekf`` on a vehicle whose mass and Izz nothing
+gives: a short mass scan (:func:`estimator.batch.mass_scan.scan_masses`) for the start,
 then the window's batch fit (:func:`estimator.live.worker.ls_job`) from it.
 
 Kept free of heavy imports at module level, like :mod:`estimator.live.worker` (a spawned

@@ -1,4 +1,4 @@
-"""The live filter of a structure (issue 18) or a vehicle (issue 24): mass, Izz, the centre
+"""The live filter of a structure or a vehicle: mass, Izz, the centre
 of mass; its report.
 
 On a structure the live estimator runs the extended filter's model: mass, Izz about the
@@ -29,7 +29,7 @@ from estimator.filters.kernels import _offset_spec, _predict, _update_offset, fi
 from estimator.live.valve_segments import has_timing, timed_segments
 
 STRUCTURE_NAMES = ("mass", "izz", "cx", "cy")
-"""The live estimator's unknowns on a structure (issue 18): mass, Izz about the centre of
+"""The live estimator's unknowns on a structure: mass, Izz about the centre of
 mass and the centre of mass in the tracked frame (cx or cy given as known in the
 structure's [body] are fixed instead)."""
 

@@ -1,5 +1,5 @@
 """The thrust table's side of the live estimate: thrusts of duty rows and the thrust part
-of the sigma (issue 17).
+of the sigma.
 
 :meth:`ThrustPart._thrust_of` maps duty rows to thrusts (the table's, or a structure's
 virtual thrusts). The reported sigmas of m and Izz are the filter's (measurement noise)
@@ -25,7 +25,7 @@ class ThrustPart:
     """Thrusts and the thrust part of the sigma in :class:`~estimator.live.core.LiveEstimator`."""
 
     def _init_thrust_part(self) -> None:
-        """The thrust table's part of the sigma, as fractions of m and Izz (issue 17).
+        """The thrust table's part of the sigma, as fractions of m and Izz.
 
         Until a consider covariance has been computed on this run's data it is the table's
         common ``scale_rel`` (exact for a common scale error: m and Izz move by the same

@@ -1,4 +1,4 @@
-"""A vehicle's known valve timing in the live filter (issue 24): the hold segments of one
+"""A vehicle's known valve timing in the live filter: the hold segments of one
 pose interval through the valves' dead time and first-order rise.
 
 The live filter integrates a pose interval ``[t0, t1]`` over hold segments (durations and

@@ -26,7 +26,7 @@ from estimator.live.core import LiveEstimator
 
 def keys(body: str, mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
          modules: tuple[str, ...] | list[str] | None = None) -> dict[str, str]:
-    """The pose, command and estimate keys of a body; a structure's (``modules``, issue 18)
+    """The pose, command and estimate keys of a body; a structure's (``modules``)
     has one command key per module, ``cmd:<module>`` (``tpods/<module>/cmd``), instead of
     the body's ``cmd``."""
     out = {"pose": pose_key(mocap_prefix, body), "estimate": estimate_key(body, prefix)}
@@ -79,7 +79,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     next pose's wait deadline. The objects of the start-up (modules, session, filter)
     are frozen out of the garbage collector while it runs (``gc.freeze``): a collection
     of the oldest generation then scans only what the run made, not the whole program
-    (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26).
+    (measured: 12-17 ms pauses, once per run, at 1 kHz).
     """
     stop = stop or threading.Event()
     st = estimator.structure

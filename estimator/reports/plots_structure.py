@@ -1,4 +1,4 @@
-"""The figure of a structure (issue 18): its outline, its modules with their thrusters,
+"""The figure of a structure: its outline, its modules with their thrusters,
 the tracked frame, and the true and estimated centres of mass with their uncertainty
 ellipses. PNG, Agg; a pure function of the values it is given.
 

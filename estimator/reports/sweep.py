@@ -1,4 +1,4 @@
-"""The estimator sweep: every method on many simulated runs unlike the paper's (issue 17).
+"""The estimator sweep: every method on many simulated runs unlike the paper's.
 
 :func:`run_sweep` draws ``runs`` cases from a seed (:func:`draw_cases`), simulates each
 one (:func:`estimator.plant.sim.simulate`), estimates it with each method through
@@ -16,7 +16,7 @@ Cases (drawn independently per run):
 - input ``phase-sine`` or ``translate-rotate`` (equal odds); poses at 120 Hz, commands at
   50 Hz, the module at rest at the origin at t = 0.
 
-The criteria of issue 17 (:meth:`SweepResult.summary`): per method, the final errors of
+The sweep's criteria (:meth:`SweepResult.summary`): per method, the final errors of
 m and Izz within 4 sigma in at least 99 % of the runs, and no run beyond 6 sigma without
 a flag. Pure: prints nothing (an optional ``progress`` callback), writes nothing;
 :meth:`SweepResult.markdown` and :meth:`SweepResult.to_dict` are what ``tpods report
@@ -185,7 +185,7 @@ class SweepResult:
 
     def summary(self) -> dict[str, dict[str, Any]]:
         """Per method: runs within 4 sigma, beyond 4 (flagged or not), beyond 6 without a
-        flag, the worst unflagged error, the flags, and whether issue 17's criteria hold."""
+        flag, the worst unflagged error, the flags, and whether the sweep's criteria hold."""
         out = {}
         for m in self.methods:
             rs = [r for r in self.rows if r["method"] == m]

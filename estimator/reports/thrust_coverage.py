@@ -1,4 +1,4 @@
-"""Does the total sigma cover the real error when the thrust table is wrong? (issue 17)
+"""Does the total sigma cover the real error when the thrust table is wrong?
 
 :func:`coverage` simulates runs whose TRUE thrusts are drawn from a table's stated
 uncertainty (``thrust_sensitivity``: a draw ``dc ~ N(0, P_c)`` moves every command row's

@@ -27,7 +27,7 @@ def register(sub) -> None:
     from tpods.cli.estimate_batch import register as register_batch
     from tpods.cli.estimate_ekf import register as register_ekf
     from tpods.cli.estimate_live import register as register_live
-    from tpods.cli.estimate_realism import register as register_realism  # issue 9: report realism
+    from tpods.cli.estimate_realism import register as register_realism  # report realism
 
     register_sim(sub)
     est = group(sub, "estimate", "estimate mass and Izz from a run (batch, filters, bounds)")

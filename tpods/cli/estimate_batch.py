@@ -175,7 +175,7 @@ def register(sub, est, rep) -> None:
     add_json_flag(p)
     add_result_out(p, "estimate.json, residuals.csv and residuals.png (Fig. 5)", "estimate")
     cli_ekf.add_batch_options(p)
-    cli_realism.add_model_option(p)  # issue 9: --model ideal|friction|friction+tilt|auto
+    cli_realism.add_model_option(p)  # --model ideal|friction|friction+tilt|auto
     cli_segments.add_options(p)
 
     c = command(
@@ -200,7 +200,7 @@ def register(sub, est, rep) -> None:
                         "default the run's truth, else the vehicle's values")
     add_json_flag(c)
     add_result_out(c, "crlb.json and sensitivities.png (Fig. 6)", "bounds")
-    cli_realism.add_model_option(c, auto=False)  # issue 9
+    cli_realism.add_model_option(c, auto=False)
 
     r = command(
         rep, "table3", cmd_table3,
@@ -376,7 +376,7 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     if args.estimate and any(n in ("delay", "drop") or n.startswith("drop.") for n in args.estimate):
         from tpods.cli.estimate_crlb_inputs import cmd_crlb_inputs
 
-        return cmd_crlb_inputs(args, out_folder)  # issue 24: the joint bound with the valves
+        return cmd_crlb_inputs(args, out_folder)  # the joint bound with the valves
     if args.at:
         raise UserError("--at sets the point of a vehicle's joint bound: name delay or drop "
                         "in --estimate (else --mass and --izz)")
@@ -424,7 +424,7 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     elif not out["thrust_uncertainty"]["included"]:
         print(f"tpods: warning: {out['thrust_uncertainty']['note']}", file=sys.stderr)
     if c.names[:2] == ("mass", "izz"):
-        for line in cli_realism.crlb_lines(c):  # issue 9: the extended model's other bounds
+        for line in cli_realism.crlb_lines(c):  # the extended model's other bounds
             print(line)
     else:  # a structure with a known mass or Izz: the others
         from estimator.plant.parameter_sets import PARAM_UNITS

@@ -1,5 +1,5 @@
-"""``tpods estimate crlb RUN --vehicle V --estimate mass,izz,...,delay,drop [--at ...]``
-(issue 24): the joint Cramér-Rao bound of a vehicle's body and valve parameters
+"""``tpods estimate crlb RUN --vehicle V --estimate mass,izz,...,delay,drop [--at ...]``:
+the joint Cramér-Rao bound of a vehicle's body and valve parameters
 (:func:`estimator.estimate.vehicle_bound.bound_with_inputs`), printed, as ``--json`` or
 written to crlb.json. :mod:`tpods.cli.estimate_batch` dispatches here when ``--estimate``
 names delay or drop."""

@@ -192,7 +192,7 @@ def register(sub, est, rep) -> None:
     add_json_flag(p)
     add_result_out(p, "montecarlo.json, history.csv, runs.csv and the figures", "summary")
     g = p.add_argument_group(
-        "structure (issue 18)",
+        "structure",
         "--structure F: a Monte Carlo of batch LS on the structure: m and Izz drawn within "
         "+/- SPREAD of the structure's start (its [body] values, else the modules' layout), cx, "
         "cy within +/- COM_SPREAD of its centre of mass; each run simulated with the "
@@ -221,7 +221,7 @@ def register(sub, est, rep) -> None:
 
     r = command(
         rep, "sweep", cmd_report_sweep,
-        help="every estimator on many simulated runs unlike the paper's (issue 17)")
+        help="every estimator on many simulated runs unlike the paper's")
     add_report_out(r)
     r.add_argument("--runs", type=int_at_least(1), default=300, help="cases (default 300)")
     r.add_argument("--seed", type=int_at_least(0), default=0, help="random seed (default 0)")

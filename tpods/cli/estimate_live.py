@@ -32,10 +32,10 @@ def register(est) -> None:
     p.add_argument("--body", default=None,
                    help="body name: its poses are tpods/mocap/<body>/pose (default tpods1; with "
                         "--structure or --vehicle its name)")
-    add_structure_or_vehicle(p, "structure.toml (issue 18): a rigid body moved by several modules; commands "
+    add_structure_or_vehicle(p, "structure.toml: a rigid body moved by several modules; commands "
                         "from tpods/<module>/cmd of every module in F, merged; estimates mass, Izz "
                         "about the centre of mass and the centre of mass (ls-ekf only)",
-                             "vehicle.toml (issue 24): its N duties d1..dN on tpods/<body>/cmd, its "
+                             "vehicle.toml: its N duties d1..dN on tpods/<body>/cmd, its "
                              "valve delay and rise applied; estimates as --structure (ls-ekf only)")
     p.add_argument("--thrust-table", default=None, metavar="F",
                    help="thrust table TOML, e.g. from `tpods bench fit` (default the paper's Table 2; "

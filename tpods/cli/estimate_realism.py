@@ -1,4 +1,4 @@
-"""CLI hooks of the model options (issue 9): ``--model`` for ``estimate batch`` and
+"""CLI hooks of the model options: ``--model`` for ``estimate batch`` and
 ``estimate crlb``, the extended-state filters, and ``tpods report realism``.
 
 The batch/CRLB commands (:mod:`tpods.cli.estimate_batch`, which this module does not
@@ -79,7 +79,7 @@ def report_ext(est, args: argparse.Namespace) -> int:
     for n in r.names:
         v, s = r.final(n)
         print(f"  {n:<5} = {v:.6g} +/- {s:.3g} (1 sigma, noise; prior sigma {SIGMA0[n]:g})")
-    # a structure (issue 18): its centre of mass as estimate batch --method ls prints it
+    # a structure: its centre of mass as estimate batch --method ls prints it
     for line in budget_lines(filter_budget(out)) + centre_of_mass_lines(out):
         print(line)
     if "truth_mass_kg" in out:

@@ -67,7 +67,7 @@ def check_key_prefixes(args: argparse.Namespace) -> None:
             raise UserError(f"{opt} must not be empty")
 
 
-VEHICLE_HELP = ("vehicle.toml (issue 24): any planar vehicle, its thrusters as data; read as a "
+VEHICLE_HELP = ("vehicle.toml: any planar vehicle, its thrusters as data; read as a "
                 "structure is (commands.csv t,d1..dN in its thruster order)")
 
 

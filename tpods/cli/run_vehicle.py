@@ -1,4 +1,4 @@
-"""What ``tpods run play`` and ``tpods run plant`` add for a vehicle (issue 24): which
+"""What ``tpods run play`` and ``tpods run plant`` add for a vehicle: which
 layout ``--structure``/``--vehicle`` gave (:func:`split_layout`) and a vehicle's default
 ``--duty-limits`` (:func:`vehicle_duty_limits`). The commands themselves are
 :mod:`tpods.cli.run`; the vehicle's plant is :mod:`tpods.plant_vehicle`."""

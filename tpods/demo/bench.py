@@ -42,7 +42,7 @@ def stage_bench(out: Path, seed: int, quick: bool, side: SideWork | None = None
     # all three, a smooth offset the cubic absorbs and its residuals do not show, so the
     # table's stated sigma missed its error at the calibration run's 15-25 % duties by ~2x
     # (factors 2-2.7 sigma off on every seed tried; with a zero per step |z| rms 1.2 over
-    # 12 seeds: issue 26)
+    # 12 seeds)
     cfg = SessionConfig(nozzles=(1, 2, 3, 4), duties_pct=duties, dwell_s=0.15, settle_s=0.15,
                         zero_settle_s=0.15, zero_dwell_s=0.05, zero_every=1, watchdog_ms=300)
     valves = EmulatedValveController(4)

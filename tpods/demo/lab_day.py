@@ -29,7 +29,7 @@ calibration; noise, thrust and total sigma, the error in total sigmas) and ``rep
 ``running`` until then and ``complete`` at the end (``aborted`` on Ctrl-C, ``failed`` on an
 error: a partial lab day, see docs/run-format.md).
 
-``tpods demo --structure`` is the variant for a rigid structure (issue 18; stages in
+``tpods demo --structure`` is the variant for a rigid structure (stages in
 :mod:`tpods.demo.structure`, report in :mod:`tpods.demo.structure_report`): two emulated
 modules on a truss with a payload (``--mass``/``--izz``: each module's truth); every part
 weighed on the emulated balance, the modules' Izz from emulated bifilar swings, positions
@@ -87,11 +87,11 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true",
                    help="fewer duty steps and a short run (a smoke test, about a minute)")
     p.add_argument("--structure", action="store_true",
-                   help="the structure variant (issue 18): two emulated modules on a truss, the "
+                   help="the structure variant: two emulated modules on a truss, the "
                         "parts' ground truth from calibrate combine, live and batch estimates of "
                         "mass, Izz and the centre of mass (--mass/--izz: each module's truth)")
     p.add_argument("--vehicle", default=None, metavar="FILE",
-                   help="the vehicle variant (issue 24): the module run on a vehicle.toml (one "
+                   help="the vehicle variant: the module run on a vehicle.toml (one "
                         "emulated N-channel driver, pulses on its valves, its valve timing), "
                         "live and batch estimates (--mass/--izz: the vehicle's truth); no "
                         "calibration stages")

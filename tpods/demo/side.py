@@ -1,4 +1,4 @@
-"""The side processes of ``tpods demo`` (issue 26): two spawned workers started with the demo,
+"""The side processes of ``tpods demo``: two spawned workers started with the demo,
 which import the estimator, the fits and matplotlib while the characterisation dwells (after
 :data:`WARM_DELAY_S`), and then take work off the demo's critical path: the mass and bifilar
 stages (beside the characterisation), the bench figures (beside the calibration flight's

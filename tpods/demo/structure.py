@@ -1,4 +1,4 @@
-"""``tpods demo --structure``: the lab day of a rigid structure (issue 18) on emulated devices.
+"""``tpods demo --structure``: the lab day of a rigid structure on emulated devices.
 
 Two modules bolted to a truss that also carries a payload; the tracked frame is the
 structure's (its origin is not the centre of mass). Stages, each into its folder of the

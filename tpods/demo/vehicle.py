@@ -1,4 +1,4 @@
-"""``tpods demo --vehicle F``: the module-run stage of the lab day on a vehicle (issue 24),
+"""``tpods demo --vehicle F``: the module-run stage of the lab day on a vehicle,
 on emulated devices.
 
 1. **run** (:func:`stage_vehicle_run`): ``tpods run plant --vehicle`` (one emulated

@@ -1,5 +1,5 @@
 """In-situ thrust calibration: thruster efficiencies and nozzle-count scales from a run of a
-body whose mass and Izz are known (issue 17, item 4).
+body whose mass and Izz are known.
 
 The bench characterises one nozzle at a time; on the assembled module a pinched tube, a
 worn seat or another PWM frequency changes one thruster's thrust. With m and Izz known

@@ -1,4 +1,4 @@
-"""Izz estimated with the thrust factors (issue 24, item 4): an in-situ calibration with only
+"""Izz estimated with the thrust factors: an in-situ calibration with only
 the mass known.
 
 With the mass m known, a run's translation gives the thrusts (``F = m a``) and so the

@@ -1,4 +1,4 @@
-"""In-situ calibration of a vehicle or structure (issue 24, item 4): the thrust factors of a
+"""In-situ calibration of a vehicle or structure: the thrust factors of a
 body described by thrusters rather than by one module's table.
 
 Works on the interface :class:`common.structure.Structure` has and a vehicle
