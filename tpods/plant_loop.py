@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.emulators import EmulatedValveController, serve_pty
-from estimator.plant.model import PlantParams, integrate_zoh, tracked_pose
+from estimator.plant.model import PlantParams, integrate_zoh
+from estimator.plant.output import tracked_pose
 from mocap_bridge.bridge import Bridge
 from mocap_bridge.sources.push import PushSource
 from mocap_bridge.sources.vicon_udp import build_datagram

@@ -39,9 +39,9 @@ from estimator.plant.model import (
     active_effects,
     array_function,
     jacobian_pattern,
-    output_jacobian,
     wrench,
 )
+from estimator.plant.output import output_jacobian
 from estimator.plant.segments import segment_thrust
 
 

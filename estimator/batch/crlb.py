@@ -33,14 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from common.errors import UserError
-from estimator.plant.model import (
-    ARM_M,
-    PARAM_NAMES,
-    PlantParams,
-    output_jacobian,
-    rk4_hold_chain,
-    wrench,
-)
+from estimator.plant.model import ARM_M, PARAM_NAMES, PlantParams, rk4_hold_chain, wrench
+from estimator.plant.output import output_jacobian
 from estimator.plant.propagate import rk4_stm
 from estimator.plant.segments import segment_thrust, zoh_segments
 

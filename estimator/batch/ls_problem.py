@@ -25,14 +25,8 @@ from estimator.batch.crlb import (
     trajectory_stm,
 )
 from estimator.batch.plausibility import RESIDUAL_RATIO
-from estimator.plant.model import (
-    PARAM_NAMES,
-    STATE_NAMES,
-    com_from_tracked,
-    output_jacobian,
-    tracked_pose,
-    wrap_angle,
-)
+from estimator.plant.model import PARAM_NAMES, STATE_NAMES, wrap_angle
+from estimator.plant.output import com_from_tracked, output_jacobian, tracked_pose
 
 DEFAULT_INITIAL = {"mass": 1.0, "izz": 0.005, "ct": 0.0, "cr": 0.0, "kb": 0.0, "ax": 0.0,
                    "ay": 0.0, "cx": 0.0, "cy": 0.0}
@@ -184,7 +178,7 @@ class HorizonProblem:
         return phi
 
     def output_jacobian(self, z, states):
-        """(N, 3, 6+p) d tracked pose(t_k) / dz at ``z`` (:func:`model.output_jacobian`)."""
+        """(N, 3, 6+p) d tracked pose(t_k) / dz at ``z`` (:func:`estimator.plant.output.output_jacobian`)."""
         d = self.params(z)
         return output_jacobian(states[self.grid.node_pos], self.stm(z, states), self.names,
                                d.get("cx", 0.0), d.get("cy", 0.0))

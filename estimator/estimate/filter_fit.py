@@ -206,7 +206,7 @@ def _extended_filter(inputs: Inputs, o: EstimateOptions, *, selection: ModelSele
                            param_form="direct" if run.structure is not None else "inverse")
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    from estimator.plant.model import com_from_tracked
+    from estimator.plant.output import com_from_tracked
 
     x0 = cfg.default_x0(None)
     for k, v in initial.items():

@@ -93,7 +93,7 @@ class ExtEkfConfig:
     def default_x0(self, first_pose=None) -> np.ndarray:
         """Initial mean: the centre of mass at the first pose moved by the offset's guess
         (the states are the centre of mass's), at rest; parameters at X0 (or fixed)."""
-        from estimator.plant.model import com_from_tracked
+        from estimator.plant.output import com_from_tracked
 
         z = np.zeros(6 + len(self.names))
         z[6:] = [X0[n] for n in self.names]

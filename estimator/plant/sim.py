@@ -18,7 +18,8 @@ import common
 from common.errors import UserError
 from common.runfolder import write_run
 from common.thrust_table import ThrustTable, load_thrust_table
-from estimator.plant.model import PlantParams, integrate_zoh, tracked_pose, wrap_angle
+from estimator.plant.model import PlantParams, integrate_zoh, wrap_angle
+from estimator.plant.output import tracked_pose
 
 
 @dataclass

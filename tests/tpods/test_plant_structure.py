@@ -8,7 +8,8 @@ import numpy as np
 
 from bench.emulators import EmulatedValveController
 from common.structure import Structure
-from estimator.plant.model import PlantParams, tracked_pose
+from estimator.plant.model import PlantParams
+from estimator.plant.output import tracked_pose
 from tpods.clock import LabClock
 from tpods.plant_loop import MocapNoise, PlantLoop, StructureThrust, StructureValves
 

@@ -122,7 +122,8 @@ from estimator.batch.thrust_factors import (  # noqa: F401  (re-exported)
     remaining_uncertainty,
     with_factors,
 )
-from estimator.plant.model import ARM_M, output_jacobian
+from estimator.plant.model import ARM_M
+from estimator.plant.output import output_jacobian
 
 
 def calibrate_thrust(pose_t, pose, cmd_t, duty_pct, table: ThrustTable | Any, *, mass_kg: float,

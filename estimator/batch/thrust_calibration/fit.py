@@ -15,7 +15,8 @@ from common.errors import UserError
 from estimator.batch.consider import output_sensitivity, segment_jacobian
 from estimator.batch.crlb import make_grid, reference_states, safe_inverse, trajectory_stm
 from estimator.batch.thrust_factors import factor_thrust
-from estimator.plant.model import output_jacobian, tracked_pose, wrap_angle
+from estimator.plant.model import wrap_angle
+from estimator.plant.output import output_jacobian, tracked_pose
 
 MODEL_EXTRAS = {"ideal": (), "friction": ("ct", "cr", "kb"),
                 "friction+tilt": ("ct", "cr", "kb", "ax", "ay")}

@@ -1,6 +1,6 @@
 """The centre of mass off the tracked origin (issue 18: a structure's cx, cy).
 
-- the tracked pose's Jacobian (model.output_jacobian with the transition matrices) equals
+- the tracked pose's Jacobian (output.output_jacobian with the transition matrices) equals
   finite differences of the simulated tracked poses, for the initial state, m, Izz, cx, cy;
 - batch least squares estimates m, Izz about the centre of mass, cx and cy with sigma within
   10 % of the Cramér-Rao bound and errors within 3.5 sigma, for offsets of 1-5 cm;
@@ -17,13 +17,8 @@ import pytest
 from estimator.batch.crlb import crlb, make_grid, reference_states, trajectory_stm
 from estimator.batch.least_squares import batch_ls
 from estimator.plant.inputs import make_input
-from estimator.plant.model import (
-    EVERY_EFFECT,
-    PlantParams,
-    active_effects,
-    output_jacobian,
-    tracked_pose,
-)
+from estimator.plant.model import EVERY_EFFECT, PlantParams, active_effects
+from estimator.plant.output import output_jacobian, tracked_pose
 from estimator.plant.sim import SimConfig, simulate
 
 NAMES = ("mass", "izz", "cx", "cy")

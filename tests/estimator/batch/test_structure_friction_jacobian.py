@@ -2,7 +2,7 @@
 origin). The plant's states are the centre of mass's, so viscous friction and tilt act at
 it and the rotational drag and the translation-induced torque are about it; the sensitivity
 of the tracked poses to the initial state and to every parameter of the friction+tilt model
-plus cx, cy (transition matrices and model.output_jacobian, what batch LS and the CRLB use)
+plus cx, cy (transition matrices and output.output_jacobian, what batch LS and the CRLB use)
 equals finite differences of simulated tracked poses."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 from common.thrust_table import ThrustTable
 from estimator.batch.crlb import make_grid, reference_states, trajectory_stm
 from estimator.plant.inputs import make_input
-from estimator.plant.model import output_jacobian, tracked_pose
+from estimator.plant.output import output_jacobian, tracked_pose
 
 NAMES = ("mass", "izz", "cx", "cy", "ct", "cr", "kb", "ax", "ay")
 
