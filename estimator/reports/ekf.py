@@ -25,7 +25,7 @@ from estimator.filters.ekf import PAPER, EkfConfig, estimate_filter
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams
 from estimator.plant.sim import SimConfig, simulate
-from estimator.reports.plots_ekf import plot_error_bounds
+from estimator.reports.plots.ekf import plot_error_bounds
 
 PAPER_ROWS = {
     "ekf": {"rmse_mass_kg": 0.2267, "rmse_izz_kgm2": 2.85e-4, "final_rel_mass": None,

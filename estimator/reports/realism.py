@@ -451,7 +451,7 @@ def write_report(out: str | Path, runs: int = 40, seeds: int = 5, seed: int = 0,
                "--ls-start handoff` runs it on a recorded run.", ""]
     # 6. figures
     try:
-        from estimator.reports.plots_realism import realism_figures  # lazy: matplotlib
+        from estimator.reports.plots.realism import realism_figures  # lazy: matplotlib
 
         realism_figures(out, first_sel, mc)
         md += ["## Figures", "", "![residuals](residuals.png)", "", "![acf](acf.png)", "",

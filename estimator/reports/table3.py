@@ -26,7 +26,7 @@ from estimator.plant.controller import run_orbit_follower
 from estimator.plant.inputs import phase_sine
 from estimator.plant.model import PlantParams, wrench
 from estimator.plant.sim import SimConfig, SimResult, simulate, write_sim_run
-from estimator.reports.plots_batch import plot_residuals, plot_sensitivities
+from estimator.reports.plots.batch import plot_residuals, plot_sensitivities
 
 TRUE_PLANT = PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2)
 INITIAL = {"mass": 1.0, "izz": 0.005}

@@ -22,6 +22,7 @@ FAMILIES = {
     "common.mcap": ("common", "bench", "mocap_bridge", "calibration", "estimator", "tpods",
                     "benchmarks"),
     "mocap_bridge.pcap": ("mocap_bridge", "calibration", "estimator", "tpods", "benchmarks"),
+    "estimator.reports.plots": ("estimator.reports", "tpods", "benchmarks"),
 }
 SOURCES = ("common", "bench", "mocap_bridge", "calibration", "estimator", "tpods", "benchmarks")
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from common.structure import module_wrench_1
-from estimator.reports.plots_structure import (
+from estimator.reports.plots.structure import (
     ComPoint,
     chi2_2dof_factor,
     ellipse_axes,

@@ -191,7 +191,7 @@ def _write_design(args: argparse.Namespace, res, compared, d: Path, final: Path)
     """Write the design into ``d`` (the temporary folder that becomes ``final``)."""
     import numpy as np
 
-    from estimator.reports.plots_batch import plot_sensitivities
+    from estimator.reports.plots.batch import plot_sensitivities
 
     best = res.best
     n_ch = best.duty_pct.shape[1]

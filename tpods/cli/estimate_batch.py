@@ -261,7 +261,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         out["warnings"] = [*out.get("warnings", []), *body_lines]
     scan = _delay_scan(est, args, out) if args.delay_scan else None
     if args.out_folder is not None:
-        from estimator.reports.plots_batch import plot_poses_fit, plot_residuals
+        from estimator.reports.plots.batch import plot_poses_fit, plot_residuals
 
         with args.out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             write_json(main, out)
@@ -394,7 +394,7 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     c, pose_t, mass, izz, kind, source = b.crlb, b.pose_t, b.mass_kg, b.izz_kgm2, b.kind, b.plant_source
     out = b.to_dict()
     if out_folder is not None:
-        from estimator.reports.plots_batch import plot_sensitivities
+        from estimator.reports.plots.batch import plot_sensitivities
 
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             main.write_text(json.dumps(out, indent=2) + "\n")

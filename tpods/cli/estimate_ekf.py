@@ -125,7 +125,7 @@ def report_filter(est, args) -> int:
             print(line, file=sys.stderr)
     out_folder = getattr(args, "out_folder", None)
     if out_folder is not None:
-        from estimator.reports.plots_ekf import plot_error_bounds
+        from estimator.reports.plots.ekf import plot_error_bounds
 
         with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
             write_json(main, out)
@@ -274,7 +274,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
             raise UserError(f"--{opt.replace('_', '-')} is for --structure runs; the module's "
                             "filter Monte Carlo simulates 1 cm / 1 deg pose noise")
     from estimator.montecarlo import MC_FILTER, McConfig, config_dict, run_montecarlo
-    from estimator.reports.plots_ekf import plot_mc_averages, plot_mc_runs
+    from estimator.reports.plots.ekf import plot_mc_averages, plot_mc_runs
 
     out_folder = result_output(args.out, "montecarlo.json", force=args.force,
                                command="tpods estimate montecarlo")

@@ -229,7 +229,7 @@ def _body_warning(fit, vehicle, args) -> None:
 
 
 def _write_outputs(args, out, fit, run) -> None:
-    from estimator.reports.plots_segments import plot_segment_residuals
+    from estimator.reports.plots.segments import plot_segment_residuals
 
     with args.out_folder.writing_main() as (main, d):
         main.write_text(json.dumps(out, indent=2, default=float) + "\n")

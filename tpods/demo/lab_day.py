@@ -38,7 +38,7 @@ taped, and the ground truth by parts from ``tpods calibrate combine``; ``tpods r
 subprocesses on one lab clock; batch least squares of m, Izz, cx, cy on the recorded run;
 a summary table (truth, parts, live, batch; sigma and error in sigmas) and ``report.md``
 with the figure of the structure and the centres of mass with their 95 % ellipses
-(:func:`estimator.reports.plots_structure.plot_structure`). ``--no-live`` leaves the live
+(:func:`estimator.reports.plots.structure.plot_structure`). ``--no-live`` leaves the live
 estimator out. ``--quick``: 40 s of lab time.
 
 This module is the command (``register``, :func:`cmd_demo`: the stages in order, the

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from common.runfolder import read_run
-from estimator.reports.plots_ekf import plot_error_bounds
+from estimator.reports.plots.ekf import plot_error_bounds
 from tpods.demo.procs import lag_text
 from tpods.demo.timing import StageTimes, table_text, write_report_md
 

@@ -39,7 +39,7 @@ def _warm() -> None:
 
     matplotlib.use("Agg")
     import bench.plots  # noqa: F401
-    import estimator.reports.plots_batch  # noqa: F401
+    import estimator.reports.plots.batch  # noqa: F401
     import tpods.demo.fit  # noqa: F401
     import tpods.demo.report  # noqa: F401
 
@@ -65,7 +65,7 @@ def bench_figures(fit, raw, steps, d: Path, truth) -> list[Path]:
 
 def residual_figure(t, residuals, path: Path, title: str) -> Path:
     """The batch fit's residual figure (what :func:`tpods.demo.stages.stage_batch` drew)."""
-    from estimator.reports.plots_batch import plot_residuals
+    from estimator.reports.plots.batch import plot_residuals
 
     return plot_residuals(t, residuals, path, title=title)
 

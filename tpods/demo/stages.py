@@ -29,7 +29,7 @@ from common.runfolder import read_run
 from common.thrust_table import ThrustTable
 from common.wire import cmd_key
 from estimator.plant.model import PlantParams
-from estimator.reports.plots_batch import plot_residuals
+from estimator.reports.plots.batch import plot_residuals
 from tpods.clock import LabClock
 from tpods.demo.fidelity import duty_time_error
 from tpods.demo.fit import (

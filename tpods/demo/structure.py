@@ -48,7 +48,7 @@ from calibration.swing.bifilar import swing_and_estimate
 from common.errors import UserError
 from common.wire import cmd_key, decode_pose, pose_key
 from estimator.estimate import estimate_run
-from estimator.reports.plots_batch import plot_residuals
+from estimator.reports.plots.batch import plot_residuals
 from tpods.demo import procs as dp
 from tpods.demo.bench import stage_mass
 from tpods.demo.structure_layout import (

@@ -1,7 +1,7 @@
 """What ``tpods demo --structure`` (see :mod:`tpods.demo.structure`) writes at the end: the
 summary table (truth, parts ground truth, live, batch: mass, Izz about the centre of mass,
 cx, cy, each with its sigma and its error in sigmas), the figure of the structure
-(:func:`estimator.reports.plots_structure.plot_structure`), ``report.md`` and ``summary.json``.
+(:func:`estimator.reports.plots.structure.plot_structure`), ``report.md`` and ``summary.json``.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from estimator.reports.plots_structure import ComPoint, plot_structure, plot_structure_errors
+from estimator.reports.plots.structure import ComPoint, plot_structure, plot_structure_errors
 from tpods.demo.procs import lag_text
 from tpods.demo.structure_layout import MODULES, POSITION_SIGMA_M, TRUSS_PARTS, outlines
 from tpods.demo.timing import StageTimes, table_text, write_report_md

@@ -111,7 +111,7 @@ def stage_vehicle_batch(out: Path, run_dir: Path) -> dict[str, Any]:
     """``tpods estimate batch`` (LS; the vehicle's scan start) on the recorded run, its
     estimate.json and residual figure in ``out/batch``."""
     from estimator.estimate import estimate_run
-    from estimator.reports.plots_batch import plot_residuals
+    from estimator.reports.plots.batch import plot_residuals
 
     d = out / "batch"
     d.mkdir(parents=True, exist_ok=True)

@@ -170,7 +170,7 @@ def test_estimate_batch_force_and_interrupt(tmp_path, capsys, monkeypatch):
     assert main(["sim", "--duration", "8", "--out", str(run)]) == 0
     old = _old_results(tmp_path)
     before = _snapshot(old)
-    import estimator.reports.plots_batch as plots_batch
+    import estimator.reports.plots.batch as plots_batch
 
     def fail(*a, **k):
         raise OSError(28, "No space left on device")

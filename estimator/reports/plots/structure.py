@@ -22,7 +22,7 @@ from matplotlib.patches import Ellipse, Polygon
 
 from common.constants import ARM_M, MODULE_SIDE_M
 from common.structure import module_wrench_1
-from estimator.reports.plots_ekf import draw_error_band, save_time_panels
+from estimator.reports.plots.ekf import draw_error_band, save_time_panels
 
 matplotlib.use("Agg")  # PNG files only, no window
 

@@ -10,7 +10,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 
-from estimator.reports.plots_batch import _save
+from estimator.reports.plots.batch import _save
 
 matplotlib.use("Agg")
 
