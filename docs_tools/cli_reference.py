@@ -40,7 +40,7 @@ def walk(parser: argparse.ArgumentParser, path: tuple[str, ...] = ("tpods",), he
 
 def commands(parser: argparse.ArgumentParser | None = None) -> list[str]:
     """Every command path below ``tpods``, e.g. ``"tpods estimate batch"``."""
-    return [" ".join(p) for p, _, _ in walk(parser or _parser())[1:]]
+    return [" ".join(p) for p, _, _ in list(walk(parser or _parser()))[1:]]
 
 
 def _parser() -> argparse.ArgumentParser:
