@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test test-slow demo bench bench-long robustness lint clean golden fixtures
+.PHONY: setup test test-slow demo bench bench-long robustness lint clean golden fixtures docs
 
 setup: $(STAMP)
 
@@ -20,7 +20,7 @@ BYTECODE := $(BIN)/python -m compileall -q -j 0 common tpods bench calibration m
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	@touch $(STAMP)
 
 # in parallel over the machine's cores (pytest-xdist): a worker per core takes any test, and
@@ -62,6 +62,12 @@ robustness: $(STAMP)
 		tests/tpods/cli/test_properties.py tests/tpods/cli/test_properties_plausible.py \
 		tests/tpods/cli/test_properties_surfaces.py
 
+# the documentation site from docs/ into site/ (mkdocs.yml; the CLI reference is generated
+# from the parsers by docs_tools/hooks.py); --strict: a broken link or a page left out of
+# the nav fails the build
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
@@ -77,4 +83,4 @@ fixtures: $(STAMP)
 	$(BIN)/python -m tests.support.fixtures_recorded all
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache site

@@ -160,7 +160,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name}: {host['seconds']:.0f} s wall, {host['own_cpu_s']:.0f} CPU s", flush=True)
     rows = judge(rows, {n: c["host"] for n, c in cases.items()})
     out = Path(args.out or ("runs/bench-long.json" if args.long else "runs/bench.json"))
-    return _report(rows, failed, cases, time.monotonic() - t_start, out)
+    status = _report(rows, failed, cases, time.monotonic() - t_start, out)
+    if not args.k:  # a whole run (not one case): docs/bench.md from this report
+        from benchmarks.bench_page import write_page
+        print(f"page written to {write_page(out.with_name('bench.json'))}")
+    return status
 
 
 if __name__ == "__main__":

@@ -1,0 +1,1 @@
+"""The documentation: the README, the site, its generated pages."""
