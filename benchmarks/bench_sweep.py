@@ -1,4 +1,4 @@
-"""The issue-17 sweep: every estimator on 300 simulated runs unlike the paper's.
+"""The estimator sweep: every estimator on 300 simulated runs unlike the paper's.
 
 Rows per method (ls, ekf, ls-ekf): the share of final errors within 4 sigma (target
 >= 99 %) and the number of runs beyond 6 sigma without a flag (target 0); the time of the

@@ -101,7 +101,7 @@ class EkfResult:
         over the blocks). Above 1: somewhere in the run the innovations were far larger
         than the covariance allowed, and a filter that was inconsistent once does not
         recover its consistency with constant parameters (it may end with a normal tail
-        NIS but a collapsed covariance around a wrong value: seen in the issue-17 sweep,
+        NIS but a collapsed covariance around a wrong value: seen in the estimator sweep,
         Izz 25 sigma off with a tail NIS of 4.8, after block means of 11-15). NaN without a
         full block."""
         from common import chi2  # lazy: scipy.special, not loaded by `tpods --help` (PRESETS)
