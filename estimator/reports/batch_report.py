@@ -237,9 +237,12 @@ def estimate_batch(run_dir: str | Path, thrust_table: str | Path | None = None, 
                    warn: Callable[[str], None] | None = None, **options: Any) -> BatchReport:
     """Estimate the run in ``run_dir`` as ``tpods estimate batch`` does (one shooting;
     ``options`` are :class:`estimator.estimate.EstimateOptions`' fields, e.g.
-    ``method="ls"``, ``sigma_pos_m=0.01``) and report it. ``log`` as
+    ``method="ls"``, ``sigma_pos_m=0.01``; ``estimate`` defaults to None, as the command's:
+    mass and Izz, a structure's centre of mass too) and report it. ``log`` as
     :func:`estimator.estimate.estimate_run`'s."""
     from estimator.estimate import estimate_run
+
+    options.setdefault("estimate", None)
 
     check_delay_scan(delay_scan, options.get("estimate"), options.get("method", "ls"))
     est = estimate_run(run_dir, thrust_table, log=log, **options)

@@ -79,8 +79,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     """Compare input sequences by the D-optimal criterion (log det of the Fisher information of
     mass and Izz, initial state marginalised) and search the phase-shifted-sine family
     (amplitude, frequency, phases; duties inside the table's valid range) for the best one whose
-    predicted trajectory stays on the table. Writes the best sequence as commands.csv. The use
-    case: :mod:`estimator.reports.design_report`."""
+    predicted trajectory stays on the table. Writes the best sequence as commands.csv."""
     from estimator.reports.design_report import design_inputs, design_settings
 
     out_folder = ResultFolder(args.out, force=args.force, command="tpods design")

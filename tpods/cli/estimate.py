@@ -73,7 +73,7 @@ def register_sim(sub) -> None:
 
 def cmd_sim(args: argparse.Namespace) -> int:
     """Simulate the planar TPODS plant under held thruster commands and write a run folder
-    (commands.csv, poses.csv, truth.csv, run.json): :func:`estimator.plant.sim_case.simulate_case`."""
+    (commands.csv, poses.csv, truth.csv, run.json)."""
     from estimator.plant.sim_case import simulate_case
 
     out = ResultFolder(args.out, force=args.force, command="tpods sim")

@@ -148,7 +148,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     """Estimate the initial state, mass and Izz of a run folder. --method ls is the paper's
     Algorithm 1 (batch nonlinear least squares); ekf and ls-ekf run the filters. Default initial
     guess: m = 1 kg, Izz = 0.005 kg m^2, pose from the first measurement, velocities zero;
-    default prior diffuse. The use case: :func:`estimator.reports.batch_report.estimate_batch`."""
+    default prior diffuse."""
     from estimator.reports.batch_report import check_delay_scan, estimate_batch
 
     check_delay_scan(args.delay_scan, args.estimate, args.method)
@@ -172,9 +172,7 @@ def cmd_crlb(args: argparse.Namespace) -> int:
     """Fisher information and Cramér-Rao bound of mass and Izz, the initial state marginalised
     (Schur complement). RUN_DIR is a run folder, or a folder or commands.csv holding only
     commands (poses are then planned at --pose-rate). The plant is the run's truth when run.json
-    has one, else --mass/--izz (default the paper's 2.268 kg, 3.78e-3 kg m^2). With delay or
-    drop in --estimate: the joint bound with a vehicle's valves. The use case:
-    :func:`estimator.reports.bound_report.crlb_report`."""
+    has one, else --mass/--izz (default the paper's 2.268 kg, 3.78e-3 kg m^2)."""
     from estimator.reports.bound_report import crlb_report
 
     out_folder = result_output(args.out, "crlb.json", force=args.force, command="tpods estimate crlb")

@@ -167,8 +167,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     std against filter sigma, average NEES with its 95 % chi-square bounds and the fraction of
     final errors inside 3 sigma. The default filter is the paper's without process noise (the
     simulated parameters are constant); the filter starts at the nominal values with the uniform
-    draw's standard deviation. The use case:
-    :func:`estimator.reports.montecarlo_report.montecarlo_study`."""
+    draw's standard deviation."""
     from estimator.reports.montecarlo_report import check_montecarlo, montecarlo_study
 
     sizes = dict(runs=args.runs, duration_s=args.duration, pose_rate_hz=args.pose_rate,
