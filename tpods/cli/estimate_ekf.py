@@ -1,10 +1,9 @@
 """CLI of the EKF, LS-initialised EKF and Monte Carlo.
 
-``register`` adds ``tpods estimate montecarlo`` and ``tpods report ekf``;
-``add_batch_options(parser)`` adds the filter options to ``tpods estimate batch``,
-``filter_options(args)`` reads them back and ``report_filter(estimate, args)`` writes and
-prints the result of ``--method ekf|ls-ekf`` (computed by
-:func:`estimator.estimate.estimate_run`).
+``register`` adds ``tpods estimate montecarlo`` (the use case
+:func:`estimator.reports.montecarlo_report.montecarlo_study`), ``tpods report ekf`` and
+``tpods report sweep``; ``add_batch_options(parser)`` adds the filter options to
+``tpods estimate batch`` and ``estimate live``, ``filter_options(args)`` reads them back.
 """
 
 from __future__ import annotations
