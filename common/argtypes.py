@@ -139,3 +139,69 @@ class VehicleFile(str):
 def vehicle_file(text: str) -> VehicleFile:
     """argparse type of ``--vehicle``."""
     return VehicleFile(text)
+
+
+INITIAL_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "ct": "ct", "cr": "cr", "kb": "kb",
+                "ax": "ax", "ay": "ay", "x": "x", "y": "y", "psi": "psi", "u": "u", "v": "v",
+                "r": "r", "arm": "arm", "cx": "cx", "cy": "cy"}
+"""The names of an initial guess or a fixed value (``--initial``, ``--fixed``): what each means."""
+AT_KEYS = {"m": "mass", "mass": "mass", "izz": "izz", "cx": "cx", "cy": "cy", "delay": "delay",
+           "drop": "drop"}
+"""The names of the point of a vehicle's joint bound (``--at``)."""
+
+
+def key_values(text: str, keys: dict[str, str] | None = None) -> dict[str, float]:
+    """``"m=1,izz=0.005"`` -> {"mass": 1.0, "izz": 0.005} (argparse type); ``keys`` the
+    accepted names and what each means (default the initial-guess names)."""
+    keys = INITIAL_KEYS if keys is None else keys
+    out: dict[str, float] = {}
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        if "=" not in item:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE items, got {item!r}")
+        k, v = (s.strip() for s in item.split("=", 1))
+        if k.lower() not in keys:
+            raise argparse.ArgumentTypeError(f"unknown name {k!r}{nearest(k, keys)}; use "
+                                             f"{', '.join(sorted(set(keys)))}")
+        try:
+            val = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {v!r} (for {k})") from None
+        if not math.isfinite(val):
+            raise argparse.ArgumentTypeError(f"{k} must be finite")
+        _check_range(keys[k.lower()], val)
+        out[keys[k.lower()]] = val
+    return out
+
+
+def _check_range(name: str, val: float) -> None:
+    """The ranges vehicle.toml enforces, for a value given on the command line
+    (:mod:`common.plausible_inputs`; a drop's upper bound needs the vehicle: checked where
+    it is known)."""
+    from common.errors import UserError
+    from common.plausible_inputs import check_positive, check_time_s
+
+    try:
+        if name in ("mass", "izz"):
+            check_positive(val, name)
+        elif name == "delay":
+            check_time_s(val, name)
+        elif name == "drop" and val < 0:
+            raise UserError(f"drop must be >= 0, got {val:g}")
+    except UserError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def at_values(text: str) -> dict[str, float]:
+    """``--at mass=23,delay=0.03``: the point of a vehicle's joint bound (argparse type)."""
+    return key_values(text, AT_KEYS)
+
+
+def nearest(name: str, choices) -> str:
+    """`` (did you mean X?)`` for the closest of ``choices``, or ''."""
+    import difflib
+
+    close = difflib.get_close_matches(name.lower(), [c.lower() for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""

@@ -14,8 +14,9 @@ from common.argtypes import nonneg_float, positive_float
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
+from estimator.reports.estimate_text import budget_lines, filter_budget
 from tpods.cli.estimate_ekf import add_batch_options
-from tpods.cli.estimate_output import budget_lines, filter_budget, write_json
+from tpods.cli.estimate_output import write_json
 from tpods.cli.options import add_key_prefixes, add_structure_or_vehicle
 from tpods.cli.parser import command
 from tpods.cli.stopping import zenoh_session

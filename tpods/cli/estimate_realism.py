@@ -1,26 +1,18 @@
 """CLI hooks of the model options: ``--model`` for ``estimate batch`` and
-``estimate crlb``, the extended-state filters, and ``tpods report realism``.
-
-The batch/CRLB commands (:mod:`tpods.cli.estimate_batch`, which this module does not
-import) call :func:`add_model_option`,
-:func:`selection_log` (where ``--model auto`` prints its table), :func:`report_ext` (the
-output of the extended-state filters) and :func:`crlb_lines`; the use cases themselves
-are :func:`estimator.estimate.estimate_run` and :func:`estimator.estimate.bound_sequence`.
+``estimate crlb`` (:func:`add_model_option`), where ``--model auto`` prints its table
+(:func:`selection_log`), and ``tpods report realism``
+(:func:`estimator.reports.realism.write_report`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-
-import numpy as np
 
 from common.argtypes import random_seed
 from common.errors import UserError
 from common.outputs import ResultFolder
 from estimator.plant.parameter_sets import MODEL_CHOICES, MODELS
-from tpods.cli.estimate_output import budget_lines, centre_of_mass_lines, filter_budget, write_json
 from tpods.cli.options import add_report_out
 from tpods.cli.parser import command
 
@@ -45,47 +37,6 @@ def selection_log(args: argparse.Namespace):
     def log(line: str) -> None:
         print(line, file=sys.stderr if line.startswith("tpods: warning:") else out)
     return log
-
-
-def crlb_lines(c) -> list[str]:
-    """Text lines of the bounds on the parameters beyond mass and Izz."""
-    from estimator.plant.parameter_sets import PARAM_UNITS
-
-    return [f"  {n:<5} sigma >= {s:.4g} {PARAM_UNITS[n]}"
-            for n, s in zip(c.names[2:], c.sigma[2:], strict=True)]
-
-
-def report_ext(est, args: argparse.Namespace) -> int:
-    """Write and print ``estimate batch --method ekf|ls-ekf --model friction|friction+tilt``."""
-    from estimator.filters.ext import SIGMA0
-
-    r, run, out = est.ext, est.run, est.to_dict()
-    out_folder = getattr(args, "out_folder", None)
-    if out_folder is not None:
-        with out_folder.writing_main() as (main, d):  # d: None for --out FILE.json
-            write_json(main, out)
-            cols = ["t", *r.labels, *(f"sigma_{n}" for n in r.labels), "updated", "nis"]
-            if d is not None:
-                np.savetxt(d / "history.csv", np.column_stack([r.t, r.x, r.sigma, r.updated, r.nis]),
-                           delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
-    if r.diverged:
-        print("tpods: warning: the extended filter diverged (non-physical parameters or "
-              "innovations far larger than their covariance); try --method ls-ekf",
-              file=sys.stderr)
-    if args.json:
-        sys.stdout.write(json.dumps(out, default=str) + "\n")
-        return 0
-    print(f"{args.method} with --model {est.model} on {run.path} ({len(r.t)} poses)")
-    for n in r.names:
-        v, s = r.final(n)
-        print(f"  {n:<5} = {v:.6g} +/- {s:.3g} (1 sigma, noise; prior sigma {SIGMA0[n]:g})")
-    # a structure: its centre of mass as estimate batch --method ls prints it
-    for line in budget_lines(filter_budget(out)) + centre_of_mass_lines(out):
-        print(line)
-    if "truth_mass_kg" in out:
-        print(f"  RMSE over the run: mass {out['rmse_mass_kg']:.4g} kg, "
-              f"Izz {out['rmse_izz_kgm2']:.4g} kg m^2")
-    return 0
 
 
 # --------------------------------------------------------------------------------------

@@ -7,10 +7,10 @@ import argparse
 
 import pytest
 
+from common import sizes
 from common.argtypes import SEED_MAX, random_seed
 from common.errors import UserError
 from tests.support.cli import run, run_in_process
-from tpods.cli import sizes
 from tpods.cli.estimate import check_sim_size
 
 
