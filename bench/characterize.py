@@ -12,11 +12,12 @@ for the caller to report). Nothing is printed: notes and the report are returned
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.session import SessionConfig, SessionResult
-from common.errors import UserError
+from common.errors import UserError, Warnings
 
 MAX_VALVES = 4
 """Valves of a TPODS module's controller (the session checks the device's own count too)."""
@@ -73,10 +74,12 @@ def plan_characterize(out: str | Path, *, nozzles: str = "1,2,3,4", duty: str = 
                       zero_dwell: float = 1.0, zero_every: int = 1, pwm_hz: float = 10.0,
                       nozzle_under_test: int = 1, duty_limits: str = "10,90",
                       watchdog_ms: int = 500, scale_format: str = "8N1",
-                      capture: str | Path | bool | None = None, force: bool = False) -> SessionPlan:
+                      capture: str | Path | bool | None = None, force: bool = False,
+                      on_note: Callable[[str], object] | None = None) -> SessionPlan:
     """The session's config from the options of ``tpods bench characterize`` (``nozzles``:
     counts of open valves; ``duty``: START:STOP:STEP or a list, %; ``capture``: True for
-    the session folder, a folder, or None) and its folder, checked and prepared."""
+    the session folder, a folder, or None) and its folder, checked and prepared.
+    ``on_note(line)`` hears a note as it arises (a failed session replaced)."""
     from bench.capture import capture_folder
     from bench.session import parse_duty_steps, parse_int_list
     from common.outputs import stream_folder
@@ -95,7 +98,7 @@ def plan_characterize(out: str | Path, *, nozzles: str = "1,2,3,4", duty: str = 
         raise UserError(f"--nozzles {nozzles}: a TPODS module has {MAX_VALVES} valves; "
                         f"cannot open {max(cfg.nozzles)} at once")
     fmt = serial_format(scale_format)
-    notes = [n for n in (replace_empty_failed_session(out),) if n]
+    notes = Warnings(on_note, [n for n in (replace_empty_failed_session(out),) if n])
     cap = None if capture in (None, True) else capture_folder(capture, force, "tpods bench characterize")
     folder = stream_folder(out, force=force, command="tpods bench characterize")
     return SessionPlan(cfg, Path(folder), Path(folder) if capture is True else cap, fmt, notes)

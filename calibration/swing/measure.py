@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from calibration.suspension import Suspension
 from calibration.swing.units import AMPLITUDE_LIMIT_DEG
-from common.errors import UserError
+from common.errors import UserError, Warnings
 
 
 @dataclass
@@ -86,12 +86,14 @@ def measure_izz(s: Suspension, *, times: Sequence[float] | None = None, cycles: 
                 columns: str | None = None, time_unit: str = "s", rate_unit: str = "rad/s",
                 sample_rate: float | None = None, trace_scale: float | None = None,
                 amplitude_max: float = 15.0, out: str | Path | None = None,
-                force: bool = False) -> SwingIzz:
+                force: bool = False,
+                on_warning: Callable[[str], object] | None = None) -> SwingIzz:
     """Izz of the body on suspension ``s`` from exactly one of ``times``, ``poses``,
     ``rates`` (rad/s by default, ``rate_unit``) or ``trace`` (``trace_scale`` rad per unit,
     else the period only). ``window`` (s) keeps the samples inside it; ``rise_ke`` counts
     the kinetic energy of the body's rise; ``out``: a folder (result.json and plots) or
-    FILE.json, replaced only with ``force``."""
+    FILE.json, replaced only with ``force``. ``on_warning(line)`` hears each warning as it
+    arises."""
     from common.outputs import result_output
 
     if sum(x is not None for x in (times, poses, rates, trace)) != 1:
@@ -100,14 +102,15 @@ def measure_izz(s: Suspension, *, times: Sequence[float] | None = None, cycles: 
                       amplitude_max)
     out_folder = result_output(None if out is None else str(out), "result.json", force=force,
                                command=f"tpods calibrate {s.kind}")
-    warnings: list[str] = []
+    warnings = Warnings(on_warning)
     res, source = _estimate(s, times, cycles, poses, rates, trace, u_timing, window, rise_ke,
                             columns, time_unit, rate_unit, sample_rate, trace_scale,
                             amplitude_max, warnings)
     doc = res.to_dict()
     doc.setdefault("warnings", [])
     files = _write(res, doc, out_folder) if out_folder is not None else []
-    return SwingIzz(res, source, doc, files, warnings + list(getattr(res, "warnings", ())))
+    warnings += getattr(res, "warnings", ())
+    return SwingIzz(res, source, doc, files, warnings)
 
 
 def _estimate(s, times, cycles, poses, rates, trace, u_timing, window, rise_ke, columns,

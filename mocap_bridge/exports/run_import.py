@@ -20,12 +20,12 @@ import contextlib
 import json
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.errors import UserError
+from common.errors import UserError, Warnings
 from mocap_bridge.exports.run_time_base import describe_use, keep_time_base, time_map
 
 
@@ -36,7 +36,7 @@ class ImportResult:
 
     path: Path
     lines: list[str] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=Warnings)
 
 
 def read_text(path: str | Path) -> str:
@@ -173,20 +173,21 @@ def import_poses(file: str | Path, out: str | Path, *, body: str | None = None,
                  columns: str | None = None, units: str | None = None,
                  time_unit: str | None = None, plane: str | None = None, yaw_sign: float = 1.0,
                  rotation: str | None = None, time_from: str | None = None,
-                 time_from_units: str | None = None, force: bool = False) -> ImportResult:
+                 time_from_units: str | None = None, force: bool = False,
+                 on_warning: Callable[[str], object] | None = None) -> ImportResult:
     """Read a pose recording ``file`` and write ``out/poses.csv`` (t,x,y,psi in s, m, rad; t
     from the first kept frame) and ``out/run.json`` (kind import-poses, the source, the counts
     of skipped frames). The options are those of ``tpods import poses`` (``body``: the body
     of a file holding several; ``columns``/``units``/``time_unit``: a plain CSV's map and
     units; ``plane``, ``yaw_sign``, ``rotation``: the mocap axes; ``time_from``: rebuild
-    nominal times)."""
+    nominal times); ``on_warning(line)`` hears each warning as it arises."""
     with _leaves_no_new_folder(out):
         return _import_poses(str(file), out, body, columns, units, time_unit, plane, yaw_sign,
-                             rotation, time_from, time_from_units, force)
+                             rotation, time_from, time_from_units, force, Warnings(on_warning))
 
 
 def _import_poses(file, out, body, columns, units, time_unit, plane, yaw_sign, rotation,
-                  time_from, time_from_units, force) -> ImportResult:
+                  time_from, time_from_units, force, warnings: Warnings) -> ImportResult:
     import numpy as np
 
     from common.interval_jitter import interval_jitter, jitter_warning
@@ -233,7 +234,7 @@ def _import_poses(file, out, body, columns, units, time_unit, plane, yaw_sign, r
     rows = np.column_stack([t, table.x_m, table.y_m, table.psi_rad])
     _write_csv(run / "poses.csv", POSE_COLUMNS, rows, "%.12g", force)
     counts = dict(table.counts, before_commands=before) if before else table.counts
-    res = ImportResult(run / "poses.csv")
+    res = ImportResult(run / "poses.csv", warnings=warnings)
     fields = {**_without_previous_run(run, meta, "poses.csv", res.warnings), **run_header("import-poses")}
     fields.update(source={"file": file, **table.source}, counts=counts,
                   time_origin_s=origin, status="complete")
@@ -290,21 +291,23 @@ def import_commands(file: str | Path, out: str | Path, columns: str, *,
                     vehicle: str | Path | None = None, valves: int | None = None,
                     form: str | None = None, frame: str = "body", time_unit: str | None = None,
                     units: str | None = None, time_from: str | None = None,
-                    time_from_units: str | None = None, force: bool = False) -> ImportResult:
+                    time_from_units: str | None = None, force: bool = False,
+                    on_warning: Callable[[str], object] | None = None) -> ImportResult:
     """Read a command log ``file`` and write ``out/commands.csv`` (t,d1..dN: duty percent, an
     on/off valve 0 or 100, in the vehicle's thruster order) or ``out/wrench.csv`` (t,fx,fy,mz
     in N, N m; its ``frame`` in run.json), each row held until the next; an end row one
     median step after the last. ``columns``: the column map (t=COL and valves=COL, d1..dN=COL,
     or fx,fy,mz); ``vehicle`` (copied into the run) or ``valves`` give the valve count;
     ``form``: how to read the valve cells. Times share the poses' origin when ``out``
-    already holds the poses of the same recording."""
+    already holds the poses of the same recording. ``on_warning(line)`` hears each warning
+    as it arises."""
     with _leaves_no_new_folder(out):
         return _import_commands(str(file), out, columns, vehicle, valves, form, frame, time_unit,
-                                units, time_from, time_from_units, force)
+                                units, time_from, time_from_units, force, Warnings(on_warning))
 
 
 def _import_commands(file, out, columns, vehicle, valves, form, frame, time_unit, units,
-                     time_from, time_from_units, force) -> ImportResult:
+                     time_from, time_from_units, force, warnings: Warnings) -> ImportResult:
     import numpy as np
 
     from common.runwriter import command_columns, run_header, write_json_atomic
@@ -350,7 +353,7 @@ def _import_commands(file, out, columns, vehicle, valves, form, frame, time_unit
         _write_csv(run / name, ("t", "fx", "fy", "mz"), rows, "%.12g", force)
     else:
         _write_csv(run / name, command_columns(v.shape[1]), rows, ["%.9g"] + ["%.6g"] * v.shape[1], force)
-    res = ImportResult(run / name)
+    res = ImportResult(run / name, warnings=warnings)
     fields = (_without_previous_run(run, meta, name, res.warnings) if meta is not None
               else run_header("import-commands", status="complete"))
     fields["commands_source"] = {"file": file, **table.source,

@@ -130,9 +130,8 @@ def cmd_characterize(args: argparse.Namespace) -> int:
         zero_settle=args.zero_settle, zero_dwell=args.zero_dwell, zero_every=args.zero_every,
         pwm_hz=args.pwm_hz, nozzle_under_test=args.nozzle_under_test,
         duty_limits=args.duty_limits or DEFAULT_DUTY_LIMITS, watchdog_ms=args.watchdog_ms,
-        scale_format=args.scale_format, capture=args.capture, force=args.force)
-    for note in plan.notes:
-        print(note, file=sys.stderr)
+        scale_format=args.scale_format, capture=args.capture, force=args.force,
+        on_note=lambda note: print(note, file=sys.stderr))
     with sigterm_raises():
         try:
             res = run_characterize(

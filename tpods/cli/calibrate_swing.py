@@ -146,9 +146,7 @@ def cmd_pendulum(args: argparse.Namespace) -> int:
                     rise_ke=not args.no_rise_ke, columns=args.columns, time_unit=args.time_unit,
                     rate_unit=args.rate_unit, sample_rate=args.sample_rate,
                     trace_scale=args.trace_scale, amplitude_max=args.amplitude_max, out=args.out,
-                    force=args.force)
-    for w in m.warnings:
-        print(f"tpods: warning: {w}", file=sys.stderr)
+                    force=args.force, on_warning=lambda w: print(f"tpods: warning: {w}", file=sys.stderr))
     if args.json:
         json.dump(m.doc, sys.stdout, indent=2, default=float)
         sys.stdout.write("\n")

@@ -94,9 +94,8 @@ def cmd_thrust(args: argparse.Namespace) -> int:
         izz_sigma=args.izz_sigma, thrust_table=args.thrust_table, vehicle=args.vehicle,
         per=args.per, model=args.model, estimate_com=args.estimate_com, window=args.window,
         clamp=args.clamp, sigma_pos=args.sigma_pos, sigma_yaw_deg=args.sigma_yaw_deg,
-        segments=args.segments, force=args.force)
-    for w in cal.warnings:
-        print(f"tpods: warning: {w}", file=sys.stderr)
+        segments=args.segments, force=args.force,
+        on_warning=lambda w: print(f"tpods: warning: {w}", file=sys.stderr))
     if args.json:
         _print_json(cal.doc)
     if cal.refusal:

@@ -7,7 +7,6 @@ import argparse
 import sys
 
 from common.outputs import add_force
-from tpods.cli.imports_time import add_time_from
 from tpods.cli.parser import command, group
 
 _FORMS = ("vector", "bitmask", "hex", "bits", "columns", "duty", "wrench")
@@ -69,9 +68,27 @@ def register(sub) -> None:
     add_force(c, "RUN/commands.csv (wrench.csv)")
 
 
+def add_time_from(p, rows: str) -> None:
+    """The ``--time-from`` and ``--time-from-units`` options of an import (``rows``: what
+    the rows are, for the help)."""
+    p.add_argument("--time-from", default=None, metavar="MAP",
+                   help=f"rebuild the {rows}' times when the t= column is a nominal counter: "
+                        "vx=COL,x=COL,vy=COL,y=COL,wz=COL,yaw=COL names logged finite-difference "
+                        "velocities (per second) and the positions they differentiate (any of the "
+                        "pairs), each row's interval is dX/VX from the best resolved one; or dt=COL, "
+                        "a column of each row's interval since the previous row (unit: --time-unit). "
+                        "Rows at rest take the median interval. The first row keeps its nominal time; "
+                        "the map is kept in RUN/time_base.csv for the other import")
+    p.add_argument("--time-from-units", default=None, metavar="LENGTH,ANGLE",
+                   help="units of the --time-from positions (m|cm|mm, rad|deg; velocities per "
+                        "second of the same) unless their names state them")
+
+
+def _warn(w: str) -> None:
+    print(f"tpods: warning: {w}", file=sys.stderr)
+
+
 def _report(res) -> int:
-    for w in res.warnings:
-        print(f"tpods: warning: {w}", file=sys.stderr)
     for line in res.lines:
         print(line)
     return 0
@@ -88,7 +105,8 @@ def cmd_import_poses(args: argparse.Namespace) -> int:
     return _report(import_poses(
         args.file, args.out, body=args.body, columns=args.columns, units=args.units,
         time_unit=args.time_unit, plane=args.plane, yaw_sign=args.yaw_sign, rotation=args.rotation,
-        time_from=args.time_from, time_from_units=args.time_from_units, force=args.force))
+        time_from=args.time_from, time_from_units=args.time_from_units, force=args.force,
+        on_warning=_warn))
 
 
 def cmd_import_commands(args: argparse.Namespace) -> int:
@@ -103,4 +121,5 @@ def cmd_import_commands(args: argparse.Namespace) -> int:
     return _report(import_commands(
         args.file, args.out, args.columns, vehicle=args.vehicle, valves=args.valves,
         form=args.form, frame=args.frame, time_unit=args.time_unit, units=args.units,
-        time_from=args.time_from, time_from_units=args.time_from_units, force=args.force))
+        time_from=args.time_from, time_from_units=args.time_from_units, force=args.force,
+        on_warning=_warn))

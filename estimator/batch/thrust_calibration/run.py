@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from common.errors import UserError
+from common.errors import UserError, Warnings
 from estimator.batch.thrust_calibration.segments import (
     ThrustCalibration,
     by_segments_wanted,
@@ -33,13 +34,15 @@ def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
                          model: str = "ideal", estimate_com: bool = False,
                          window: tuple[float | None, float | None] | None = None,
                          clamp: bool = False, sigma_pos: float = 0.01, sigma_yaw_deg: float = 1.0,
-                         segments: str | None = None, force: bool = False) -> ThrustCalibration:
+                         segments: str | None = None, force: bool = False,
+                         on_warning: Callable[[str], object] | None = None) -> ThrustCalibration:
     """Factors ``per`` thruster, nozzle count, both or one common scale (with ``model``'s
     nuisance parameters) from the run in ``run_dir`` of a body of ``mass`` kg (``izz``
     kg m^2, or None: estimated); ``thrust_table``: a TOML or 'table2' (a vehicle run of
     on/off valves needs none); ``out``: the new table or vehicle file, or a folder;
     ``segments``: LEN or auto fits the run by segments. A factor that is not positive
-    leaves no table written (``refusal``)."""
+    leaves no table written (``refusal``). ``on_warning(line)`` hears each warning as it
+    arises (one about the known body before the fit, which may then fail)."""
     from common.argtypes import vehicle_file
     from common.outputs import not_an_input, result_output
     from common.plausible import body_problems
@@ -48,7 +51,8 @@ def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
     from estimator.batch.thrust_calibration.calibrate import calibrate_run
 
     seg = dict(mass_sigma=mass_sigma, vehicle=vehicle, window=window, sigma_pos=sigma_pos,
-               sigma_yaw_deg=sigma_yaw_deg, per=per, izz=izz, thrust_table=thrust_table, force=force)
+               sigma_yaw_deg=sigma_yaw_deg, per=per, izz=izz, thrust_table=thrust_table, force=force,
+               on_warning=on_warning)
     if by_segments_wanted(segments):
         return calibrate_by_segments(run_dir, mass, out, segments=segments, **seg)
     run = read_run(run_dir, vehicle_file(vehicle) if vehicle else None)
@@ -70,8 +74,9 @@ def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
     if izz is None and izz_sigma:
         raise UserError("--izz-sigma is the uncertainty of a known --izz; without --izz, Izz is "
                         "estimated (its sigma is reported)")
-    warnings = [f"the known body (--mass, --izz): {p}: implausible for an air-table body (kg and "
-                "kg m^2?)" for p in body_problems(mass, izz)]  # before the fit, which may fail
+    warnings = Warnings(on_warning, [  # before the fit, which may fail
+        f"the known body (--mass, --izz): {p}: implausible for an air-table body (kg and kg m^2?)"
+        for p in body_problems(mass, izz)])
     if window:
         run = run.window(*window)
     # a vehicle of on/off valves, per thruster, Izz estimated: a run single shooting cannot
@@ -92,7 +97,7 @@ def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
         warnings.append(f"single shooting {failed}: one initial state cannot carry this run; "
                         "fitting it by segments instead (--segments auto)")
         cal = calibrate_by_segments(run_dir, mass, out, segments="auto", **seg)
-        cal.warnings[:0] = warnings
+        cal.warnings = [*warnings, *cal.warnings]
         return cal
     if failed:
         raise UserError(f"{run.path}: the calibration {failed}; no table written")

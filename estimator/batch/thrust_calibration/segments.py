@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from common.errors import UserError
+from common.errors import UserError, Warnings
 from estimator.shooting.segments import parse_segments
 
 
@@ -40,12 +41,14 @@ def calibrate_by_segments(run_dir: str | Path, mass: float, out: str | Path, *,
                           window: tuple[float | None, float | None] | None = None,
                           sigma_pos: float = 0.01, sigma_yaw_deg: float = 1.0, per: str = "thruster",
                           izz: float | None = None, thrust_table: str | None = None,
-                          force: bool = False) -> ThrustCalibration:
+                          force: bool = False,
+                          on_warning: Callable[[str], object] | None = None) -> ThrustCalibration:
     """Efficiencies of the on/off valves of the run's vehicle (``vehicle``: another file)
     with Izz estimated, the run fitted by ``segments`` (length in s, or auto), ``mass`` kg
     known (``mass_sigma``); ``out``: the new vehicle.toml, or a folder that also receives
     calibration.json. ``per``, ``izz`` and ``thrust_table`` are refused unless left at
-    their defaults (the fit estimates Izz of a vehicle of on/off valves)."""
+    their defaults (the fit estimates Izz of a vehicle of on/off valves). ``on_warning(line)``
+    hears each warning as it arises."""
     from common.argtypes import vehicle_file
     from common.outputs import result_output
     from common.runfolder import read_run
@@ -97,7 +100,7 @@ def calibrate_by_segments(run_dir: str | Path, mass: float, out: str | Path, *,
                                                          supplies=new.supplies)))
         if d is not None:
             (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    warnings = list(fit.warnings)
+    warnings = Warnings(on_warning, fit.warnings)
     if mass_sigma == 0:
         warnings.append("--mass-sigma not given: the efficiencies' sigma leaves out the known "
                         "mass's uncertainty")
