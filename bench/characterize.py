@@ -16,8 +16,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.session import SessionConfig, SessionResult
+from bench.capture import capture_folder
+from bench.ohaus.driver import OhausScout
+from bench.session import (
+    SessionConfig,
+    SessionResult,
+    parse_duty_steps,
+    parse_int_list,
+    run_session,
+)
+from bench.valves import ValveController
 from common.errors import UserError, Warnings
+from common.outputs import stream_folder
 
 MAX_VALVES = 4
 """Valves of a TPODS module's controller (the session checks the device's own count too)."""
@@ -80,10 +90,6 @@ def plan_characterize(out: str | Path, *, nozzles: str = "1,2,3,4", duty: str = 
     counts of open valves; ``duty``: START:STOP:STEP or a list, %; ``capture``: True for
     the session folder, a folder, or None) and its folder, checked and prepared.
     ``on_note(line)`` hears a note as it arises (a failed session replaced)."""
-    from bench.capture import capture_folder
-    from bench.session import parse_duty_steps, parse_int_list
-    from common.outputs import stream_folder
-
     lim = parse_duty_steps(duty_limits.replace(":", ","))
     if len(lim) != 2:
         raise UserError(f"--duty-limits must be LOW,HIGH, got {duty_limits!r}")
@@ -110,10 +116,6 @@ def run_characterize(plan: SessionPlan, valves: str, scale: str, *, valves_baud:
                      progress: bool = True) -> SessionResult:
     """Open the valve controller at ``valves`` and the balance at ``scale`` (device paths
     or pyserial URLs) and run the planned session into ``plan.out``."""
-    from bench.ohaus.driver import OhausScout
-    from bench.session import run_session
-    from bench.valves import ValveController
-
     cap = plan.capture
     hs = scale_handshake
     with ValveController(valves, baudrate=valves_baud, duty_limits=plan.config.duty_limits_pct,

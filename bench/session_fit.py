@@ -12,10 +12,18 @@ prints nothing; a user error raises :class:`common.errors.UserError`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
+from bench.pulse_fit import fit_pulses
+from bench.session import read_session
+from common.outputs import check_plain_folder, not_an_input, result_output
+from common.plausible_inputs import loadcell_force_warning
+from common.thrust_table import ThrustTable
 
 
 @dataclass
@@ -47,13 +55,7 @@ def fit_session(run_dir: str | Path, *, order: str = "auto", criterion: str = "a
     a folder; default RUN_DIR/thrust_table.toml) with its plots (in ``plot_dir``, else
     beside it); ``reference``: a table to compare with (a TOML or 'table2'). A pulse
     session goes to :func:`fit_pulse_session`."""
-    import dataclasses
-
-    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
-    from bench.plots import plot_fit_orders, plot_time_series
-    from bench.session import read_session
-    from common.outputs import check_plain_folder, not_an_input, result_output
-    from common.thrust_table import ThrustTable
+    from bench.plots import plot_fit_orders, plot_time_series  # lazy: matplotlib
 
     if is_pulse_session_folder(run_dir):  # on/off valves (bench import): forces, delays, rises
         return fit_pulse_session(run_dir, out=out, force=force, scale_rel=scale_rel, ignored=[
@@ -114,10 +116,7 @@ def fit_pulse_session(run_dir: str | Path, *, out: str | Path | None = None, for
     count (N), dead time, rise, close delay and fall per valve (s), written to ``out``
     (FILE.json, or pulse_fit.json in a folder; default RUN_DIR/pulse_fit.json) with a plot
     of the edges; ``ignored``: options given that do not apply (said in the warnings)."""
-    from bench.pulse_fit import fit_pulses
-    from bench.pulse_plots import plot_pulse_edges
-    from bench.session import read_session
-    from common.outputs import not_an_input, result_output
+    from bench.pulse_plots import plot_pulse_edges  # lazy: matplotlib
 
     default = Path(run_dir) / "pulse_fit.json"
     dest = result_output(default if out is None else out, "pulse_fit.json", force=force,
@@ -173,8 +172,6 @@ def vehicle_valves(res) -> dict | None:
 def _force_unit_warnings(run_dir, res) -> list[str]:
     """A force per valve no air-table thruster gives, with the --force-unit that would fit
     (:func:`common.plausible_inputs.loadcell_force_warning`)."""
-    from common.plausible_inputs import loadcell_force_warning
-
     try:
         meta = json.loads((Path(run_dir) / "run.json").read_text())
         unit = meta.get("import", {}).get("force_unit") or meta.get("options", {}).get("force_unit")

@@ -13,7 +13,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from calibration.mass import MassResult
+from calibration.mass import (
+    MassResult,
+    mass_from_readings,
+    parse_readings_text,
+    take_readings,
+    to_kg,
+)
 from common.errors import DeviceError, UserError
 
 
@@ -36,10 +42,8 @@ def scale_readings(url: str, n: int, *, baudrate: int = 9600, bytesize: int = 8,
                    progress: Callable[[int], object] | None = None) -> tuple[list[float], int]:
     """``n`` stable readings (kg) of the OHAUS balance at ``url`` and the count of unstable
     ones skipped; ``capture`` records the serial link's transcript."""
-    from calibration.mass import take_readings
-
     try:
-        from bench.ohaus.driver import NotALoadReading, OhausScout
+        from bench.ohaus.driver import NotALoadReading, OhausScout  # lazy: pyserial, optional
     except ImportError:
         raise UserError("--scale needs the OHAUS driver (bench/ohaus/driver.py), which is not installed; "
                         "use --readings-from FILE or --values") from None
@@ -72,8 +76,6 @@ def weigh(*, scale: str | None = None, readings_from: str | Path | None = None,
     parity, stopbits, timeout of :func:`scale_readings`), ``readings_from`` (a text file,
     '?' marks an unstable reading) or ``values`` (in ``unit``). ``accuracy_g``: the
     balance's stated +-accuracy, ``resolution_g``: its display resolution, in g."""
-    from calibration.mass import mass_from_readings, parse_readings_text, to_kg
-
     to_kg(1.0, unit)  # validates --unit
     if capture and not scale:
         raise UserError("--capture records the balance's serial link: it needs --scale")

@@ -10,6 +10,7 @@ from pathlib import Path
 from bench.emulators.scout import EmulatedScout
 from bench.emulators.valves import EmulatedValveController
 from common.errors import UserError
+from common.thrust_table import load_thrust_table
 
 
 def emulated_bench(channels: int = 4, nozzle_under_test: int = 1, table: str | None = None, *,
@@ -21,8 +22,6 @@ def emulated_bench(channels: int = 4, nozzle_under_test: int = 1, table: str | N
     ``nozzle_under_test`` through the thrust ``table`` (a TOML; None: the paper's Table 2),
     with the balance's load (g), lag (s), noise (g), drift (g/s), flag probabilities and
     print rate (Hz)."""
-    from common.thrust_table import load_thrust_table
-
     thrust = load_thrust_table(table)
     if channels < 1:
         raise UserError("--channels must be at least 1")

@@ -21,9 +21,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from calibration.suspension import Suspension
-from calibration.swing.units import AMPLITUDE_LIMIT_DEG
+import numpy as np
+
+from calibration.suspension import Suspension, izz_trifilar_from_times
+from calibration.swing import bifilar
+from calibration.swing.trace_fit import fit_pose_trace, fit_swing
+from calibration.swing.trace_io import RATE_UNITS_RAD_S, read_swing_csv
+from calibration.swing.units import AMPLITUDE_LIMIT_DEG, swing_presence_problem, swing_units_problem
 from common.errors import UserError, Warnings
+from common.outputs import result_output
+from common.runfolder import POSE_COLUMNS, read_table
 
 
 @dataclass
@@ -41,10 +48,6 @@ class SwingIzz:
 
 def read_yaw(path_text: str | Path):
     """(t s, psi rad, the file) of a poses.csv or of a run folder's."""
-    import numpy as np
-
-    from common.runfolder import POSE_COLUMNS, read_table
-
     path = Path(path_text)
     if path.is_dir():
         path = path / "poses.csv"
@@ -94,8 +97,6 @@ def measure_izz(s: Suspension, *, times: Sequence[float] | None = None, cycles: 
     the kinetic energy of the body's rise; ``out``: a folder (result.json and plots) or
     FILE.json, replaced only with ``force``. ``on_warning(line)`` hears each warning as it
     arises."""
-    from common.outputs import result_output
-
     if sum(x is not None for x in (times, poses, rates, trace)) != 1:
         raise UserError("give one source: --times, --poses, --rates or --trace")
     check_log_options(rates, trace, columns, time_unit, sample_rate, rate_unit, trace_scale,
@@ -115,12 +116,6 @@ def measure_izz(s: Suspension, *, times: Sequence[float] | None = None, cycles: 
 
 def _estimate(s, times, cycles, poses, rates, trace, u_timing, window, rise_ke, columns,
               time_unit, rate_unit, sample_rate, trace_scale, amplitude_max, warnings):
-    from calibration.suspension import izz_trifilar_from_times
-    from calibration.swing import bifilar
-    from calibration.swing.trace_fit import fit_pose_trace, fit_swing
-    from calibration.swing.trace_io import RATE_UNITS_RAD_S, read_swing_csv
-    from calibration.swing.units import swing_presence_problem, swing_units_problem
-
     if times is not None:
         if s.kind == "trifilar":
             res = izz_trifilar_from_times(times, cycles, s, u_timing_s=u_timing)
@@ -159,7 +154,7 @@ def _estimate(s, times, cycles, poses, rates, trace, u_timing, window, rise_ke, 
 
 def _write(res, doc: dict, out_folder) -> list[Path]:
     """result.json (and, in a folder, budget.png and fit.png); the final paths."""
-    from calibration import plots
+    from calibration import plots  # lazy: matplotlib only when plots are written
 
     files = []
     with out_folder.writing_main() as (main, out):  # out: None for --out FILE.json

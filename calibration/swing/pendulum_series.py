@@ -16,9 +16,16 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calibration.swing.pendulum_check import PendulumCheck, PendulumGeometry
+from calibration.swing.pendulum_check import (
+    PendulumCheck,
+    PendulumGeometry,
+    check_series,
+    izz_from_periods,
+    read_series,
+)
 from common.constants import G_STANDARD_MPS2
 from common.errors import UserError
+from common.outputs import result_output
 
 
 @dataclass
@@ -59,8 +66,6 @@ def check_pendulum(series: str | Path, test_mass_kg: float, *, test_mass_sigma_k
     periods need the strings' ``string_radius`` (trifilar) or ``spacing`` (bifilar),
     ``length`` (m) and the ``mass`` on them without the test mass (kg). ``out``: a folder
     (result.json, check.png) or FILE.json, replaced only with ``force``."""
-    from common.outputs import result_output
-
     dest = result_output(None if out is None else str(out), "result.json", force=force,
                          command="tpods calibrate pendulum-check")
     res = _check(series, test_mass_kg, test_mass_sigma_kg, string_radius, spacing, length, mass,
@@ -68,7 +73,7 @@ def check_pendulum(series: str | Path, test_mass_kg: float, *, test_mass_sigma_k
     doc = {**res.to_dict(), "series": str(series)}
     files = []
     if dest is not None:
-        from calibration.swing.pendulum_plots import plot_pendulum_check
+        from calibration.swing.pendulum_plots import plot_pendulum_check  # lazy: matplotlib
 
         with dest.writing_main() as (main, d):
             main.write_text(json.dumps(doc, indent=2, default=float) + "\n")
@@ -81,8 +86,6 @@ def check_pendulum(series: str | Path, test_mass_kg: float, *, test_mass_sigma_k
 
 def _check(series, test_mass_kg, test_mass_sigma_kg, string_radius, spacing, length, mass,
            u_geometry, u_mass, g, u_g) -> PendulumCheck:
-    from calibration.swing.pendulum_check import check_series, izz_from_periods, read_series
-
     cols = read_series(series)
     scale_rel = 0.0
     if "period_s" in cols:

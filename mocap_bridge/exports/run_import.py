@@ -25,7 +25,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from common.command_rules import onoff_scale_problem
+from common.csvtable import read_table
 from common.errors import UserError, Warnings
+from common.interval_jitter import interval_jitter, jitter_warning
+from common.outputs import ResultFile, check_plain_folder, names_a_file
+from common.runfolder import POSE_COLUMNS
+from common.runwriter import CsvLog, command_columns, run_header, write_json_atomic
+from common.tomlfile import read_bytes, read_toml
+from common.vehicle import Vehicle
+from mocap_bridge.exports import PoseOptions, read_poses
+from mocap_bridge.exports.command_log import command_keys, read_command_log, shift_to_origin
+from mocap_bridge.exports.generic_csv import POSE_KEYS, parse_column_map
 from mocap_bridge.exports.run_time_base import describe_use, keep_time_base, time_map
 
 
@@ -41,8 +54,6 @@ class ImportResult:
 
 def read_text(path: str | Path) -> str:
     """A text file of any common encoding (UTF-16 with its BOM, UTF-8, else Latin-1)."""
-    from common.tomlfile import read_bytes
-
     raw = read_bytes(path, "file", "it")
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         return raw.decode("utf-16")
@@ -53,8 +64,6 @@ def read_text(path: str | Path) -> str:
 
 
 def _run_folder(out: str | Path) -> Path:
-    from common.outputs import check_plain_folder, names_a_file
-
     out = str(out)
     if out and names_a_file(out):
         raise UserError(f"--out {out} names a file; tpods import writes a run folder; give a folder name "
@@ -80,9 +89,6 @@ def _read_meta(run: Path) -> dict[str, Any] | None:
 def _write_csv(path: Path, columns: tuple[str, ...], rows, formats, force: bool) -> None:
     """``rows`` into ``path`` through the run writer (``CsvLog``), written beside, fsynced
     and renamed (``ResultFile``): a crash leaves the old file or the new one whole."""
-    from common.outputs import ResultFile
-    from common.runwriter import CsvLog
-
     out = ResultFile(path, force=force, option="--out")
     with out.writing() as tmp, CsvLog(tmp, columns, formats, flush_every_s=None) as log:
         log.write_many(rows)
@@ -130,8 +136,6 @@ def _last_time(run: Path, *names: str) -> float | None:
     for name in names:
         f = run / name
         if f.exists():
-            from common.csvtable import read_table
-
             return float(read_table(f, ("t",))[-1, 0])
     return None
 
@@ -139,9 +143,6 @@ def _last_time(run: Path, *names: str) -> float | None:
 def _check_onoff_scale(vehicle_path: str | Path, duty, source: str) -> None:
     """Refuse 0/1 states read as percent on a vehicle's on/off valves
     (:mod:`common.command_rules`), before anything is written."""
-    from common.command_rules import onoff_scale_problem
-    from common.vehicle import Vehicle
-
     v = Vehicle.load(vehicle_path)
     problem = onoff_scale_problem(duty, [i for i, t in enumerate(v.thrusters)
                                          if t.table is None and not t.dead])
@@ -188,14 +189,6 @@ def import_poses(file: str | Path, out: str | Path, *, body: str | None = None,
 
 def _import_poses(file, out, body, columns, units, time_unit, plane, yaw_sign, rotation,
                   time_from, time_from_units, force, warnings: Warnings) -> ImportResult:
-    import numpy as np
-
-    from common.interval_jitter import interval_jitter, jitter_warning
-    from common.runfolder import POSE_COLUMNS
-    from common.runwriter import run_header, write_json_atomic
-    from mocap_bridge.exports import PoseOptions, read_poses
-    from mocap_bridge.exports.generic_csv import POSE_KEYS, parse_column_map
-
     run = _run_folder(out)
     if (run / "poses.csv").exists() and not force:
         raise UserError(f"{run / 'poses.csv'} already exists; add --force to replace it or choose another --out")
@@ -261,8 +254,6 @@ def vehicle_thrusters(path: str | Path) -> list[str]:
     """The names of a vehicle file's thrusters, in order (command columns d1..dN): the file
     read and checked whole (:meth:`common.vehicle.Vehicle.load`), so a broken vehicle is
     refused before anything is imported."""
-    from common.vehicle import Vehicle
-
     return [t.name for t in Vehicle.load(path).thrusters]
 
 
@@ -270,9 +261,6 @@ def copy_vehicle(src: str | Path, run: Path, force: bool) -> None:
     """The vehicle file into ``RUN/vehicle.toml`` (beside and renamed) with the thrust tables
     it names; an identical copy is left as it is, a different one only replaced with
     ``force``."""
-    from common.outputs import ResultFile
-    from common.tomlfile import read_toml
-
     dest = run / "vehicle.toml"
     data = Path(src).read_bytes()
     if dest.exists() and dest.read_bytes() == data:
@@ -308,12 +296,6 @@ def import_commands(file: str | Path, out: str | Path, columns: str, *,
 
 def _import_commands(file, out, columns, vehicle, valves, form, frame, time_unit, units,
                      time_from, time_from_units, force, warnings: Warnings) -> ImportResult:
-    import numpy as np
-
-    from common.runwriter import command_columns, run_header, write_json_atomic
-    from mocap_bridge.exports.command_log import command_keys, read_command_log, shift_to_origin
-    from mocap_bridge.exports.generic_csv import parse_column_map
-
     names = vehicle_thrusters(vehicle) if vehicle else None
     n = len(names) if names else valves
     if n is not None and n < 1:

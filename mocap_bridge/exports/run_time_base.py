@@ -20,6 +20,11 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.outputs import ResultFile
+from common.runwriter import CsvLog
+from mocap_bridge.exports.detect import split_units
+from mocap_bridge.exports.time_base import describe, map_times
+from mocap_bridge.exports.time_from import rebuild_time_base
 
 TIME_BASE_FILE = "time_base.csv"
 AGREE_S = 1e-6
@@ -37,19 +42,8 @@ class TimeMap:
     outside: int = field(default=0)
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
-        from mocap_bridge.exports.time_base import map_times
-
         out, self.outside = map_times(t, self.knots_nominal, self.knots_rebuilt)
         return out
-
-
-def _units(text: str | None) -> tuple[str | None, str | None]:
-    if text is None:
-        return None, None
-    parts = [p.strip() or None for p in text.split(",")]
-    if len(parts) > 2:
-        raise UserError(f"--time-from-units {text!r}: give LENGTH,ANGLE (e.g. m,rad)")
-    return parts[0], parts[1] if len(parts) > 1 else None
 
 
 def _stored(run: Path, meta: dict[str, Any] | None) -> TimeMap | None:
@@ -73,8 +67,6 @@ def time_map(time_from: str | None, time_from_units: str | None, time_unit: str 
     ``time_from``, ``time_from_units``, ``time_unit``: the import's ``--time-from`` options
     (None: not given); ``file``: the source file's name (for messages); ``others``: the other
     import's possible files in RUN."""
-    from mocap_bridge.exports.time_from import rebuild_time_base
-
     stored = _stored(run, meta)
     other = next((run / o for o in others if (run / o).exists()), None)
     if time_from is None:
@@ -84,7 +76,7 @@ def time_map(time_from: str | None, time_from_units: str | None, time_unit: str 
     if t_column is None:
         raise UserError("--time-from reads a plain CSV's columns: give --columns t=COL,... too")
     tb = rebuild_time_base(text, time_from, t_column=t_column, time_unit=time_unit,
-                           units=_units(time_from_units), what=str(file))
+                           units=split_units(time_from_units, "--time-from-units", "m,rad"), what=str(file))
     if other is not None and stored is None:
         again = ("the commands again after the poses (with --force): they then take the rebuilt times"
                  if this == "poses.csv" else "the poses again with the same --time-from (and --force) first")
@@ -103,15 +95,12 @@ def time_map(time_from: str | None, time_from_units: str | None, time_unit: str 
 def keep_time_base(tm: TimeMap | None, run: Path, fields: dict[str, Any], set_by: str, file: str) -> dict[str, Any] | None:
     """Write ``RUN/time_base.csv`` of a new map and set (or, without a map, drop) run.json's
     ``time_base`` in ``fields``; returns what the import's source entry says of its times."""
-    from common.runwriter import CsvLog
-
     if tm is None:
         fields.pop("time_base", None)
         return None
     if not tm.new:
         return {"file": TIME_BASE_FILE, "mapped_through": True, "set_by": tm.info.get("set_by"),
                 **({"outside": tm.outside} if tm.outside else {})}
-    from common.outputs import ResultFile
 
     out = ResultFile(run / TIME_BASE_FILE, force=True, option="--out")
     with out.writing() as tmp, CsvLog(tmp, ("t_nominal", "t"), "%.17g", flush_every_s=None) as log:
@@ -123,8 +112,6 @@ def keep_time_base(tm: TimeMap | None, run: Path, fields: dict[str, Any], set_by
 
 def describe_use(tm: TimeMap, run: Path) -> str:
     """The line an import prints of its time map."""
-    from mocap_bridge.exports.time_base import describe
-
     if tm.new:
         return describe(tm.info)
     s = tm.info

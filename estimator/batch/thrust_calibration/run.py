@@ -18,13 +18,22 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
+from common.argtypes import vehicle_file
 from common.errors import UserError, Warnings
+from common.outputs import not_an_input, result_output
+from common.plausible import body_problems
+from common.runfolder import read_run
+from common.thrust_table import ThrustTable
+from common.vehicle_toml import vehicle_document
+from estimator.batch.thrust_calibration.calibrate import calibrate_run
 from estimator.batch.thrust_calibration.segments import (
     ThrustCalibration,
     by_segments_wanted,
     calibrate_by_segments,
 )
+from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
 
 
 def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
@@ -43,13 +52,6 @@ def calibrate_thrust_run(run_dir: str | Path, mass: float, out: str | Path, *,
     ``segments``: LEN or auto fits the run by segments. A factor that is not positive
     leaves no table written (``refusal``). ``on_warning(line)`` hears each warning as it
     arises (one about the known body before the fit, which may then fail)."""
-    from common.argtypes import vehicle_file
-    from common.outputs import not_an_input, result_output
-    from common.plausible import body_problems
-    from common.runfolder import read_run
-    from common.thrust_table import ThrustTable
-    from estimator.batch.thrust_calibration.calibrate import calibrate_run
-
     seg = dict(mass_sigma=mass_sigma, vehicle=vehicle, window=window, sigma_pos=sigma_pos,
                sigma_yaw_deg=sigma_yaw_deg, per=per, izz=izz, thrust_table=thrust_table, force=force,
                on_warning=on_warning)
@@ -123,11 +125,6 @@ def _write(dest, res, doc: dict, body, table, run_path, mass: float) -> None:
     """The calibrated vehicle file (a vehicle run) or table, and calibration.json in a folder."""
     with dest.writing_main() as (main, d):  # d: None for --out FILE.toml
         if body is not None:
-            import tomli_w
-
-            from common.vehicle_toml import vehicle_document
-            from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
-
             v = calibrated_vehicle(body, res.names, res.values, res.cov, str(main))
             main.write_text(f"# tpods calibrate thrust {run_path}: in-flight factors "
                             f"{dict(zip(res.names, np.round(res.values, 5).tolist(), strict=True))} "

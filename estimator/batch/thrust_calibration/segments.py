@@ -13,8 +13,15 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
+from common.argtypes import vehicle_file
 from common.errors import UserError, Warnings
+from common.outputs import result_output
+from common.runfolder import read_run
+from common.vehicle_toml import vehicle_document
+from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
+from estimator.shooting.health import thruster_health
 from estimator.shooting.segments import parse_segments
 
 
@@ -49,13 +56,6 @@ def calibrate_by_segments(run_dir: str | Path, mass: float, out: str | Path, *,
     calibration.json. ``per``, ``izz`` and ``thrust_table`` are refused unless left at
     their defaults (the fit estimates Izz of a vehicle of on/off valves). ``on_warning(line)``
     hears each warning as it arises."""
-    from common.argtypes import vehicle_file
-    from common.outputs import result_output
-    from common.runfolder import read_run
-    from common.vehicle_toml import vehicle_document
-    from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
-    from estimator.shooting.health import thruster_health
-
     if per != "thruster":
         raise UserError(f"--segments calibrates each thruster: drop --per {per}")
     if izz is not None or thrust_table is not None:
@@ -90,7 +90,6 @@ def calibrate_by_segments(run_dir: str | Path, mass: float, out: str | Path, *,
     doc = {"run": str(run.path), "mass_kg": mass, "mass_sigma_kg": mass_sigma,
            "thruster_health": [t.to_dict() for t in rep.thrusters], **fit.to_dict(),
            "out": str(dest.main)}
-    import tomli_w
 
     with dest.writing_main() as (main, d):
         main.write_text(f"# tpods calibrate thrust {run.path} --segments: in-flight efficiencies "
