@@ -199,3 +199,36 @@ def session_meta(log: ImportedLog, source: str, options: dict[str, Any]) -> dict
     return {"status": "success", "imported_from": source, "import": options,
             "valves": "on/off" if log.on_off else "duty", "n_valves": log.n_valves,
             "columns": log.columns, "counts": log.counts}
+
+
+def import_session(file: str | Path, out: str | Path, *, columns: str | None = None,
+                   force_unit: str = "g", valves_as: str = "bitmask", time_unit: str = "s",
+                   settle: float = 1.0, zero_settle: float = 1.0,
+                   force: bool = False) -> list[str]:
+    """The use case behind ``tpods bench import``: the log ``file`` into the session folder
+    ``out`` (raw.csv, steps.csv, run.json; replaced only with ``force``); ``columns``: the
+    column names (t=COL,force=COL,valves=COL[,phase=COL]); ``settle``, ``zero_settle``: s
+    left out after a valve opens or the valves close. Returns the report's lines."""
+    from bench.session import summarize_steps
+    from common.outputs import ResultFolder
+    from common.runwriter import run_header, write_json_atomic
+
+    dest = ResultFolder(str(out), force=force, command="tpods bench import")
+    log = read_log(file, parse_columns(columns), force_unit, valves_as, time_unit, settle,
+                   zero_settle)
+    steps = summarize_steps(log.raw)
+    if steps.empty:
+        raise UserError(f"{file}: no valve stayed open past --settle {settle:g} s: no step to fit")
+    options = {"columns": columns, "force_unit": force_unit, "valves_as": valves_as,
+               "time_unit": time_unit, "settle_s": settle, "zero_settle_s": zero_settle}
+    meta = run_header("thrust-characterisation", **session_meta(log, str(file), options))
+    with dest.writing() as d:
+        log.raw.to_csv(d / "raw.csv", index=False, float_format="%.10g")
+        steps.to_csv(d / "steps.csv", index=False)
+        write_json_atomic(d / "run.json", meta)
+    c = log.counts
+    kind = "on/off pulses" if log.on_off else "duty steps"
+    return [f"imported {c['readings']} readings of {log.n_valves} valve(s) as {kind}: "
+            f"{len(steps)} steps; {c['empty_force_cells']} empty force cell(s) and "
+            f"{c['tare_rows_skipped']} tare row(s) skipped",
+            f"wrote {dest.path}/raw.csv, steps.csv, run.json (fit it: tpods bench fit {dest.path})"]

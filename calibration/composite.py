@@ -275,3 +275,65 @@ def load_parts(path: str | Path) -> tuple[list[Part], str | tuple[float, float]]
     else:
         about = _pair(doc, "about", str(path))
     return parts, about
+
+
+@dataclass
+class CombineReport:
+    """The use case's answer: the ``result``, the ``parts`` read, the ``comparison`` rows
+    with an estimate (or None) and the plausibility ``warnings``."""
+
+    result: Composite
+    parts: list[Part]
+    comparison: list[dict[str, Any]] | None
+    warnings: list[str]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.result.to_dict(),
+                **({"comparison": self.comparison} if self.comparison is not None else {})}
+
+    def lines(self, compared_with: str | None = None) -> list[str]:
+        """The text report (kg, m, kg m^2), with the comparison against ``compared_with``."""
+        res = self.result
+        out = [f"mass = {res.mass_kg:.6g} +- {res.mass_sigma_kg:.2g} kg ({len(self.parts)} parts)",
+               f"centre of mass = ({res.com_m[0]:.5g}, {res.com_m[1]:.5g}) m",
+               f"Izz about ({res.about_m[0]:.5g}, {res.about_m[1]:.5g}) m = {res.izz_kgm2:.6g} +- "
+               f"{res.izz_sigma_kgm2:.2g} kg m^2",
+               f"Izz about the centre of mass = {res.izz_com_kgm2:.6g} +- {res.izz_com_sigma_kgm2:.2g} kg m^2"]
+        out += [f"  {r['name']:32s} m {r['mass_kg']:.4g} kg  Izz own {r['izz_own_kgm2']:.3g}  "
+                f"+ m d^2 {r['parallel_axis_kgm2']:.3g} kg m^2" for r in res.parts]
+        if self.comparison is not None:
+            out.append(f"compared with {compared_with} (difference in combined sigmas):")
+            for r in self.comparison:
+                z = "-" if r["difference_sigmas"] is None else f"{r['difference_sigmas']:+.1f}"
+                out.append(f"  {r['quantity']:22s} parts {r['ground_truth']:.6g} +- "
+                           f"{r['ground_truth_sigma']:.2g}   estimate {r['estimate']:.6g} +- "
+                           f"{r['estimate_sigma']:.2g} {r['unit']}   difference {r['difference']:+.3g} ({z})")
+        return out
+
+    def compare_with(self, path: str | Path) -> list[dict[str, Any]]:
+        """Compare with an estimate's JSON file (sets and returns ``comparison``)."""
+        import json
+
+        try:
+            est = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise UserError(f"--compare {path}: not found") from None
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise UserError(f"--compare {path}: not an estimate's JSON ({exc})") from None
+        if not isinstance(est, dict):
+            raise UserError(f"--compare {path}: not an estimate's JSON object")
+        self.comparison = compare(self.result, est)
+        return self.comparison
+
+
+def combine_file(parts_path: str | Path, about: tuple[float, float] | None = None,
+                 compare_with: str | Path | None = None) -> CombineReport:
+    """The structure of a PARTS.toml: mass, centre of mass and Izz about ``about`` (m;
+    default the file's, else the centre of mass), compared with an estimate's JSON
+    (``compare_with``: ``tpods estimate batch --json`` or its estimate.json) if given."""
+    parts, file_about = load_parts(parts_path)
+    res = combine(parts, file_about if about is None else tuple(about))
+    rep = CombineReport(res, parts, None, plausibility_warnings(parts, res))
+    if compare_with is not None:
+        rep.compare_with(compare_with)
+    return rep

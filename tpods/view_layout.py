@@ -10,6 +10,7 @@ one for other bodies (pure data: this module does not load the SDK).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 from common.wire import sanitize_chunk
@@ -126,6 +127,25 @@ def layout(bodies: list[str] | tuple[str, ...] = (SHIPPED_BODY,)) -> dict[str, A
 def layout_json(bodies: list[str] | tuple[str, ...] = (SHIPPED_BODY,)) -> str:
     """:func:`layout` as the text of a layout file."""
     return json.dumps(layout(bodies), indent=2) + "\n"
+
+
+def write_layout(path: str | Path, bodies: list[str] | tuple[str, ...] | None = None,
+                 force: bool = False) -> Path:
+    """Write the layout for ``bodies`` (default the shipped body) to the .json file
+    ``path`` (an existing one only with ``force``); returns the path."""
+    from common.errors import UserError
+
+    path = Path(path)
+    if path.suffix != ".json":
+        raise UserError(f"--write-layout {path}: a Foxglove layout is a .json file")
+    if path.exists() and not force:
+        raise UserError(f"{path} already exists; add --force to replace it or choose another name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(layout_json(bodies or [SHIPPED_BODY]))
+    except OSError as exc:
+        raise UserError(f"cannot write {path} ({exc.strerror})") from None
+    return path
 
 
 def topics_in(doc: dict[str, Any]) -> set[str]:

@@ -6,6 +6,8 @@
 - :func:`bench.emulators.pty.serve_pty`: put any emulator on a pty, giving a device
   path the real pyserial driver opens; :func:`bench.emulators.tcp.serve_tcp` on a
   loopback TCP port (``socket://127.0.0.1:PORT``, like a module's Wi-Fi bridge).
+- :mod:`bench.emulators.pair`: the two linked as ``tpods bench emulate`` serves them, and
+  their logs.
 """
 
 from bench.emulators.pty import PtyServer, serve_pty

@@ -9,7 +9,10 @@
   search), ``trace_io`` (reading other labs' logs), ``units`` (a log in the wrong unit) and
   ``sim`` (simulated sensor traces).
 - ``pendulum_check``: the test-mass check of an inertia pendulum, with ``pendulum_periods``
-  (a period from any trace proportional to the angle) and ``pendulum_plots``.
+  (a period from any trace proportional to the angle), ``pendulum_plots`` and
+  ``pendulum_series`` (the check of a SERIES.csv file, its files written).
+- ``measure``: the use case, Izz from one source (timings, poses, rates or a trace) with
+  its files written; ``summary``: its text report.
 
 Who may import it: the rest of ``calibration`` and the floors above it (``estimator``,
 ``tpods``); never ``common``, ``bench`` or ``mocap_bridge``.

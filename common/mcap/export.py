@@ -176,3 +176,26 @@ def export_run(run_dir: str | Path, out: str | Path, **kwargs: Any) -> dict[str,
     info["messages"] = len(msgs)
     return info
 
+
+def export_run_file(run_dir: str | Path, out: str | Path, *, force: bool = False,
+                    prefix: str = DEFAULT_PREFIX, mocap_prefix: str = MOCAP_PREFIX,
+                    **kwargs: Any) -> dict[str, Any]:
+    """The use case behind ``tpods export mcap``: the run folder ``run_dir`` as the MCAP file
+    ``out`` (a name ending in .mcap; an existing one replaced only with ``force``), written
+    beside and renamed; ``kwargs`` as for :func:`run_messages` (``body``, ``t0``). Returns
+    the description of :func:`export_run` with the file's ``path``."""
+    from common.outputs import ResultFile, is_mcap
+
+    if not is_mcap(out):
+        raise UserError(f"--out {out}: tpods export mcap writes one MCAP file; give a name "
+                        "ending in .mcap")
+    for opt, v in (("--prefix", prefix), ("--mocap-prefix", mocap_prefix)):
+        if not v.strip("/"):  # a key cannot start with '/'
+            raise UserError(f"{opt} must not be empty")
+    if not Path(run_dir).is_dir():
+        raise UserError(f"{run_dir}: run folder not found")
+    dest = ResultFile(out, force=force)
+    with dest.writing() as tmp:
+        info = export_run(run_dir, tmp, prefix=prefix, mocap_prefix=mocap_prefix, **kwargs)
+    return {**info, "path": dest.path}
+

@@ -18,6 +18,7 @@ best few (as :func:`estimator.batch.design.search`).
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -222,3 +223,64 @@ def search_calibration(table: ThrustTable, settings: DesignSettings, *, per: str
     best = max(feasible, key=lambda e: e.score)
     best.label = "best " + best.label
     return CalibrationDesign(best, history)
+
+
+@dataclass
+class CalibrationDesignReport:
+    """The use case's answer: the search ``result``, the ``compared`` inputs' evaluations,
+    ``doc`` (design.json) and ``lines`` (its text report)."""
+
+    result: CalibrationDesign
+    compared: list[CalibrationEvaluation]
+    doc: dict
+    lines: list[str]
+
+
+def design_thrust_calibration(table: ThrustTable, settings: DesignSettings, out_folder, *,
+                              per: str = "thruster", compare: tuple[str, ...] = (),
+                              candidates: int = 200, refine: int = 3, refine_evals: int = 60,
+                              omega_range: tuple[float, float] = (0.2, 2.0), seed: int = 0,
+                              progress: Callable[[int], object] | None = None) -> CalibrationDesignReport:
+    """The D-optimal gated sine for the factors ``per`` (m and Izz known: ``settings.plant``),
+    compared with the phase-shifted sine, translate-rotate and the ``compare`` inputs;
+    written as commands.csv (t, d1..d4: s, %) and design.json into ``out_folder`` (a checked
+    :class:`common.outputs.ResultFolder`). ``progress(n)`` is called as evaluations finish."""
+    from estimator.plant.inputs import make_input
+
+    s = settings
+    compared = []
+    for spec in ["phase-sine", "translate-rotate", *compare]:
+        cmd_t, duty = make_input(spec, s.duration_s, s.cmd_rate_hz)
+        try:
+            compared.append(evaluate_calibration(cmd_t, duty, table, s, per, label=spec))
+        except UserError as exc:
+            raise UserError(f"{spec}: {exc}") from None
+    res = search_calibration(table, s, per=per, n_random=candidates, n_refine=refine,
+                             refine_evals=refine_evals, omega_range=tuple(omega_range), seed=seed,
+                             progress=progress)
+    best = res.best
+    doc = {"for": "thrust-calibration", "per": per, "best": best.to_dict(),
+           "compared": [e.to_dict() for e in compared], "evaluated": res.evaluated,
+           "settings": {"duration_s": s.duration_s, "cmd_rate_hz": s.cmd_rate_hz,
+                        "pose_rate_hz": s.pose_rate_hz, "table_size_m": list(s.table_size_m),
+                        "margin_m": s.margin_m, "max_yaw_rate_rad_s": s.max_yaw_rate_rad_s,
+                        "mass_kg": s.plant.mass_kg, "izz_kgm2": s.plant.izz_kgm2},
+           "commands_csv": str(out_folder.path / "commands.csv")}
+    with out_folder.writing() as d:
+        np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
+                   header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
+        (d / "design.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    lines = [f"D-optimal thrust-calibration input over {s.duration_s:g} s (--per {per}, "
+             f"m = {s.plant.mass_kg:g} kg and Izz = {s.plant.izz_kgm2:g} kg m^2 known; "
+             f"{res.evaluated} sequences)",
+             f"  {'input':<44} {'log det':>9} {'max sd':>8} {'counts open':>12} {'excursion x,y m':>16}  fits"]
+    for e in [*compared, best]:
+        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
+        sd = f"{e.sigma.max():8.2g}" if e.sigma.size and np.all(np.isfinite(e.sigma)) else f"{'-':>8}"
+        counts = ",".join(str(k) for k in sorted(e.counts_s))
+        lines.append(f"  {lab:<44} {e.logdet:9.3f} {sd} {counts:>12} {e.excursion_m[0]:7.2f},"
+                     f"{e.excursion_m[1]:7.2f}  {'yes' if e.feasible else 'NO: ' + e.reason}")
+    lines += [f"  best: {best.spec.describe()}",
+              f"  wrote {out_folder.path / 'commands.csv'} (play it or simulate it with tpods sim "
+              "--input), design.json"]
+    return CalibrationDesignReport(res, compared, doc, lines)

@@ -49,12 +49,15 @@ class PoseOptions:
     rotation: str | None = None
 
 
-def _units(text: str | None) -> tuple[str | None, str | None]:
+def split_units(text: str | None, option: str = "--units", example: str = "mm,deg"
+                ) -> tuple[str | None, str | None]:
+    """``LENGTH,ANGLE`` (either may be empty; None: neither given) as the two unit names;
+    more than two is refused naming ``option``."""
     if text is None:
         return None, None
     parts = [p.strip() or None for p in text.split(",")]
     if len(parts) > 2:
-        raise UserError(f"--units {text!r}: give LENGTH,ANGLE (e.g. mm,deg)")
+        raise UserError(f"{option} {text!r}: give LENGTH,ANGLE (e.g. {example})")
     return parts[0], parts[1] if len(parts) > 1 else None
 
 
@@ -62,7 +65,7 @@ def read_poses(text: str, options: PoseOptions, what: str = "file") -> PoseTable
     """Planar poses of a pose export of any supported format (see the module doc)."""
     text = text.lstrip("\ufeff")
     plane = FloorPlane.parse(options.plane) if options.plane else None
-    length, angle = _units(options.units)
+    length, angle = split_units(options.units)
     if options.columns is not None:
         for name, value in (("--body", options.body), ("--rotation", options.rotation)):
             if value is not None:

@@ -6,11 +6,9 @@ import argparse
 import json
 import sys
 import threading
-from pathlib import Path
 
 from common.argtypes import nonneg_float, positive_float
-from common.errors import UserError
-from common.outputs import add_force, not_an_input, optional_folder, result_output, stream_folder
+from common.outputs import add_force, optional_folder
 from tpods.cli.options import add_duty_limits, add_no_progress, add_random_seed, add_watchdog_ms
 from tpods.cli.parser import group
 from tpods.cli.stopping import stop_on_signals, valves_closed_exit
@@ -122,185 +120,59 @@ def register(sub) -> None:
     e.set_defaults(func=cmd_emulate)
 
 
-def _serial_format(text: str) -> dict:
-    t = text.strip().upper()
-    if len(t) != 3 or t[0] not in "5678" or t[1] not in "NEOMS" or t[2] not in "12":
-        raise UserError(f"serial format must look like 8N1 or 7E1, got {text!r}")
-    return {"bytesize": int(t[0]), "parity": t[1], "stopbits": int(t[2])}
-
-
-MAX_VALVES = 4
-"""Valves of a TPODS module's controller (the session checks the device's own count too)."""
-
-SESSION_FILES = ("raw.csv", "steps.csv", "run.json", "valves.serial.jsonl", "scale.serial.jsonl")
-
-
-def _replace_empty_failed_session(out: str | Path | None) -> None:
-    """A session that failed before its first reading (a device that does not answer, an
-    option the controller refuses) holds nothing to keep but its run.json, which says why.
-    Re-running into the same --out replaces it without --force, saying so on stderr."""
-    if not out:
-        return
-    out = Path(out)
-    try:
-        names = {p.name for p in out.iterdir()}
-        meta = json.loads((out / "run.json").read_text())
-        with (out / "raw.csv").open() as fh:
-            has_data = sum(1 for _ in zip(range(2), fh, strict=False)) > 1
-    except (OSError, ValueError):
-        return
-    if not names <= set(SESSION_FILES) or has_data or not isinstance(meta, dict) \
-            or meta.get("status") != "failed":
-        return
-    for name in SESSION_FILES:
-        (out / name).unlink(missing_ok=True)
-    print(f"tpods: replacing {out}: a failed session without readings "
-          f"({str(meta.get('error') or '')[:80]})", file=sys.stderr)
-
-
 def cmd_characterize(args: argparse.Namespace) -> int:
-    from bench.capture import capture_folder
-    from bench.ohaus.driver import OhausScout
-    from bench.session import (
-        SessionConfig,
-        Terminated,
-        parse_duty_steps,
-        parse_int_list,
-        run_session,
-        sigterm_raises,
-    )
-    from bench.valves import ValveController
+    from bench.characterize import plan_characterize, run_characterize, session_lines
+    from bench.session import Terminated, sigterm_raises
     from tpods.cli.options import DEFAULT_DUTY_LIMITS
 
-    args.duty_limits = args.duty_limits or DEFAULT_DUTY_LIMITS
-    lim = parse_duty_steps(args.duty_limits.replace(":", ","))
-    if len(lim) != 2:
-        raise UserError(f"--duty-limits must be LOW,HIGH, got {args.duty_limits!r}")
-    cfg = SessionConfig(
-        nozzles=parse_int_list(args.nozzles, "--nozzles"), duties_pct=parse_duty_steps(args.duty),
-        dwell_s=args.dwell, settle_s=args.settle, zero_settle_s=args.zero_settle,
-        zero_dwell_s=args.zero_dwell, zero_every=args.zero_every, pwm_hz=args.pwm_hz,
-        nozzle_under_test=args.nozzle_under_test, duty_limits_pct=(lim[0], lim[1]),
-        watchdog_ms=args.watchdog_ms)
-    if not 1 <= cfg.pwm_hz <= 100:
-        raise UserError(f"--pwm-hz must be 1-100, got {cfg.pwm_hz:g}")
-    if max(cfg.nozzles) > MAX_VALVES:
-        raise UserError(f"--nozzles {args.nozzles}: a TPODS module has {MAX_VALVES} valves; "
-                        f"cannot open {max(cfg.nozzles)} at once")
-    fmt = _serial_format(args.scale_format)
-    _replace_empty_failed_session(args.out)
-    cap_dir = None if args.capture in (None, True) else capture_folder(args.capture, args.force, "tpods bench characterize")
-    out = stream_folder(args.out, force=args.force, command="tpods bench characterize")
-    if args.capture is True:
-        cap_dir = Path(out)
-    hs = args.scale_handshake
+    plan = plan_characterize(
+        args.out, nozzles=args.nozzles, duty=args.duty, dwell=args.dwell, settle=args.settle,
+        zero_settle=args.zero_settle, zero_dwell=args.zero_dwell, zero_every=args.zero_every,
+        pwm_hz=args.pwm_hz, nozzle_under_test=args.nozzle_under_test,
+        duty_limits=args.duty_limits or DEFAULT_DUTY_LIMITS, watchdog_ms=args.watchdog_ms,
+        scale_format=args.scale_format, capture=args.capture, force=args.force,
+        on_note=lambda note: print(note, file=sys.stderr))
     with sigterm_raises():
         try:
-            with ValveController(args.valves, baudrate=args.valves_baud, duty_limits=cfg.duty_limits_pct,
-                                 capture=cap_dir and cap_dir / "valves.serial.jsonl") as valves, \
-                 OhausScout(args.scale, baudrate=args.scale_baud, xonxoff=hs == "xonxoff",
-                            rtscts=hs == "rtscts", silence_timeout=args.silence_timeout,
-                            acquisition=args.scale_mode, poll_interval_s=args.scale_poll_interval,
-                            capture=cap_dir and cap_dir / "scale.serial.jsonl", **fmt) as scale:
-                res = run_session(valves, scale, cfg, out, progress=not args.no_progress)
+            res = run_characterize(
+                plan, args.valves, args.scale, valves_baud=args.valves_baud,
+                scale_baud=args.scale_baud, scale_handshake=args.scale_handshake,
+                silence_timeout=args.silence_timeout, scale_mode=args.scale_mode,
+                scale_poll_interval=args.scale_poll_interval, progress=not args.no_progress)
         except (Terminated, KeyboardInterrupt) as exc:
-            return valves_closed_exit(exc, f"valves closed; partial data in {out}")
-    print(f"session {res.status}: {len(res.steps)} steps, {res.n_readings} readings, "
-          f"{res.n_garbage} garbage line(s) skipped")
-    print(f"time {res.elapsed_s:.1f} s for {res.planned_s:.1f} s planned "
-          f"(overhead {res.overhead_pct:+.1f} %)")
-    print(f"wrote {out}/raw.csv, steps.csv, run.json")
-    if cap_dir is not None:
-        print(f"wrote {cap_dir}/valves.serial.jsonl, scale.serial.jsonl (serial transcripts)")
+            return valves_closed_exit(exc, f"valves closed; partial data in {plan.out}")
+    print("\n".join(session_lines(res, plan)))
     return 0
 
 
-
 def cmd_fit(args: argparse.Namespace) -> int:
-    import dataclasses
+    from bench.session_fit import fit_session
 
-    from bench.fit import fit_steps, max_error_pct_full_scale, table_uncertainty
-    from bench.plots import plot_fit_orders, plot_time_series
-    from bench.session import read_session
-    from common.outputs import check_plain_folder
-    from common.thrust_table import ThrustTable
-    from tpods.cli.bench_loadcell import cmd_fit_pulses, pulse_session
-
-    if pulse_session(args.run_dir):  # on/off valves (bench import): forces, delays, rises
-        return cmd_fit_pulses(args)
-    # the --out rule: FILE.toml is the table; a folder receives thrust_table.toml and the plots
-    out_file = result_output(Path(args.run_dir) / "thrust_table.toml" if args.out is None else args.out,
-                             "thrust_table.toml", force=args.force, command="tpods bench fit")
-    not_an_input(out_file, args.run_dir)
-    check_plain_folder(args.plot_dir, "--plot-dir")
-    out = out_file.main
-    raw, steps = read_session(args.run_dir)
-    steps_csv = Path(args.run_dir) / "steps.csv"
-    from_file = steps_csv.is_file() and len(steps_csv.read_bytes().split(b"\n", 2)) > 2
-    result = fit_steps(steps, args.order, args.criterion,  # a damaged cell names its line
-                       source=str(steps_csv) if from_file else f"{args.run_dir}: steps from raw.csv",
-                       path=str(steps_csv) if from_file else None)
-    table = result.table(args.pressure_psi, source=f"tpods bench fit {args.run_dir}")
-    readings = raw["reading_gf"].to_numpy(dtype=float) if "reading_gf" in raw else None
-    unc = table_uncertainty(steps, readings, linearity_g=args.balance_linearity_g,
-                            extra_rel=args.scale_rel)
-    table = dataclasses.replace(table, uncertainty=unc)
-    reference = None
-    if args.reference is not None:
-        reference = ThrustTable.default() if args.reference.lower() == "table2" else ThrustTable.load(args.reference)
-    in_folder = out_file.is_folder and not args.plot_dir  # a folder output holds its plots
-    with out_file.writing_main() as (tmp, d):
-        table.save(tmp)
-        if in_folder:
-            p1 = out_file.final(plot_fit_orders(result, d / f"{out.stem}_orders.png", truth=reference))
-            p2 = out_file.final(plot_time_series(raw, d / f"{out.stem}_timeseries.png", steps))
-    if not in_folder:
-        plot_dir = Path(args.plot_dir) if args.plot_dir else out.parent
-        plot_dir.mkdir(parents=True, exist_ok=True)
-        p1 = plot_fit_orders(result, plot_dir / f"{out.stem}_orders.png", truth=reference)
-        p2 = plot_time_series(raw, plot_dir / f"{out.stem}_timeseries.png", steps)
+    fit = fit_session(args.run_dir, order=args.order, criterion=args.criterion, out=args.out,
+                      force=args.force, pressure_psi=args.pressure_psi,
+                      balance_linearity_g=args.balance_linearity_g, scale_rel=args.scale_rel,
+                      plot_dir=args.plot_dir, reference=args.reference)
+    for w in fit.warnings:
+        print(f"tpods: warning: {w}", file=sys.stderr)
     if args.json:
-        json.dump({"thrust_table": str(out), "plots": [str(p1), str(p2)],
-                   "selected_order": {str(k): n for k, n in result.selected.items()},
-                   **table.extra}, sys.stdout, indent=2, default=float)
+        json.dump(fit.doc, sys.stdout, indent=2, default=float)
         sys.stdout.write("\n")
         return 0
-    hdr = f"{'nozzles':>7} {'order':>5} {'rms_gf':>8} {'cv_rms_gf':>9} {'AICc':>8} {'BIC':>8}"
-    print(hdr)
-    for k in sorted(result.fits):
-        for n, f in sorted(result.fits[k].items()):
-            mark = " <" if n == result.selected[k] else ""
-            print(f"{k:>7} {n:>5} {f.rms:>8.3f} {f.cv_rms:>9.3f} {f.aicc:>8.2f} {f.bic:>8.2f}{mark}")
-    if reference is not None:
-        errs = max_error_pct_full_scale(table, reference)
-        print("max |fit - reference| over 10-90 %, % of full scale: "
-              + ", ".join(f"{k} nozzle(s) {v:.2f}" for k, v in errs.items()))
-    print(f"table uncertainty: coefficient covariance of each fit (statistical) and "
-          f"scale_rel = {unc.scale_rel:.2%}: {unc.sources['scale_rel']}")
-    print(f"wrote {out}, {p1}, {p2}")
+    print("\n".join(fit.lines))
     return 0
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    from bench.emulators import EmulatedScout, EmulatedValveController, serve_pty
-    from common.thrust_table import load_thrust_table
+    from bench.emulators import serve_pty
+    from bench.emulators.pair import emulated_bench, stopped_line, write_logs
 
     log_dir = optional_folder(args.log_dir, force=args.force, option="--log-dir",
                               command="tpods bench emulate")
-    table = load_thrust_table(args.table)
-    if args.channels < 1:
-        raise UserError("--channels must be at least 1")
-    if not 1 <= args.nozzle_under_test <= args.channels:
-        raise UserError(f"--nozzle-under-test must be 1-{args.channels}")
-    for name in ("unstable_prob", "garbage_prob"):
-        if getattr(args, name) > 1:
-            raise UserError(f"--{name.replace('_', '-')} must be a probability (0-1)")
-    valves = EmulatedValveController(args.channels)
-    scout = EmulatedScout(valves, table, args.nozzle_under_test, load_g=args.load_g, lag_s=args.lag_s,
-                          noise_g=args.noise_g, drift_g_per_s=args.drift_g_per_s,
-                          unstable_prob=args.unstable_prob, garbage_prob=args.garbage_prob,
-                          print_rate_hz=args.rate_hz, seed=args.seed,
-                          continuous_print=not args.no_continuous_print)
+    valves, scout = emulated_bench(
+        args.channels, args.nozzle_under_test, args.table, load_g=args.load_g, lag_s=args.lag_s,
+        noise_g=args.noise_g, drift_g_per_s=args.drift_g_per_s, unstable_prob=args.unstable_prob,
+        garbage_prob=args.garbage_prob, rate_hz=args.rate_hz, seed=args.seed,
+        continuous_print=not args.no_continuous_print)
     stop = threading.Event()
     sv = serve_pty(valves)
     ss = serve_pty(scout, baud=args.scale_baud)
@@ -315,14 +187,6 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         sv.stop()
     if log_dir is not None:
         with log_dir.writing() as d:
-            with (d / "valves_log.csv").open("w") as fh:
-                fh.write("t_s,cause," + ",".join(f"d{i + 1}" for i in range(args.channels)) + "\n")
-                for ch in valves.log:
-                    fh.write(f"{ch.t:.6f},{ch.cause}," + ",".join(f"{x:g}" for x in ch.duties) + "\n")
-            with (d / "scale_sent.csv").open("w") as fh:
-                fh.write("t_s,kind,line\n")
-                for s in scout.sent:
-                    fh.write(f"{s.t:.6f},{s.kind},{s.data.strip()!r}\n")
-    print(f"stopped: {len(valves.log) - 1} valve change(s), {valves.watchdog_trips} watchdog trip(s), "
-          f"{sum(s.kind == 'weight' for s in scout.sent)} reading(s) sent", file=sys.stderr)
+            write_logs(d, valves, scout)
+    print(stopped_line(valves, scout), file=sys.stderr)
     return 0

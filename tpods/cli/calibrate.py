@@ -5,12 +5,9 @@ calibration in :mod:`tpods.cli.calibrate_thrust`)."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float
-from common.errors import DeviceError, UserError
 from tpods.cli.calibrate_swing import cmd_pendulum as cmd_bifilar  # noqa: F401 - re-exported
 from tpods.cli.calibrate_swing import register_bifilar, register_trifilar
 from tpods.cli.calibrate_thrust import (
@@ -73,90 +70,33 @@ def _register_mass(cal) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _scale_readings(args) -> tuple[list[float], int]:
-    from calibration.mass import take_readings
-
-    try:
-        from bench.ohaus.driver import NotALoadReading, OhausScout
-    except ImportError:
-        raise UserError("--scale needs the OHAUS driver (bench/ohaus/driver.py), which is not installed; "
-                        "use --readings-from FILE or --values") from None
-    from tqdm import tqdm
-
-    capture = _mass_capture(args.capture)
-    with OhausScout(args.scale, baudrate=args.baudrate, bytesize=args.bytesize,
-                    parity=args.parity, stopbits=args.stopbits, timeout=args.timeout,
-                    stable_timeout=args.timeout, capture=capture) as scale, \
-            tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
-                 disable=args.json or None) as bar:
-        def read():
-            try:
-                return scale.read(mode="SP")
-            except NotALoadReading:
-                raise
-            except DeviceError:  # only lines that are not weight lines, twice: not a balance
-                if scale.n_readings == 0 and scale.n_garbage >= 2:
-                    ex = scale.garbage_examples[-1].decode("ascii", "replace").strip()
-                    raise NotALoadReading(
-                        f"the device at {args.scale} (--scale) does not answer like an OHAUS "
-                        f"balance: {scale.n_garbage} replies that are not weight lines, the last "
-                        f"{ex!r} (is it the balance, at --baudrate {args.baudrate}, "
-                        f"--bytesize {args.bytesize}, --parity {args.parity}?)") from None
-                raise
-
-        return take_readings(read, args.readings, progress=bar.update, fatal=(NotALoadReading,))
-
-
-def _mass_capture(target: str | None):
-    """--capture FILE.jsonl or DIR (-> DIR/scale.serial.jsonl); an existing file is refused."""
-    if target is None:
-        return None
-    p = Path(target)
-    p = p if p.name.endswith(".jsonl") else p / "scale.serial.jsonl"
-    if p.exists():
-        raise UserError(f"--capture: {p} already exists; choose another file or folder")
-    if p.parent.exists() and not p.parent.is_dir():
-        raise UserError(f"--capture {target}: {p.parent} is not a folder")
-    return p
-
-
 def cmd_mass(args: argparse.Namespace) -> int:
     """Mean, standard deviation and combined standard uncertainty (repeatability s/sqrt(N) and the
     balance's +-accuracy as a rectangular bound, a/sqrt(3)) of N stable readings, in kg. Give
     exactly one source: --scale, --readings-from or --values."""
+    import contextlib
 
-    from calibration.mass import mass_from_readings, parse_readings_text, to_kg
+    from calibration.weigh import mass_lines, weigh
 
-    to_kg(1.0, args.unit)  # validates --unit
-    if args.capture and not args.scale:
-        raise UserError("--capture records the balance's serial link: it needs --scale")
+    bar = contextlib.nullcontext()
     if args.scale:
-        readings, skipped = _scale_readings(args)
-    elif args.readings_from:
-        path = Path(args.readings_from)
-        if not path.is_file():
-            raise UserError(f"{path}: file not found")
-        try:
-            text = path.read_text()
-        except UnicodeDecodeError:
-            raise UserError(f"{path}: not a text file") from None
-        readings, skipped = parse_readings_text(text, args.unit, str(path))
-    else:
-        readings, skipped = [to_kg(v, args.unit) for v in args.values], 0
-    res = mass_from_readings(readings, args.accuracy_g * 1e-3, args.resolution_g * 1e-3,
-                             skipped=skipped, unit=None if args.scale else args.unit)
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.readings, desc="stable readings", unit="rd", file=sys.stderr,
+                   disable=args.json or None)
+    with bar:
+        res = weigh(scale=args.scale, readings_from=args.readings_from, values=args.values,
+                    readings=args.readings, accuracy_g=args.accuracy_g,
+                    resolution_g=args.resolution_g, unit=args.unit, capture=args.capture,
+                    progress=bar.update if args.scale else None, baudrate=args.baudrate,
+                    bytesize=args.bytesize, parity=args.parity, stopbits=args.stopbits,
+                    timeout=args.timeout)
     for w in res.warnings:
         print(f"tpods: warning: {w}", file=sys.stderr)
     if args.json:
         _print_json(res.to_dict())
         return 0
-    print(f"mass = {res.mass_kg:.6g} kg +- {res.u_combined_kg:.2g} kg (standard uncertainty, k=1; "
-          f"expanded U = {res.expanded_kg:.2g} kg, k=2)")
-    print(f"  {res.n_readings} stable readings, std {res.std_kg * 1e3:.3g} g"
-          + (f", {skipped} unstable skipped" if skipped else ""))
-    print(f"  Type A (repeatability s/sqrt(N)) {res.u_typeA_kg * 1e3:.3g} g; Type B (+-{args.accuracy_g:g}"
-          f" g rectangular, a/sqrt(3)) {res.u_typeB_kg * 1e3:.3g} g"
-          + (f"; resolution {res.u_resolution_kg * 1e3:.3g} g" if res.u_resolution_kg else ""))
+    print("\n".join(mass_lines(res, args.accuracy_g)))
     return 0
 
 
@@ -183,45 +123,15 @@ def cmd_combine(args: argparse.Namespace) -> int:
     structure's mass, centre of mass and Izz about a point (see
     calibration/examples/truss_two_modules.toml)."""
 
-    from calibration.composite import combine, load_parts, plausibility_warnings
+    from calibration.composite import combine_file
 
-    parts, about = load_parts(args.parts)
-    if args.about is not None:
-        about = tuple(args.about)
-    res = combine(parts, about)
-    for w in plausibility_warnings(parts, res):
+    rep = combine_file(args.parts, args.about)
+    for w in rep.warnings:
         print(f"tpods: warning: {w}", file=sys.stderr)
-    rows = _compare_rows(res, args.compare) if args.compare else None
+    if args.compare:
+        rep.compare_with(args.compare)
     if args.json:
-        _print_json({**res.to_dict(), **({"comparison": rows} if rows is not None else {})})
+        _print_json(rep.to_dict())
         return 0
-    print(f"mass = {res.mass_kg:.6g} +- {res.mass_sigma_kg:.2g} kg ({len(parts)} parts)")
-    print(f"centre of mass = ({res.com_m[0]:.5g}, {res.com_m[1]:.5g}) m")
-    print(f"Izz about ({res.about_m[0]:.5g}, {res.about_m[1]:.5g}) m = {res.izz_kgm2:.6g} +- "
-          f"{res.izz_sigma_kgm2:.2g} kg m^2")
-    print(f"Izz about the centre of mass = {res.izz_com_kgm2:.6g} +- {res.izz_com_sigma_kgm2:.2g} kg m^2")
-    for r in res.parts:
-        print(f"  {r['name']:32s} m {r['mass_kg']:.4g} kg  Izz own {r['izz_own_kgm2']:.3g}  "
-              f"+ m d^2 {r['parallel_axis_kgm2']:.3g} kg m^2")
-    if rows is not None:
-        print(f"compared with {args.compare} (difference in combined sigmas):")
-        for r in rows:
-            z = "-" if r["difference_sigmas"] is None else f"{r['difference_sigmas']:+.1f}"
-            print(f"  {r['quantity']:22s} parts {r['ground_truth']:.6g} +- "
-                  f"{r['ground_truth_sigma']:.2g}   estimate {r['estimate']:.6g} +- "
-                  f"{r['estimate_sigma']:.2g} {r['unit']}   difference {r['difference']:+.3g} ({z})")
+    print("\n".join(rep.lines(args.compare)))
     return 0
-
-
-def _compare_rows(res, path: str) -> list[dict]:
-    from calibration.composite import compare
-
-    try:
-        est = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise UserError(f"--compare {path}: not found") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise UserError(f"--compare {path}: not an estimate's JSON ({exc})") from None
-    if not isinstance(est, dict):
-        raise UserError(f"--compare {path}: not an estimate's JSON object")
-    return compare(res, est)

@@ -1,17 +1,14 @@
 """``tpods calibrate pendulum-check``: the test-mass check of an inertia pendulum (thin shell
-over :mod:`calibration.swing.pendulum_check`)."""
+over :mod:`calibration.swing.pendulum_series`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 
 from common.argtypes import nonneg_float, positive_float
 from common.constants import G_STANDARD_MPS2
-from common.errors import UserError
-from common.outputs import result_output
 from tpods.cli.options import add_json_flag, add_result_out
 from tpods.cli.parser import command
 
@@ -48,44 +45,6 @@ def register_pendulum_check(cal) -> None:
     add_result_out(p, "result.json and check.png", "result")
 
 
-def _geometry(args: argparse.Namespace):
-    from calibration.swing.pendulum_check import PendulumGeometry
-
-    missing = [o for o, v in (("--string-radius or --spacing", args.string_radius or args.spacing),
-                              ("--length", args.length), ("--mass", args.mass)) if v is None]
-    if missing:
-        raise UserError(f"{args.series} gives periods: give the pendulum's {', '.join(missing)}")
-    bifilar = args.spacing is not None
-    radius = args.spacing / 2 if bifilar else args.string_radius
-    return PendulumGeometry(radius, args.length, args.mass,
-                            args.u_geometry / 2 if bifilar else args.u_geometry, args.u_geometry,
-                            args.u_mass, args.g, args.u_g)
-
-
-def check_from_args(args: argparse.Namespace):
-    """Read SERIES.csv and run the check (periods through the geometry options)."""
-    from calibration.swing.pendulum_check import check_series, izz_from_periods, read_series
-
-    cols = read_series(args.series)
-    scale_rel = 0.0
-    if "period_s" in cols:
-        izz, s_izz, scale_rel = izz_from_periods(cols["radius_m"], cols["period_s"],
-                                                 cols["period_sigma_s"], _geometry(args),
-                                                 args.test_mass_kg, args.test_mass_sigma_kg)
-    else:
-        given = [o for o, v in (("--string-radius", args.string_radius), ("--spacing", args.spacing),
-                                ("--length", args.length), ("--mass", args.mass)) if v is not None]
-        if given:
-            raise UserError(f"{args.series} gives inertias, not periods: {', '.join(given)} "
-                            "would be ignored (they describe the pendulum for periods)")
-        izz, s_izz = cols["izz_kgm2"], cols["izz_sigma_kgm2"]
-    try:
-        return check_series(cols["radius_m"], izz, s_izz, args.test_mass_kg,
-                            args.test_mass_sigma_kg, cols.get("radius_sigma_m"), scale_rel)
-    except UserError as exc:
-        raise UserError(f"{args.series}: {exc}") from None
-
-
 def cmd_pendulum_check(args: argparse.Namespace) -> int:
     """Fit I = I0 + m_t r^2 (weighted least squares) to a series of swings with a known test mass
     at known radii and judge the pendulum: the fitted test mass against the known one in sigmas,
@@ -93,41 +52,20 @@ def cmd_pendulum_check(args: argparse.Namespace) -> int:
     izz_kgm2,izz_sigma_kgm2, or with period_s,period_sigma_s and the pendulum's geometry
     (--string-radius or --spacing, --length, --mass); radius_sigma_m is optional."""
 
-    out = result_output(args.out, "result.json", force=args.force,
-                        command="tpods calibrate pendulum-check")
-    res = check_from_args(args)
-    doc = {**res.to_dict(), "series": str(args.series)}
-    files = []
-    if out is not None:
-        from calibration.swing.pendulum_plots import plot_pendulum_check
+    from calibration.swing.pendulum_series import check_pendulum
 
-        with out.writing_main() as (main, d):
-            main.write_text(json.dumps(doc, indent=2, default=float) + "\n")
-            files.append(main)
-            if d is not None:
-                files.append(plot_pendulum_check(res, d / "check.png"))
-            files = [out.final(f) for f in files]
-    if res.verdict != "pass":
-        for r in res.reasons:
+    rep = check_pendulum(args.series, args.test_mass_kg, test_mass_sigma_kg=args.test_mass_sigma_kg,
+                         string_radius=args.string_radius, spacing=args.spacing,
+                         length=args.length, mass=args.mass, u_geometry=args.u_geometry,
+                         u_mass=args.u_mass, g=args.g, u_g=args.u_g, out=args.out, force=args.force)
+    if rep.check.verdict != "pass":
+        for r in rep.check.reasons:
             print(f"tpods: warning: {r}", file=sys.stderr)
     if args.json:
-        json.dump(doc, sys.stdout, indent=2, default=float)
+        json.dump(rep.doc, sys.stdout, indent=2, default=float)
         sys.stdout.write("\n")
         return 0
-    n = len(res.radius_m)
-    print(f"I0 = {res.i0_kgm2:.6g} +- {res.i0_sigma_kgm2:.2g} kg m^2 (fit of {n} swings, "
-          f"r = {min(res.radius_m):.3g}..{max(res.radius_m):.3g} m)")
-    print(f"  test mass {res.test_mass_kg * 1e3:.5g} +- {res.test_mass_sigma_kg * 1e3:.2g} g fitted, "
-          f"{res.known_test_mass_kg * 1e3:.5g} +- {res.known_test_mass_sigma_kg * 1e3:.2g} g known: "
-          f"{res.test_mass_difference_sigmas:+.2f} sigma; scale {res.scale_factor:.4f} +- "
-          f"{res.scale_factor_sigma:.2g}")
-    dof = res.dof
-    print(f"  chi2 = {res.chi2:.3g} for {dof} dof (chi2/dof {res.chi2 / dof if dof else math.nan:.3g}, "
-          f"p = {res.p_value:.3g})" + (f"; sigmas scaled by {res.birge_ratio:.3g}"
-                                       if res.birge_ratio > 1 else ""))
-    print(f"  I0 with the known test mass: {res.i0_known_mass_kgm2:.6g} +- "
-          f"{res.i0_known_mass_sigma_kgm2:.2g} kg m^2")
-    print(res.verdict_line)
-    for f in files:
+    print("\n".join(rep.lines()))
+    for f in rep.files:
         print(f"wrote {f}")
     return 0

@@ -2,8 +2,8 @@
 
 Sources: stopwatch timings (--times), a mocap yaw trace (--poses), a gyro's yaw rate
 (--rates) or any signal proportional to the angle (--trace: pixels, a laser spot,
-encoder counts). The fits are in :mod:`calibration.swing.trace_fit`, the readers in
-:mod:`calibration.swing.trace_io`; the printing of a result is :mod:`tpods.cli.calibrate_swing_print`.
+encoder counts). The use case is :mod:`calibration.swing.measure`, its text report
+:mod:`calibration.swing.summary`.
 """
 
 from __future__ import annotations
@@ -12,13 +12,9 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
-from calibration.swing.units import AMPLITUDE_LIMIT_DEG
 from common.argtypes import float_list, int_at_least, nonneg_float, positive_float, time_window
 from common.constants import G_STANDARD_MPS2
-from common.errors import UserError
-from common.outputs import result_output
 from tpods.cli.options import add_result_out
 
 NEW_INPUTS = (
@@ -135,130 +131,31 @@ def _rest(p, src, kind: str) -> None:
     p.set_defaults(func=cmd_pendulum, suspension=kind.split("_")[1])
 
 
-def _read_poses(path_text: str) -> tuple:
-    import numpy as np
-
-    from common.runfolder import POSE_COLUMNS, read_table
-
-    path = Path(path_text)
-    if path.is_dir():
-        path = path / "poses.csv"
-    v = read_table(path, POSE_COLUMNS)
-    return np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 3]), path
-
-
-def _window(args, t, y):
-    if not args.window:
-        return t, y
-    t0, t1 = args.window
-    keep = (t >= (-math.inf if t0 is None else t0)) & (t <= (math.inf if t1 is None else t1))
-    return t[keep], y[keep]
-
-
-def _suspension(args):
+def cmd_pendulum(args: argparse.Namespace) -> int:
     from calibration.suspension import Suspension
+    from calibration.swing.measure import measure_izz
+    from calibration.swing.summary import summary_lines
 
     tri = args.suspension == "trifilar"
-    return Suspension(args.suspension, args.mass, args.radius if tri else args.spacing,
-                      args.length, u_mass_kg=args.u_mass,
-                      u_arm_m=args.u_radius if tri else args.u_spacing, u_length_m=args.u_length,
-                      g=args.g, u_g=args.u_g, tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare)
-
-
-def _check_log_options(args) -> None:
-    log_only = [o for o, v, d in (("--columns", args.columns, None), ("--time-unit", args.time_unit, "s"),
-                                  ("--sample-rate", args.sample_rate, None)) if v != d]
-    if log_only and not (args.rates or args.trace):
-        raise UserError(f"{', '.join(log_only)}: only for --rates or --trace logs")
-    if args.rate_unit != "rad/s" and not args.rates:
-        raise UserError("--rate-unit is for --rates logs")
-    if (args.trace_scale is not None or args.amplitude_max != 15.0) and not args.trace:
-        raise UserError("--trace-scale and --amplitude-max are for --trace logs")
-    if args.amplitude_max > AMPLITUDE_LIMIT_DEG:
-        raise UserError(f"--amplitude-max {args.amplitude_max:g} deg: a swing of the strings "
-                        f"beyond {AMPLITUDE_LIMIT_DEG:g} deg winds them over each other, where "
-                        "the pendulum model does not hold (swings are released at 5-20 deg)")
-    if args.trace_scale is not None and not (math.isfinite(args.trace_scale) and args.trace_scale):
-        raise UserError(f"--trace-scale must be a non-zero finite number, got {args.trace_scale}")
-
-
-def _estimate(args):
-    """The result and a one-line description of its source."""
-    from calibration.suspension import izz_trifilar_from_times
-    from calibration.swing import bifilar
-    from calibration.swing.trace_fit import fit_pose_trace, fit_swing
-    from calibration.swing.trace_io import RATE_UNITS_RAD_S, read_swing_csv
-
-    s = _suspension(args)
-    if args.times is not None:
-        if s.kind == "trifilar":
-            res = izz_trifilar_from_times(args.times, args.cycles, s, u_timing_s=args.u_timing)
-        else:
-            res = bifilar.izz_from_times(args.times, args.cycles, args.mass, args.spacing,
-                                         args.length, u_timing_s=args.u_timing, u_mass_kg=args.u_mass,
-                                         u_spacing_m=args.u_spacing, u_length_m=args.u_length,
-                                         tare_izz_kgm2=args.tare_izz, u_tare_kgm2=args.u_tare,
-                                         g=args.g, u_g=args.u_g)
-        return res, f"{len(args.times)} timings of {args.cycles} oscillations"
-    if args.poses:
-        t, y, path = _read_poses(args.poses)
-        signal = "angle"
-    else:
-        path = Path(args.rates or args.trace)
-        key = "rate" if args.rates else "value"
-        scale = (RATE_UNITS_RAD_S[args.rate_unit] if args.rates else (args.trace_scale or 1.0))
-        t, y, skipped = read_swing_csv(path, key, args.columns, time_unit=args.time_unit,
-                                       value_scale=scale, sample_rate_hz=args.sample_rate)
-        if skipped:
-            print(f"tpods: warning: {path}: {skipped} rows with an empty cell skipped", file=sys.stderr)
-        signal = "rate" if args.rates else ("angle" if args.trace_scale else "signal")
-    t, y = _window(args, t, y)
-    from calibration.swing.units import swing_presence_problem, swing_units_problem
-
-    problem = swing_presence_problem(t, y) or swing_units_problem(t, y, signal)
-    if problem is not None:
-        raise UserError(f"{path}: {problem}")
-    try:
-        if signal == "angle" and args.poses:
-            res = fit_pose_trace(t, y, s, vertical_ke=not args.no_rise_ke)
-        else:
-            res = fit_swing(t, y, signal, s, vertical_ke=not args.no_rise_ke,
-                            amplitude_max_deg=args.amplitude_max)
-    except UserError as exc:
-        raise UserError(f"{path}: {exc}") from None
-    return res, str(path)
-
-
-def cmd_pendulum(args: argparse.Namespace) -> int:
-    from tpods.cli.calibrate_swing_print import print_result
-
-    _check_log_options(args)
-    out_folder = result_output(args.out, "result.json", force=args.force,
-                               command=f"tpods calibrate {args.suspension}")
-    res, source = _estimate(args)
-    doc = res.to_dict()
-    doc.setdefault("warnings", [])
-    out_files = []
-    if out_folder is not None:
-        from calibration import plots
-
-        with out_folder.writing_main() as (main, out):  # out: None for --out FILE.json
-            main.write_text(json.dumps(doc, indent=2, default=float) + "\n")
-            out_files.append(main)
-            if out is not None:
-                out_files.append(plots.plot_budget(res, out / "budget.png"))
-                if hasattr(res, "psi_fit"):
-                    out_files.append(plots.plot_trace_fit(res, out / "fit.png"))
-                elif hasattr(res, "y_fit"):
-                    out_files.append(plots.plot_signal_fit(res, out / "fit.png"))
-            out_files = [out_folder.final(p) for p in out_files]
-    for w in getattr(res, "warnings", ()):
-        print(f"tpods: warning: {w}", file=sys.stderr)
+    s = Suspension(args.suspension, args.mass, args.radius if tri else args.spacing, args.length,
+                   u_mass_kg=args.u_mass, u_arm_m=args.u_radius if tri else args.u_spacing,
+                   u_length_m=args.u_length, g=args.g, u_g=args.u_g, tare_izz_kgm2=args.tare_izz,
+                   u_tare_kgm2=args.u_tare)
+    m = measure_izz(s, times=args.times, cycles=args.cycles, poses=args.poses, rates=args.rates,
+                    trace=args.trace, u_timing=args.u_timing, window=args.window,
+                    rise_ke=not args.no_rise_ke, columns=args.columns, time_unit=args.time_unit,
+                    rate_unit=args.rate_unit, sample_rate=args.sample_rate,
+                    trace_scale=args.trace_scale, amplitude_max=args.amplitude_max, out=args.out,
+                    force=args.force, on_warning=lambda w: print(f"tpods: warning: {w}", file=sys.stderr))
     if args.json:
-        json.dump(doc, sys.stdout, indent=2, default=float)
+        json.dump(m.doc, sys.stdout, indent=2, default=float)
         sys.stdout.write("\n")
         return 0
-    print_result(res, source)
-    for f in out_files:
+    lines, notes = summary_lines(m.result, m.source)
+    for n in notes:
+        print(n, file=sys.stderr)
+    for line in lines:
+        print(line)
+    for f in m.files:
         print(f"wrote {f}")
     return 0

@@ -1,17 +1,17 @@
 """``tpods calibrate thrust``: the in-situ thrust calibration from a run of a body of known
 mass (and Izz, or Izz estimated with the factors), and ``tpods design --for
-thrust-calibration`` (thin shell over :mod:`estimator.batch.thrust_calibration.calibrate`)."""
+thrust-calibration`` (thin shell over :mod:`estimator.batch.thrust_calibration.run` and
+:func:`estimator.batch.calibration_design.design_thrust_calibration`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 
 from common.argtypes import nonneg_float, positive_float, time_window
 from common.errors import UserError
-from common.outputs import add_force, result_output
+from common.outputs import add_force
 from tpods.cli.options import add_noise_sigmas
 from tpods.cli.parser import command
 
@@ -87,138 +87,21 @@ def cmd_thrust(args: argparse.Namespace) -> int:
     inform both (no rotation, or no net force) is refused. A factor near zero or negative names
     a dead or reversed thruster (and no table is written for a non-positive one)."""
 
-    import numpy as np
+    from estimator.batch.thrust_calibration.run import calibrate_thrust_run
 
-    from tpods.cli import calibrate_thrust_segments as by_segments
-
-    if by_segments.wanted(args):
-        return by_segments.cmd_thrust_segments(args)
-    from common.argtypes import vehicle_file
-    from common.outputs import not_an_input
-    from common.plausible import body_problems
-    from common.runfolder import read_run
-    from common.thrust_table import ThrustTable
-    from estimator.batch.thrust_calibration.calibrate import calibrate_run
-
-    run = read_run(args.run_dir, vehicle_file(args.vehicle) if args.vehicle else None)
-    vehicle = run.structure if hasattr(run.structure, "thrusters") else None
-    if vehicle is None and args.thrust_table is None:
-        raise UserError("--thrust-table is needed: the run is not a vehicle run (no vehicle.toml "
-                        "in it and no --vehicle)")
-    if run.structure is not None and vehicle is None:
-        raise UserError(f"{run.path}: a structure run: its modules' tables are calibrated one "
-                        "module at a time (calibrate thrust is not built for structures)")
-    out = result_output(args.out, "vehicle.toml" if vehicle is not None else "thrust_table.toml",
-                        force=args.force, command="tpods calibrate thrust")
-    builtin = args.thrust_table is not None and args.thrust_table.lower() == "table2"
-    not_an_input(out, args.run_dir, None if builtin or args.thrust_table is None
-                 else args.thrust_table)
-    table = (None if args.thrust_table is None else ThrustTable.default() if builtin
-             else ThrustTable.load(args.thrust_table))
-    if vehicle is not None:
-        table = vehicle.with_table(table) if table is not None else vehicle
-    if args.izz is None and args.izz_sigma:
-        raise UserError("--izz-sigma is the uncertainty of a known --izz; without --izz, Izz is "
-                        "estimated (its sigma is reported)")
-    for p in body_problems(args.mass, args.izz):  # before the fit, which may then fail
-        print(f"tpods: warning: the known body (--mass, --izz): {p}: implausible for an "
-              "air-table body (kg and kg m^2?)", file=sys.stderr)
-    if args.window:
-        run = run.window(*args.window)
-    # a vehicle of on/off valves, per thruster, Izz estimated: a run single shooting cannot
-    # carry is fitted by segments instead (said), whatever single shooting raised
-    by_parts = (vehicle is not None and args.per == "thruster" and args.izz is None
-                and args.thrust_table is None and args.segments is None
-                and all(t.table is None for t in vehicle.thrusters))
-    try:
-        res = calibrate_run(run, table, mass_kg=args.mass, izz_kgm2=args.izz,
-                            mass_sigma_kg=args.mass_sigma, izz_sigma_kgm2=args.izz_sigma,
-                            per=args.per, model=args.model, sigma_pos_m=args.sigma_pos,
-                            sigma_yaw_rad=math.radians(args.sigma_yaw_deg), clamp=args.clamp,
-                            estimate_com=args.estimate_com)
-        failed = None if res.converged else f"did not converge ({res.iterations} iterations)"
-    except UserError as exc:
-        if not by_parts:
-            raise
-        failed = f"failed ({exc})"
-    if failed and by_parts:
-        print(f"tpods: warning: single shooting {failed}: one initial state cannot carry this "
-              "run; fitting it by segments instead (--segments auto)", file=sys.stderr)
-        args.segments = "auto"
-        return by_segments.cmd_thrust_segments(args)
-    if failed:
-        raise UserError(f"{run.path}: the calibration {failed}; no table written")
-    doc = res.to_dict()
-    unusable = [n for n, v in zip(res.names, res.values, strict=True) if v <= 0]
-    doc.update({"run": str(run.path), "thrust_table": "built-in Table 2" if builtin
-                else args.thrust_table, "out": None if unusable else str(out.main)})
-    if vehicle is not None:
-        doc["vehicle"] = vehicle.name
-    if not unusable:
-        with out.writing_main() as (main, d):  # d: None for --out FILE.toml
-            if vehicle is not None:
-                import tomli_w
-
-                from common.vehicle_toml import vehicle_document
-                from estimator.batch.thrust_calibration.vehicle import calibrated_vehicle
-
-                v = calibrated_vehicle(vehicle, res.names, res.values, res.cov, str(main))
-                main.write_text(f"# tpods calibrate thrust {run.path}: in-flight factors "
-                                f"{dict(zip(res.names, np.round(res.values, 5).tolist(), strict=True))} "
-                                f"(--mass {args.mass:g}); force_sigma_n = the factors' total "
-                                "sigma\n" + tomli_w.dumps(vehicle_document(
-                                    v.name, v.thrusters, v.valves, v.body, main.parent,
-                                    supplies=v.supplies)))
-            else:
-                res.new_table(table, run=str(run.path)).save(main)
-            if d is not None:
-                (d / "calibration.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    warnings = list(res.warnings)
-    if args.mass_sigma == 0 or (args.izz is not None and args.izz_sigma == 0):
-        warnings.append("--mass-sigma/--izz-sigma not given: the factors' sigma leaves out the "
-                        "known values' uncertainty")
-    for w in warnings:
-        print(f"tpods: warning: {w}", file=sys.stderr)
+    cal = calibrate_thrust_run(
+        args.run_dir, args.mass, args.out, mass_sigma=args.mass_sigma, izz=args.izz,
+        izz_sigma=args.izz_sigma, thrust_table=args.thrust_table, vehicle=args.vehicle,
+        per=args.per, model=args.model, estimate_com=args.estimate_com, window=args.window,
+        clamp=args.clamp, sigma_pos=args.sigma_pos, sigma_yaw_deg=args.sigma_yaw_deg,
+        segments=args.segments, force=args.force,
+        on_warning=lambda w: print(f"tpods: warning: {w}", file=sys.stderr))
     if args.json:
-        _print_json(doc)
-    if unusable:
-        raise UserError(f"{run.path}: {', '.join(unusable)} not positive (a dead or reversed "
-                        "thruster, see the warnings): a table cannot hold it; no table written")
-    if args.json:
-        return 0
-    print(f"thrust calibration on {run.path} ({len(res.t)} poses, t = {res.t[0]:.3f}.."
-          f"{res.t[-1]:.3f} s; --per {res.per}, --model {res.model})")
-    if res.izz is None:
-        print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg, "
-              f"Izz = {args.izz:.6g} +/- {args.izz_sigma:.2g} kg m^2")
-    else:
-        iz = res.izz
-        print(f"  known body: m = {args.mass:.6g} +/- {args.mass_sigma:.2g} kg; Izz estimated: "
-              f"{iz['izz_kgm2']:.6g} +/- {iz['izz_sigma_kgm2']:.2g} kg m^2 (noise "
-              f"{iz['izz_sigma_noise_kgm2']:.2g}, mass {iz['izz_sigma_mass_kgm2']:.2g}, table "
-              f"{iz['izz_sigma_table_kgm2']:.2g})")
-    print(f"  converged; {res.iterations} iterations, horizons "
-          f"{', '.join(f'{h:.1f}' for h in res.stages)} s")
-    b = res.budget()
-    lim = res.limited_by()
-    print(f"  {'factor':<16} {'value':>8} {'sigma':>8}   {'noise':>8} {'mass':>8} {'Izz':>8} "
-          f"{'table':>8}   limited by")
-    for n, v in zip(res.names, res.values, strict=True):
-        p = b[n]
-        print(f"  {n:<16} {v:8.4f} {p['total']:8.2g}   {p['noise']:8.2g} {p['mass']:8.2g} "
-              f"{p['izz']:8.2g} {p['table']:8.2g}   {lim[n]}")
-    if res.reference_count is not None:
-        print(f"  nozzle_scale.{res.reference_count} held at "
-              f"{table.nozzle_factor(res.reference_count):g} (reference count: the efficiencies "
-              "carry the common level)")
-    if res.absorbed:
-        print(f"  calibrated away (removed from the table's [uncertainty]): {', '.join(res.absorbed)}")
-    for e, v in res.extras.items():
-        print(f"  {e:<5} = {v:.4g} +/- {res.extras_sigma[e]:.2g}")
-    rms = res.rms_residuals()
-    print(f"  rms residuals: x {rms[0] * 100:.3f} cm, y {rms[1] * 100:.3f} cm, "
-          f"yaw {math.degrees(rms[2]):.3f} deg")
-    print(f"  wrote {out.main}" + (", calibration.json" if out.is_folder else ""))
+        _print_json(cal.doc)
+    if cal.refusal:
+        raise UserError(cal.refusal)
+    if not args.json:
+        print("\n".join(cal.lines))
     return 0
 
 
@@ -226,51 +109,19 @@ def design_calibration(args: argparse.Namespace, table, settings, out_folder) ->
     """``tpods design --for thrust-calibration``: the D-optimal gated sine for the factors
     ``--per`` (m and Izz known: ``--mass``, ``--izz``), written as commands.csv and
     design.json into ``out_folder`` (a checked :class:`common.outputs.ResultFolder`)."""
-    import numpy as np
     from tqdm import tqdm
 
-    from estimator.batch.calibration_design import evaluate_calibration, search_calibration
-    from estimator.plant.inputs import make_input
+    from estimator.batch.calibration_design import design_thrust_calibration
 
-    compared = []
-    for spec in ["phase-sine", "translate-rotate", *args.compare]:
-        cmd_t, duty = make_input(spec, args.duration, args.cmd_rate)
-        try:
-            compared.append(evaluate_calibration(cmd_t, duty, table, settings, args.per, label=spec))
-        except UserError as exc:
-            raise UserError(f"{spec}: {exc}") from None
     total = args.candidates + args.refine * args.refine_evals
     with tqdm(total=total, desc="design", unit="eval", file=sys.stderr, leave=False,
               disable=None) as bar:
-        res = search_calibration(table, settings, per=args.per, n_random=args.candidates,
-                                 n_refine=args.refine, refine_evals=args.refine_evals,
-                                 omega_range=tuple(args.omega_range), seed=args.seed,
-                                 progress=bar.update)
-    best = res.best
-    doc = {"for": "thrust-calibration", "per": args.per, "best": best.to_dict(),
-           "compared": [e.to_dict() for e in compared], "evaluated": res.evaluated,
-           "settings": {"duration_s": args.duration, "cmd_rate_hz": args.cmd_rate,
-                        "pose_rate_hz": args.pose_rate, "table_size_m": list(args.table_size),
-                        "margin_m": args.margin, "max_yaw_rate_rad_s": args.max_yaw_rate,
-                        "mass_kg": args.mass, "izz_kgm2": args.izz},
-           "commands_csv": str(out_folder.path / "commands.csv")}
-    with out_folder.writing() as d:
-        np.savetxt(d / "commands.csv", np.column_stack([best.cmd_t, best.duty_pct]), delimiter=",",
-                   header="t,d1,d2,d3,d4", comments="", fmt="%.10g")
-        (d / "design.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+        d = design_thrust_calibration(
+            table, settings, out_folder, per=args.per, compare=tuple(args.compare),
+            candidates=args.candidates, refine=args.refine, refine_evals=args.refine_evals,
+            omega_range=tuple(args.omega_range), seed=args.seed, progress=bar.update)
     if args.json:
-        _print_json(doc)
+        _print_json(d.doc)
         return 0
-    print(f"D-optimal thrust-calibration input over {args.duration:g} s (--per {args.per}, "
-          f"m = {args.mass:g} kg and Izz = {args.izz:g} kg m^2 known; {res.evaluated} sequences)")
-    print(f"  {'input':<44} {'log det':>9} {'max sd':>8} {'counts open':>12} {'excursion x,y m':>16}  fits")
-    for e in [*compared, best]:
-        lab = e.label if len(e.label) <= 44 else e.label[:41] + "..."
-        sd = f"{e.sigma.max():8.2g}" if e.sigma.size and np.all(np.isfinite(e.sigma)) else f"{'-':>8}"
-        counts = ",".join(str(k) for k in sorted(e.counts_s))
-        print(f"  {lab:<44} {e.logdet:9.3f} {sd} {counts:>12} {e.excursion_m[0]:7.2f},"
-              f"{e.excursion_m[1]:7.2f}  {'yes' if e.feasible else 'NO: ' + e.reason}")
-    print(f"  best: {best.spec.describe()}")
-    print(f"  wrote {out_folder.path / 'commands.csv'} (play it or simulate it with tpods sim "
-          "--input), design.json")
+    print("\n".join(d.lines))
     return 0

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from common.errors import UserError
 from common.outputs import add_force
-from tpods.cli.options import add_key_prefixes, check_key_prefixes
+from tpods.cli.options import add_key_prefixes
 from tpods.cli.parser import command, group
 
 
@@ -34,19 +32,10 @@ def cmd_export_mcap(args: argparse.Namespace) -> int:
     <prefix>/<body>/estimate) and truth.csv (tpods.truth/1 on <prefix>/<body>/truth) where
     present, in time order, with their JSON schemas. `tpods replay` publishes the file."""
 
-    from common.mcap.export import export_run
-    from common.outputs import ResultFile, is_mcap
+    from common.mcap.export import export_run_file
 
-    if not is_mcap(args.out):
-        raise UserError(f"--out {args.out}: tpods export mcap writes one MCAP file; give a name "
-                        "ending in .mcap")
-    check_key_prefixes(args)
-    if not Path(args.run).is_dir():
-        raise UserError(f"{args.run}: run folder not found")
-    out = ResultFile(args.out, force=args.force)
-    with out.writing() as tmp:
-        info = export_run(args.run, tmp, body=args.body, prefix=args.prefix,
-                          mocap_prefix=args.mocap_prefix, t0=args.t0)
+    info = export_run_file(args.run, args.out, force=args.force, body=args.body, prefix=args.prefix,
+                           mocap_prefix=args.mocap_prefix, t0=args.t0)
     counts = ", ".join(f"{n} {f}" for f, n in info["counts"].items())
-    print(f"wrote {out.path}: {info['messages']} messages for body {info['body']} ({counts} rows)")
+    print(f"wrote {info['path']}: {info['messages']} messages for body {info['body']} ({counts} rows)")
     return 0

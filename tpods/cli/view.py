@@ -94,19 +94,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def _write_layout(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from tpods.view_layout import write_layout
 
-    from tpods.view_layout import layout_json
-
-    path = Path(args.write_layout)
-    if path.suffix != ".json":
-        raise UserError(f"--write-layout {path}: a Foxglove layout is a .json file")
-    if path.exists() and not args.force:
-        raise UserError(f"{path} already exists; add --force to replace it or choose another name")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(layout_json(args.body or ["tpods1"]))
-    except OSError as exc:
-        raise UserError(f"cannot write {path} ({exc.strerror})") from None
-    print(f"wrote {path}")
+    print(f"wrote {write_layout(args.write_layout, args.body, force=args.force)}")
     return 0

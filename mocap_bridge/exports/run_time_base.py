@@ -1,5 +1,5 @@
-"""``--time-from`` of ``tpods import poses|commands``: the true row times of a log whose time
-column is a nominal counter, shared by the poses and the commands of the same rows.
+"""The time base shared by the two imports of one recording into a run folder
+(``--time-from``): the true row times of a log whose time column is a nominal counter.
 
 The import given ``--time-from`` rebuilds every data row's time
 (:mod:`mocap_bridge.exports.time_from`) and keeps the nominal -> rebuilt map as
@@ -7,7 +7,8 @@ The import given ``--time-from`` rebuilds every data row's time
 ``run.json`` ``time_base`` (what was done: method, rows determined and filled, spans,
 intervals). The other import of the same folder, in either order, maps its nominal times
 through it (or rebuilds them with the same ``--time-from`` and must agree with it). An
-import on nominal times beside a rebuilt one, or the reverse, is refused in one line.
+import on nominal times beside a rebuilt one, or the reverse, is refused in one line
+(:class:`common.errors.UserError`). Times in s; knots are 1-D arrays of equal length.
 """
 
 from __future__ import annotations
@@ -19,26 +20,15 @@ from typing import Any
 import numpy as np
 
 from common.errors import UserError
+from common.outputs import ResultFile
+from common.runwriter import CsvLog
+from mocap_bridge.exports.detect import split_units
+from mocap_bridge.exports.time_base import describe, map_times
+from mocap_bridge.exports.time_from import rebuild_time_base
 
 TIME_BASE_FILE = "time_base.csv"
 AGREE_S = 1e-6
 """Largest difference (s) between a stored time base and one rebuilt again from the same rows."""
-
-
-def add_time_from(p, rows: str) -> None:
-    """The ``--time-from`` and ``--time-from-units`` options of an import (``rows``: what
-    the rows are, for the help)."""
-    p.add_argument("--time-from", default=None, metavar="MAP",
-                   help=f"rebuild the {rows}' times when the t= column is a nominal counter: "
-                        "vx=COL,x=COL,vy=COL,y=COL,wz=COL,yaw=COL names logged finite-difference "
-                        "velocities (per second) and the positions they differentiate (any of the "
-                        "pairs), each row's interval is dX/VX from the best resolved one; or dt=COL, "
-                        "a column of each row's interval since the previous row (unit: --time-unit). "
-                        "Rows at rest take the median interval. The first row keeps its nominal time; "
-                        f"the map is kept in RUN/{TIME_BASE_FILE} for the other import")
-    p.add_argument("--time-from-units", default=None, metavar="LENGTH,ANGLE",
-                   help="units of the --time-from positions (m|cm|mm, rad|deg; velocities per "
-                        "second of the same) unless their names state them")
 
 
 @dataclass
@@ -52,19 +42,8 @@ class TimeMap:
     outside: int = field(default=0)
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
-        from mocap_bridge.exports.time_base import map_times
-
         out, self.outside = map_times(t, self.knots_nominal, self.knots_rebuilt)
         return out
-
-
-def _units(text: str | None) -> tuple[str | None, str | None]:
-    if text is None:
-        return None, None
-    parts = [p.strip() or None for p in text.split(",")]
-    if len(parts) > 2:
-        raise UserError(f"--time-from-units {text!r}: give LENGTH,ANGLE (e.g. m,rad)")
-    return parts[0], parts[1] if len(parts) > 1 else None
 
 
 def _stored(run: Path, meta: dict[str, Any] | None) -> TimeMap | None:
@@ -81,22 +60,23 @@ def _stored(run: Path, meta: dict[str, Any] | None) -> TimeMap | None:
     return TimeMap(a[:, 0], a[:, 1], tb, new=False)
 
 
-def time_map(args, text: str, t_column: str | None, run: Path, meta: dict[str, Any] | None,
+def time_map(time_from: str | None, time_from_units: str | None, time_unit: str | None, file: str,
+             text: str, t_column: str | None, run: Path, meta: dict[str, Any] | None,
              this: str, others: tuple[str, ...]) -> TimeMap | None:
     """The time map this import (``this``: its file in RUN) uses, or None (nominal times).
-    ``others``: the other import's possible files in RUN."""
-    from mocap_bridge.exports.time_from import rebuild_time_base
-
+    ``time_from``, ``time_from_units``, ``time_unit``: the import's ``--time-from`` options
+    (None: not given); ``file``: the source file's name (for messages); ``others``: the other
+    import's possible files in RUN."""
     stored = _stored(run, meta)
     other = next((run / o for o in others if (run / o).exists()), None)
-    if args.time_from is None:
-        if args.time_from_units is not None:
+    if time_from is None:
+        if time_from_units is not None:
             raise UserError("--time-from-units: give --time-from too")
         return stored if stored is not None and other is not None else None
     if t_column is None:
         raise UserError("--time-from reads a plain CSV's columns: give --columns t=COL,... too")
-    tb = rebuild_time_base(text, args.time_from, t_column=t_column, time_unit=args.time_unit,
-                           units=_units(args.time_from_units), what=str(args.file))
+    tb = rebuild_time_base(text, time_from, t_column=t_column, time_unit=time_unit,
+                           units=split_units(time_from_units, "--time-from-units", "m,rad"), what=str(file))
     if other is not None and stored is None:
         again = ("the commands again after the poses (with --force): they then take the rebuilt times"
                  if this == "poses.csv" else "the poses again with the same --time-from (and --force) first")
@@ -115,15 +95,12 @@ def time_map(args, text: str, t_column: str | None, run: Path, meta: dict[str, A
 def keep_time_base(tm: TimeMap | None, run: Path, fields: dict[str, Any], set_by: str, file: str) -> dict[str, Any] | None:
     """Write ``RUN/time_base.csv`` of a new map and set (or, without a map, drop) run.json's
     ``time_base`` in ``fields``; returns what the import's source entry says of its times."""
-    from common.runwriter import CsvLog
-
     if tm is None:
         fields.pop("time_base", None)
         return None
     if not tm.new:
         return {"file": TIME_BASE_FILE, "mapped_through": True, "set_by": tm.info.get("set_by"),
                 **({"outside": tm.outside} if tm.outside else {})}
-    from common.outputs import ResultFile
 
     out = ResultFile(run / TIME_BASE_FILE, force=True, option="--out")
     with out.writing() as tmp, CsvLog(tmp, ("t_nominal", "t"), "%.17g", flush_every_s=None) as log:
@@ -135,8 +112,6 @@ def keep_time_base(tm: TimeMap | None, run: Path, fields: dict[str, Any], set_by
 
 def describe_use(tm: TimeMap, run: Path) -> str:
     """The line an import prints of its time map."""
-    from mocap_bridge.exports.time_base import describe
-
     if tm.new:
         return describe(tm.info)
     s = tm.info
