@@ -27,3 +27,7 @@ the product in floating point differs in the last bit)."""
 
 EXPERIMENT_MASS_KG = 0.720
 """Mass of the module weighed in the paper's experiment, kg."""
+
+
+DEFAULT_DUTY_LIMITS = "10,90"
+"""``--duty-limits``' default for a module, percent LOW,HIGH (a vehicle's is its own range)."""

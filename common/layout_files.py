@@ -70,3 +70,12 @@ def load_structure_only(path: str | Path, command: str, why: str) -> Structure:
     if isinstance(layout, Vehicle) or any(m.vehicle is not None for m in layout.modules):
         raise UserError(f"{command} does not take a vehicle yet ({why})")
     return layout
+
+
+def split_layout(path: str | Path | None) -> tuple[Structure | None, Vehicle | None]:
+    """``(structure, vehicle)`` of a ``--structure``/``--vehicle`` file: the one it holds,
+    the other None (both None without a file); refused as :func:`load_live_layout` does."""
+    if not path:
+        return None, None
+    layout = load_live_layout(path)
+    return (None, layout) if layout.kind == "vehicle" else (layout, None)

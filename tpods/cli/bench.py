@@ -123,7 +123,7 @@ def register(sub) -> None:
 def cmd_characterize(args: argparse.Namespace) -> int:
     from bench.characterize import plan_characterize, run_characterize, session_lines
     from bench.session import Terminated, sigterm_raises
-    from tpods.cli.options import DEFAULT_DUTY_LIMITS
+    from common.constants import DEFAULT_DUTY_LIMITS
 
     plan = plan_characterize(
         args.out, nozzles=args.nozzles, duty=args.duty, dwell=args.dwell, settle=args.settle,

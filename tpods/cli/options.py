@@ -90,13 +90,9 @@ def add_noise_sigmas(p: argparse.ArgumentParser) -> None:
                    help="yaw noise sigma, deg (default 1)")
 
 
-DEFAULT_DUTY_LIMITS = "10,90"
-"""``--duty-limits``' default for a module (a vehicle's is its own range)."""
-
-
 def add_duty_limits(p: argparse.ArgumentParser) -> None:
     """``--duty-limits LOW,HIGH`` (%, default 10,90) the valve controller allows; None when
-    not given (a vehicle's default is its own range: :mod:`tpods.cli.run_vehicle`)."""
+    not given (a vehicle's default is its own range: :func:`tpods.play_session.plan_play`)."""
     p.add_argument("--duty-limits", default=None,
                    help="allowed duty of an open valve, LOW,HIGH %% (default 10,90)")
 
