@@ -74,3 +74,4 @@ class LiveCounters(Counters):
     rewinds: int = 0
     rewind_updates: int = 0
     before_ls: int = 0
+    motion_resets: int = 0
