@@ -95,6 +95,7 @@ def record(request, fault: str, r: FlightResult, **outcome) -> None:
             "poses_emitted": r.module.get("frames"), "gaps": s["gaps"], **outcome}
     folder = Path(os.environ.get("TPODS_LAB_REPORT_DIR")
                   or request.config._tmp_path_factory.getbasetemp().parent)
+    folder.mkdir(parents=True, exist_ok=True)
     with (folder / "lab-faults.jsonl").open("a") as fh:
         fh.write(json.dumps(line) + "\n")
 

@@ -49,6 +49,7 @@ class FlightResult:
     stderr: dict[str, str] = field(default_factory=dict)
     returncodes: dict[str, int | None] = field(default_factory=dict)
     events: list[tuple[float, str]] = field(default_factory=list)
+    relays: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def gaps(self) -> list[dict[str, Any]]:
         return list(self.summary.get("gaps") or [])
@@ -110,10 +111,28 @@ class LabFlight:
         if not line.startswith("ready"):
             raise RuntimeError(f"the module host did not start: {line!r}")
 
-    def start_bridge(self) -> None:
+    def start_bridge(self, connect: str | None = None, bind: str | None = None,
+                     port: int = MOCAP_UDP_PORT) -> None:
+        """The bridge on the mocap host; ``connect``: another Zenoh endpoint than the
+        router's (a relay's), ``bind``/``port``: where it takes the Vicon datagrams."""
+        zargs = list(self.zargs)
+        if connect is not None:
+            zargs[1] = connect
         self._spawn("bridge", "mocap", tpods_argv(
-            "mocap", "bridge", "--source", f"vicon-udp:{MOCAP_UDP_PORT}",
-            "--bind", CAMERA_ADDR["mocap"], *self.zargs))
+            "mocap", "bridge", "--source", f"vicon-udp:{port}",
+            "--bind", bind or CAMERA_ADDR["mocap"], *zargs))
+
+    def start_relay(self, host: str, kind: str, listen: str, upstream: str,
+                    delay_ms: float = 50.0, jitter_ms: float = 20.0) -> subprocess.Popen:
+        """:mod:`tests.support.delay_relay` in ``host``'s namespace."""
+        p = self._spawn(f"relay-{kind}", host, [
+            sys.executable, "-m", "tests.support.delay_relay", kind, listen, upstream,
+            "--delay-ms", f"{delay_ms:g}", "--jitter-ms", f"{jitter_ms:g}",
+            "--seed", str(self.seed)], stdout=subprocess.PIPE)
+        line = p.stdout.readline()
+        if not line.startswith("ready"):
+            raise RuntimeError(f"the relay did not start: {line!r}")
+        return p
 
     def start_estimator(self, name: str = "live", out: str = "live",
                         extra: tuple[str, ...] = ()) -> subprocess.Popen:
@@ -128,12 +147,12 @@ class LabFlight:
             "--out", str(self.out / "play"), "--no-progress", "--wait-subscriber", "20",
             "--watchdog-ms", str(watchdog_ms), *self.zargs))
 
-    def start_all(self, duration_s: float) -> float:
-        """Router, module, bridge, estimator, then the player; the wall time the player
-        started."""
+    def start_all(self, duration_s: float, bridge: dict[str, Any] | None = None) -> float:
+        """Router, module, bridge (``bridge``: :meth:`start_bridge`'s options), estimator,
+        then the player; the wall time the player started."""
         self.start_router()
         self.start_module()
-        self.start_bridge()
+        self.start_bridge(**(bridge or {}))
         self.start_estimator()
         self.start_player(duration_s)
         return time.time()
@@ -159,6 +178,11 @@ class LabFlight:
         for name in ("bridge", "module", "router2", "router"):
             if name in self.procs:
                 rc[name] = self.lab.stop(self.procs[name])
+        relays = {}
+        for name in [n for n in self.procs if n.startswith("relay")]:
+            self.lab.stop(self.procs[name])
+            last = (self.procs[name].stdout.read() or "").strip().splitlines()
+            relays[name] = json.loads(last[-1]) if last else {}
         for f in self._err.values():
             f.close()
         stderr = {n: (self.out / f"{n}.stderr").read_text() for n in self._err}
@@ -170,4 +194,4 @@ class LabFlight:
             summary=summary, live_dir=self.out / live,
             play=json.loads(play_json.read_text()) if play_json.exists() else {},
             module=json.loads(module_json.read_text()) if module_json.exists() else {},
-            stderr=stderr, returncodes=rc, events=list(self.lab.events))
+            stderr=stderr, returncodes=rc, events=list(self.lab.events), relays=relays)
