@@ -120,7 +120,8 @@ def test_partition_of_the_mocap_host_loses_no_pose_and_names_the_pause(tmp_path,
     assert recovery < 1.0
     assert not [g for g in r.gaps() if g["stream"] == "commands"]  # the player's host was fine
     record(request, "mocap host partitioned 2 s (ip link down)", r, zm=zm, zi=zi,
-           recovery_s=recovery, held=f"all poses (TCP replay, {g['silent_s']:.2f} s late)")
+           recovery_s=recovery, recovery_from="the link came up",
+           held=f"all poses (TCP replay, {g['silent_s']:.2f} s late)")
 
 
 def test_router_restart_every_process_reconnects_and_the_gap_is_named(tmp_path, request):
@@ -158,7 +159,8 @@ def test_router_restart_every_process_reconnects_and_the_gap_is_named(tmp_path, 
     assert back and back[0]["t"] + t0 - gp["t_end"] < 1.0
     assert c["motion_resets"] >= 1
     record(request, "router restarted (stopped, started 0.5 s later)", r, zm=zm, zi=zi,
-           recovery_s=recovery, filter_back_s=back[0]["t"] + t0 - gp["t_end"],
+           recovery_s=recovery, recovery_from="the new router process started",
+           filter_back_s=back[0]["t"] + t0 - gp["t_end"],
            held=f"poses and commands before and after; {gp['missing']} poses and "
                 f"{gc['missing']} commands lost while no router ran")
 

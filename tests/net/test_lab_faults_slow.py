@@ -17,6 +17,18 @@ pytestmark = [pytest.mark.netns, pytest.mark.flight, pytest.mark.slow,
               pytest.mark.skipif(lab_net.refusal() is not None, reason=str(lab_net.refusal()))]
 
 
+def test_no_fault_the_reference_flight(tmp_path, request):
+    """The same flight with no fault: the reference for the table's errors."""
+    with lab_net.lab_net() as lab:
+        flight = LabFlight(lab, tmp_path)
+        flight.start_all(FLIGHT_S)
+        r = flight.collect()
+    check_whole(r)
+    zm, zi = check_estimate(r)
+    assert not r.gaps()
+    record(request, "none (reference flight)", r, zm=zm, zi=zi, held="everything")
+
+
 @pytest.mark.skipif(lab_net.nft_refusal() is not None, reason=str(lab_net.nft_refusal()))
 def test_five_percent_loss_on_the_mocap_and_router_hosts(tmp_path, request):
     """nftables drops 5 % of the packets in and out of the mocap and the router hosts for

@@ -91,12 +91,12 @@ class LabFlight:
 
     def restart_router(self, down_s: float) -> float:
         """Stop the router (SIGTERM), wait ``down_s`` seconds, start it again; the wall
-        time it listened again."""
+        time its new process started."""
         self.lab.events.append((time.time(), "router stopped"))
         self.lab.stop(self.procs["router"])
         time.sleep(down_s)
-        self.start_router("router2")
         t = time.time()
+        self.start_router("router2")
         self.lab.events.append((t, "router started"))
         return t
 
