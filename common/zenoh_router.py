@@ -91,6 +91,25 @@ def router_locators(session, timeout_s: float = 2.0) -> list[str]:
     return []
 
 
+def configured_endpoints(args: Any) -> list[str]:
+    """The endpoints the options ask the router to listen on (``--listen``, else the config
+    file's ``listen/endpoints``): what :func:`serve_router` reports when the admin space,
+    switched off by a config file, cannot say which ports were bound."""
+    listen = _get(args, "listen")
+    if listen:
+        return list(listen)
+    path = _get(args, "zenoh_config")
+    if path is None:
+        return []
+    import zenoh
+
+    try:
+        return [str(x) for x in json.loads(zenoh.Config.from_file(str(path))
+                                           .get_json("listen/endpoints"))]
+    except Exception:  # the file was read once already; nothing more to say
+        return []
+
+
 def serve_router(args: Any, stop: threading.Event, *,
                  on_ready: Callable[[RouterRun], None] | None = None,
                  on_peers: Callable[[set[str], set[str]], None] | None = None,
@@ -104,7 +123,8 @@ def serve_router(args: Any, stop: threading.Event, *,
     session = open_router(args)
     t0 = time.monotonic()
     try:
-        run = RouterRun(zid=str(session.info.zid()), locators=router_locators(session))
+        run = RouterRun(zid=str(session.info.zid()),
+                        locators=router_locators(session) or configured_endpoints(args))
         if on_ready is not None:
             on_ready(run)
         known: set[str] = set()

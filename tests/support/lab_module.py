@@ -38,6 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--izz", type=float, default=3.78e-3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, metavar="FILE.json")
+    ap.add_argument("--trust", action="append", default=None, metavar="ADDR",
+                    help="the only addresses the valve link answers (repeatable; default any)")
     a = ap.parse_args(argv)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -48,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     plant = PlantLoop(valves, PlantParams(a.mass, a.izz), ThrustTable.default(),
                       udp_sink(_addr(a.mocap_udp)), pose_rate_hz=a.pose_rate, seed=a.seed)
     host, port = _addr(a.valves_listen)
-    server = TcpServer(valves, host, port)
+    server = TcpServer(valves, host, port, trust=a.trust)
     plant.start()
     print(f"ready {server.url}", flush=True)
     try:
@@ -64,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
            "pose_rate_hz": a.pose_rate, "watchdog_trips": valves.watchdog_trips,
            "changes": [{"t_mono": c.t, "t_wall": c.t + wall_minus_mono, "duties": list(c.duties),
                         "cause": c.cause} for c in valves.log],
+           "refused": server.refused,
            "error": None if plant.error is None else str(plant.error)}
     with open(a.out, "w") as fh:
         json.dump(out, fh)

@@ -39,8 +39,9 @@ from pathlib import Path
 
 HOSTS = ("router", "mocap", "module", "estimator")
 LAN_ADDR = {"router": "10.77.0.1", "mocap": "10.77.0.2", "module": "10.77.0.3",
-            "estimator": "10.77.0.4"}
-"""Each host's address on the lab network (/24); the same in every lab: they are private."""
+            "estimator": "10.77.0.4", "laptop": "10.77.0.9"}
+"""Each host's address on the lab network (/24); the same in every lab: they are private.
+("laptop": a stranger on the lab network, for the access tests.)"""
 CAMERA_ADDR = {"module": "10.78.0.1", "mocap": "10.78.0.2"}
 """The camera link between the module and the mocap host (/30)."""
 ROUTER_PORT = 7447
