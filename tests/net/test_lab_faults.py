@@ -29,8 +29,8 @@ from tests.support.lab_flight import FlightResult, LabFlight
 pytestmark = [pytest.mark.netns, pytest.mark.flight,
               pytest.mark.skipif(lab_net.refusal() is not None, reason=str(lab_net.refusal()))]
 
-FLIGHT_S = 8.0
-FAULT_AT_S = 3.0  # after the player started (it waits for the estimator first: ~1 s)
+FLIGHT_S = 6.0
+FAULT_AT_S = 2.5  # after the player started (it waits for the estimator first: ~1 s)
 
 
 def poses_csv(r: FlightResult) -> list[float]:

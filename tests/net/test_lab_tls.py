@@ -7,7 +7,7 @@ mocap's poses; a laptop with a valid certificate of the lab CA but another name 
 no one; a host without a lab certificate cannot even connect. Across namespaces (marked
 ``netns``): the authorised flight runs with every process on TLS, while a laptop host
 publishes commands and poses and tries the valve link: the estimator never takes them and
-the valves never answer it."""
+the valves never answer it (``make test-slow``)."""
 
 from __future__ import annotations
 
@@ -112,6 +112,7 @@ def test_valve_link_answers_only_trusted_addresses():
 
 @pytest.mark.netns
 @pytest.mark.flight
+@pytest.mark.slow
 @pytest.mark.skipif(lab_net.refusal() is not None, reason=str(lab_net.refusal()))
 def test_authorised_flight_runs_and_a_laptop_reaches_neither_estimator_nor_valves(pki, tmp_path):
     from tests.support.lab_flight import VALVES_PORT, LabFlight
