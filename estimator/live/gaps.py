@@ -75,6 +75,30 @@ def gap_sentence(g: dict[str, Any], t0: float | None = None) -> str:
             f"({g['duration_s']:.2f} s), {what}")
 
 
+SUMMARY_GAPS = 100
+"""Gaps listed in the summary (``gaps``); gaps.csv holds them all."""
+
+
+def gap_warnings(rows: list[dict[str, Any]], t0: float | None = None, n_long: int = 10
+                 ) -> list[str]:
+    """The warning lines for ``rows`` (:meth:`GapTracker.rows`): each long gap (0.1 s and
+    more, or 5 messages missing, or a pause) on its own line, at most ``n_long``, the rest
+    (a replayed run's dropped frames, a lossy camera link) counted in one line per stream."""
+    def long(g: dict[str, Any]) -> bool:
+        return g["duration_s"] >= 0.1 or g["missing"] >= 5 or g["missing"] == 0
+
+    lines = [gap_sentence(g, t0) for g in rows if long(g)][:n_long]
+    n_more = sum(1 for g in rows if long(g)) - len(lines)
+    for stream in ("poses", "commands"):
+        short = [g for g in rows if g["stream"] == stream and not long(g)]
+        if short:
+            lines.append(f"{stream}: {len(short)} short gaps (under 0.1 s, "
+                         f"{sum(g['missing'] for g in short)} missing in all; gaps.csv lists each)")
+    if n_more > 0:
+        lines.append(f"{n_more} more gaps (gaps.csv lists each)")
+    return lines
+
+
 class GapTracker:
     """Watch the pose and command streams of one body for gaps (see the module notes).
 
@@ -139,8 +163,16 @@ class GapTracker:
                 break
         return False
 
-    def rows(self) -> list[dict[str, Any]]:
-        return [g.as_dict() for g in self.gaps]
+    def rows(self, limit: int | None = None) -> list[dict[str, Any]]:
+        """The gaps as dicts (the first ``limit``; None: all)."""
+        return [g.as_dict() for g in self.gaps[:limit]]
+
+    def summary(self) -> dict[str, Any]:
+        """``gaps`` (the first :data:`SUMMARY_GAPS`), ``gap_count``, ``poses_missing``,
+        ``commands_missing``: the summary's part."""
+        return {"gaps": self.rows(SUMMARY_GAPS), "gap_count": len(self.gaps),
+                "poses_missing": self.missing("poses"),
+                "commands_missing": self.missing("commands")}
 
     def missing(self, stream: str) -> int:
         return sum(g.missing for g in self.gaps if g.stream == stream)

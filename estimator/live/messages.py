@@ -126,7 +126,7 @@ class EstimateMessages:
                          "window_s": self.config.ls_window_s, "elapsed_s": self.ls_elapsed_s}
         if self.ls_error:
             out["ls_error"] = self.ls_error
-        out["gaps"] = self.gaps.rows()
+        out.update(self.gaps.summary())
         out["counters"] = self.stats()
         return out
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pytest
 
+from estimator.live.gaps import gap_warnings
 from tests.support import lab_net
 from tests.support.lab import TRUTH
 from tests.support.lab_flight import FlightResult, LabFlight
@@ -59,14 +60,15 @@ def check_whole(r: FlightResult) -> None:
             == c["poses_rx"])
     run = json.loads((r.live_dir / "run.json").read_text())
     assert run["recorded"]["poses"] == len(rows)
-    assert run["final"]["gaps"] == r.summary["gaps"]
-    if r.gaps():
-        with (r.live_dir / "gaps.csv").open() as fh:
-            listed = list(csv.DictReader(fh))
-        assert [(g["stream"], int(g["frame_before"]), int(g["frame_after"])) for g in listed] == \
-            [(g["stream"], g["before"], g["after"]) for g in r.gaps()]
-        for g in r.gaps():  # and in words on stderr
-            assert f"{g['stream']}: gap " in r.stderr["live"]
+    assert run["final"]["gaps"] == r.summary["gaps"]  # the output's and the recording's
+    gaps = r.gaps()  # gaps.csv: all of them
+    assert r.summary["gap_count"] == len(gaps)
+    key = [(g["stream"], g["before"], g["after"], g["missing"]) for g in gaps]
+    assert [(g["stream"], g["before"], g["after"], g["missing"])
+            for g in r.summary["gaps"]] == key[:len(r.summary["gaps"])]
+    assert r.summary["poses_missing"] == sum(g["missing"] for g in gaps if g["stream"] == "poses")
+    for line in gap_warnings(gaps, run["t0_lab"]):  # and in words on stderr
+        assert line in r.stderr["live"], line
     # the recording's only holes are the named gaps (by frame number: the vicon-udp bridge
     # stamps a pose with its receive time, so a stalled bridge bunches the times)
     frames = [int(e["frame"]) for e in estimates_csv(r)]
@@ -92,7 +94,7 @@ def record(request, fault: str, r: FlightResult, **outcome) -> None:
     s = r.summary
     line = {"fault": fault, "test": request.node.name, "mass_z": outcome.pop("zm", None),
             "izz_z": outcome.pop("zi", None), "poses_rx": s["counters"]["poses_rx"],
-            "poses_emitted": r.module.get("frames"), "gaps": s["gaps"], **outcome}
+            "poses_emitted": r.module.get("frames"), "gaps": r.gaps(), **outcome}
     folder = Path(os.environ.get("TPODS_LAB_REPORT_DIR")
                   or request.config._tmp_path_factory.getbasetemp().parent)
     folder.mkdir(parents=True, exist_ok=True)

@@ -13,6 +13,7 @@ collects what each side kept (:class:`FlightResult`). Every process runs at real
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 import subprocess
@@ -52,7 +53,17 @@ class FlightResult:
     relays: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def gaps(self) -> list[dict[str, Any]]:
-        return list(self.summary.get("gaps") or [])
+        """Every gap the estimator named, from its gaps.csv (the summary lists the first
+        100), in the summary's form."""
+        path = self.live_dir / "gaps.csv"
+        if not path.exists():
+            return []
+        with path.open() as fh:
+            return [{"stream": g["stream"], "t_start": float(g["t_start"]),
+                     "t_end": float(g["t_end"]), "duration_s": float(g["duration_s"]),
+                     "missing": int(g["missing"]), "silent_s": float(g["silent_s"]),
+                     "before": int(g["frame_before"]), "after": int(g["frame_after"]),
+                     "host_end": float(g["host_end"])} for g in csv.DictReader(fh)]
 
 
 class LabFlight:

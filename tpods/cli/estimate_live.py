@@ -183,10 +183,10 @@ def cmd_live(args: argparse.Namespace) -> int:
         print("tpods: warning: the live filter's recent innovations are larger than its covariance "
               "allows (mean NIS above the chi-square bound): its sigma understates the error",
               file=sys.stderr)
-    from estimator.live.gaps import gap_sentence
+    from estimator.live.gaps import gap_warnings
 
-    for g in summary.get("gaps", [])[:20]:  # named, never bridged silently
-        print(f"tpods: warning: {gap_sentence(g, est.aligner.first_command_t)}", file=sys.stderr)
+    for line in gap_warnings(est.gaps.rows(), est.aligner.first_command_t):  # never bridged silently
+        print(f"tpods: warning: {line}", file=sys.stderr)
     if not summary.get("thrust_uncertainty", {}).get("included", True):
         print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:

@@ -8,7 +8,7 @@ import csv
 import numpy as np
 import pytest
 
-from estimator.live.gaps import GapTracker, forget_motion, gap_sentence
+from estimator.live.gaps import GapTracker, forget_motion, gap_sentence, gap_warnings
 
 
 def test_pose_gaps_missing_and_late(tmp_path):
@@ -26,6 +26,22 @@ def test_pose_gaps_missing_and_late(tmp_path):
     rows = list(csv.DictReader((tmp_path / "gaps.csv").open()))
     assert [(r["stream"], r["missing"]) for r in rows] == [("poses", "4"), ("poses", "0")]
     assert "4 missing" in gap_sentence(g.rows()[0]) and "late" in gap_sentence(g.rows()[1])
+
+
+def test_short_gaps_are_counted_in_one_warning_line():
+    """A replayed run's dropped frames (one at a time) are one line; a long gap its own."""
+    g = GapTracker()
+    f = 0
+    for k in range(200):
+        f += 2 if k % 10 == 5 else 1  # every tenth frame dropped
+        g.pose(f, f * 0.01, f * 0.01)
+    g.pose(f + 50, (f + 50) * 0.01, (f + 50) * 0.01)  # 49 frames lost: 0.5 s
+    lines = gap_warnings(g.rows())
+    assert len(lines) == 2
+    assert "49 missing" in lines[0]
+    assert lines[1].startswith("poses: 20 short gaps") and "20 missing in all" in lines[1]
+    s = g.summary()
+    assert s["gap_count"] == 21 and s["poses_missing"] == 69 and len(s["gaps"]) == 21
 
 
 def test_lost_commands_make_an_interval_of_unknown_input():
