@@ -40,6 +40,7 @@ import numpy as np
 from common.errors import UserError
 from estimator.filters.ekf_kernels import ekf_predict, ekf_update
 from estimator.live.align import LiveAligner
+from estimator.live.clock_offset import OffsetMeter
 from estimator.live.config import (
     DEFAULT_MAX_WAIT_S,
     DEFAULT_REWIND_S,
@@ -123,6 +124,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s, n_channels=n_aligned)
         self.counters = LiveCounters()
         self.gaps = GapTracker(csv_path=None if recorder is None else recorder.out / "gaps.csv")
+        self.clock_meter = OffsetMeter()
         self._wrench: dict[float, tuple[float, float, float]] = {}
         self.z: np.ndarray | None = None
         self.P: np.ndarray | None = None
@@ -161,6 +163,8 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             return False
         self._input_gap(self.gaps.command(self.body, d.get("seq"), d["t"],
                                           d["t"] if arrival is None else arrival))
+        if arrival is not None:
+            self.clock_meter.command(d["t"], arrival)
         return self._command(d["t"], d["duty"], d.get("kind"))
 
     def _command(self, t: float, duty, kind: str | None) -> bool:
@@ -209,6 +213,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             return False
         t = d["t"]
         self.gaps.pose(d["frame"], t, arrival)
+        self.clock_meter.pose(t, arrival)
         return self.aligner.push_pose(d["frame"], t, d["x"] if d["x"] is not None else math.nan,
                                       d["y"] if d["y"] is not None else math.nan,
                                       d["yaw"] if d["yaw"] is not None else math.nan,

@@ -127,6 +127,10 @@ class EstimateMessages:
         if self.ls_error:
             out["ls_error"] = self.ls_error
         out.update(self.gaps.summary())
+        off = self.clock_meter.estimate()
+        out.update(off.as_dict() if off is not None else
+                   {"clock_offset_ms": None, "clock_offset_sigma_ms": None,
+                    "clock_offset_windows": 0})
         out["counters"] = self.stats()
         return out
 

@@ -26,7 +26,29 @@ def test_no_fault_the_reference_flight(tmp_path, request):
     check_whole(r)
     zm, zi = check_estimate(r)
     assert not r.gaps()
-    record(request, "none (reference flight)", r, zm=zm, zi=zi, held="everything")
+    assert abs(r.summary["clock_offset_ms"]) < 2.0  # one kernel clock: none
+    record(request, "none (reference flight)", r, zm=zm, zi=zi, held="everything",
+           clock_offset_ms=r.summary["clock_offset_ms"])
+
+
+def test_mocap_clock_20_ms_behind_is_measured_within_2_ms(tmp_path, request):
+    """The mocap host's clock 20 ms behind the player's (simulated: the bridge takes 20 ms
+    off every pose stamp, ``--latency-ms 20``; the namespaces share one kernel clock):
+    the estimator measures -20 ms within 2 ms from the streams' delays and warns."""
+    with lab_net.lab_net() as lab:
+        flight = LabFlight(lab, tmp_path)
+        flight.start_all(FLIGHT_S, bridge={"extra": ("--latency-ms", "20")})
+        r = flight.collect()
+    check_whole(r)
+    s = r.summary
+    assert abs(s["clock_offset_ms"] + 20.0) < 2.0, s["clock_offset_ms"]
+    assert s["clock_offset_windows"] >= 3 and s["clock_offset_sigma_ms"] < 2.0
+    assert "clocks differ by -" in r.stderr["live"]
+    record(request, "mocap clock 20 ms behind the player's (simulated)", r,
+           held=f"measured {s['clock_offset_ms']:+.2f} +/- {s['clock_offset_sigma_ms']:.2f} ms",
+           clock_offset_ms=s["clock_offset_ms"],
+           zm=(s["mass_kg"] - 2.268) / s["mass_sigma_kg"],
+           zi=(s["izz_kgm2"] - 3.78e-3) / s["izz_sigma_kgm2"])
 
 
 @pytest.mark.skipif(lab_net.nft_refusal() is not None, reason=str(lab_net.nft_refusal()))

@@ -123,15 +123,16 @@ class LabFlight:
             raise RuntimeError(f"the module host did not start: {line!r}")
 
     def start_bridge(self, connect: str | None = None, bind: str | None = None,
-                     port: int = MOCAP_UDP_PORT) -> None:
+                     port: int = MOCAP_UDP_PORT, extra: tuple[str, ...] = ()) -> None:
         """The bridge on the mocap host; ``connect``: another Zenoh endpoint than the
-        router's (a relay's), ``bind``/``port``: where it takes the Vicon datagrams."""
+        router's (a relay's), ``bind``/``port``: where it takes the Vicon datagrams;
+        ``extra``: more options."""
         zargs = list(self.zargs)
         if connect is not None:
             zargs[1] = connect
         self._spawn("bridge", "mocap", tpods_argv(
             "mocap", "bridge", "--source", f"vicon-udp:{port}",
-            "--bind", bind or CAMERA_ADDR["mocap"], *zargs))
+            "--bind", bind or CAMERA_ADDR["mocap"], *extra, *zargs))
 
     def start_relay(self, host: str, kind: str, listen: str, upstream: str,
                     delay_ms: float = 50.0, jitter_ms: float = 20.0) -> subprocess.Popen:

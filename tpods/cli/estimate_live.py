@@ -187,6 +187,7 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     for line in gap_warnings(est.gaps.rows(), est.aligner.first_command_t):  # never bridged silently
         print(f"tpods: warning: {line}", file=sys.stderr)
+    _clock_offset_lines(summary)
     if not summary.get("thrust_uncertainty", {}).get("included", True):
         print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:
@@ -235,3 +236,20 @@ def nothing_received(c: dict, k: dict, body: str) -> str:
     return (f"no estimate: received {c['poses_rx']} poses and {c['cmds_rx']} commands on {cmds}, "
             "none the filter could pair (it needs the commands in time with the poses): is "
             f"`tpods run play` publishing for body {body!r} (--prefix), on the same clock?")
+
+
+def _clock_offset_lines(summary: dict) -> None:
+    """The measured offset of the mocap host's clock against the player's (stderr), and a
+    warning when it is clearly there: it shifts every pose against the commands exactly as
+    a valve dead time would."""
+    off, sig = summary.get("clock_offset_ms"), summary.get("clock_offset_sigma_ms")
+    if off is None:
+        return
+    print(f"live: clock offset, mocap host minus player host: {off:+.2f} +/- {sig:.2f} ms "
+          f"(from the lower envelopes of the pose and command delays, "
+          f"{summary['clock_offset_windows']} windows of 1 s)", file=sys.stderr)
+    if abs(off) > max(1.0, 3.0 * sig):
+        print(f"tpods: warning: the mocap and player hosts' clocks differ by {off:+.1f} ms: "
+              "every pose is shifted against the commands as by a valve dead time of that "
+              "size; synchronise the hosts (NTP/PTP) before fitting a dead time",
+              file=sys.stderr)
