@@ -211,7 +211,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
-        t = d["t"]
+        t = d["t"] - self.config.clock_offset_s  # on the player's clock
         self.gaps.pose(d["frame"], t, arrival)
         self.clock_meter.pose(t, arrival)
         return self.aligner.push_pose(d["frame"], t, d["x"] if d["x"] is not None else math.nan,

@@ -59,6 +59,10 @@ def register(est) -> None:
                    help="a command that arrives after the poses it governs, but at most S lab "
                         "seconds after its time, makes the filter re-run from before it "
                         "(default 2; 0: such commands are counted as late and not used live)")
+    p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
+                   help="the mocap host's clock minus the player host's, ms, taken off every "
+                        "pose time before use (default 0; the offset left is measured and "
+                        "reported)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",
@@ -109,7 +113,8 @@ def cmd_live(args: argparse.Namespace) -> int:
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s,
-                     n_channels=structure.n_channels if is_vehicle else 4)
+                     n_channels=structure.n_channels if is_vehicle else 4,
+                     clock_offset_s=args.clock_offset_ms * 1e-3)
     k = keys(args.body, args.mocap_prefix, args.prefix,
              [m.name for m in structure.modules] if structure is not None and not is_vehicle
              else None)
@@ -126,6 +131,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             "body": args.body, "keys": k, "method": args.method,
             "thrust_table": args.thrust_table or "built-in Table 2",
             "settings": {"max_wait_s": cfg.max_wait_s, "rewind_s": cfg.rewind_s,
+                         "clock_offset_s": cfg.clock_offset_s,
                          "publish_rate_hz": cfg.publish_rate_hz,
                          "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
@@ -245,7 +251,8 @@ def _clock_offset_lines(summary: dict) -> None:
     off, sig = summary.get("clock_offset_ms"), summary.get("clock_offset_sigma_ms")
     if off is None:
         return
-    print(f"live: clock offset, mocap host minus player host: {off:+.2f} +/- {sig:.2f} ms "
+    print(f"live: clock offset, mocap host minus player host{_given(summary)}: "
+          f"{off:+.2f} +/- {sig:.2f} ms "
           f"(from the lower envelopes of the pose and command delays, "
           f"{summary['clock_offset_windows']} windows of 1 s)", file=sys.stderr)
     if abs(off) > max(1.0, 3.0 * sig):
@@ -253,3 +260,8 @@ def _clock_offset_lines(summary: dict) -> None:
               "every pose is shifted against the commands as by a valve dead time of that "
               "size; synchronise the hosts (NTP/PTP) before fitting a dead time",
               file=sys.stderr)
+
+
+def _given(summary: dict) -> str:
+    g = summary.get("clock_offset_given_ms") or 0.0
+    return f", after the {g:+g} ms given" if g else ""
