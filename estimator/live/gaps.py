@@ -115,11 +115,14 @@ class GapTracker:
         self._pose: tuple[int, float, float] | None = None  # frame, t, arrival
         self._cmd: dict[str, tuple[int, float, float]] = {}  # per body: seq, t, arrival
         self._unknown: list[tuple[float, float]] = []
+        self._resume: dict[str, tuple[float, float]] = {}
 
     # ------------------------------------------------------------------ input
     def pose(self, frame: int, t: float, arrival: float) -> Gap | None:
         """A pose received (occluded ones too); the gap it ends, if any."""
         last = self._pose
+        if last is None and "poses" in self._resume:
+            return self._after_resume("poses", frame, t, arrival)
         if last is not None and frame <= last[0]:
             if frame < last[0] - 1_000_000:  # the mocap restarted its count: start again
                 self._pose = (frame, t, arrival)
@@ -139,6 +142,9 @@ class GapTracker:
         if not isinstance(seq, int):
             return None
         last = self._cmd.get(body)
+        if last is None and "commands" in self._resume:
+            self._cmd[body] = (seq, t, arrival)
+            return self._after_resume("commands", seq, t, arrival)
         if last is not None and seq <= last[0]:
             return None
         self._cmd[body] = (seq, t, arrival)
@@ -152,6 +158,28 @@ class GapTracker:
                 self._unknown.append((last[1], t))
             return g
         return None
+
+    def resumed(self, t_pose: float | None, pose_period_s: float, t_cmd: float | None,
+                cmd_period_s: float) -> None:
+        """The streams continue a dead run whose last pose and command were at ``t_pose``
+        and ``t_cmd`` (lab s): the first of each that arrives ends a gap, its ``missing``
+        estimated from the recorded periods (s); the commands' is unknown input."""
+        if t_pose is not None:
+            self._resume["poses"] = (t_pose, pose_period_s)
+        if t_cmd is not None:
+            self._resume["commands"] = (t_cmd, cmd_period_s)
+
+    def _after_resume(self, stream: str, number: int, t: float, arrival: float) -> Gap | None:
+        t_prev, period = self._resume.pop(stream)
+        if stream == "poses":
+            self._pose = (number, t, arrival)
+        if t <= t_prev:
+            return None
+        missing = max(1, round((t - t_prev) / max(period, 1e-6)) - 1)
+        g = self._add(Gap(stream, t_prev, t, missing, t - t_prev, 0, number, arrival))
+        if stream == "commands":
+            self._unknown.append((t_prev, t))
+        return g
 
     # ------------------------------------------------------------------ queries
     def input_unknown(self, t0: float, t1: float) -> bool:

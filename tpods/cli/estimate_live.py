@@ -59,6 +59,11 @@ def register(est) -> None:
                    help="a command that arrives after the poses it governs, but at most S lab "
                         "seconds after its time, makes the filter re-run from before it "
                         "(default 2; 0: such commands are counted as late and not used live)")
+    p.add_argument("--resume", default=None, metavar="RUN_DIR",
+                   help="continue from the run folder of a live estimator that died: its "
+                        "commands and poses are taken in first (and recorded again in --out, "
+                        "another folder), then the live stream; the time it was down is "
+                        "named as a gap")
     p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
                    help="the mocap host's clock minus the player host's, ms, taken off every "
                         "pose time before use (default 0; the offset left is measured and "
@@ -142,6 +147,11 @@ def cmd_live(args: argparse.Namespace) -> int:
             log = McapProcessLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
+    if args.resume is not None:
+        resumed = _resume(est, args)
+        if rec is not None:
+            rec.meta.update(resumed)
+            rec.write_meta()
     console = _Console(args.quiet)
     stop = threading.Event()
     status = "failed"
@@ -265,3 +275,18 @@ def _clock_offset_lines(summary: dict) -> None:
 def _given(summary: dict) -> str:
     g = summary.get("clock_offset_given_ms") or 0.0
     return f", after the {g:+g} ms given" if g else ""
+
+
+def _resume(est, args) -> dict:
+    """``--resume RUN_DIR`` (:func:`estimator.live.resume.resume_from`), one stderr line."""
+    from estimator.live.resume import resume_from
+
+    if est.structure is not None:
+        raise UserError("--resume takes a module's run (not a structure's or a vehicle's)")
+    if args.out is not None and Path(args.out).resolve() == Path(args.resume).resolve():
+        raise UserError("--resume RUN_DIR needs another --out folder (the dead run's stays as "
+                        "it was)")
+    r = resume_from(est, args.resume)
+    print(f"live: resumed from {args.resume}: {r['replayed_commands']} commands, "
+          f"{r['replayed_poses']} poses taken in", file=sys.stderr)
+    return r
