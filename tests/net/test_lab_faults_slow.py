@@ -133,33 +133,43 @@ def test_delay_and_reordering_on_the_camera_link(tmp_path, request):
                 f"the newer, {missing} older frames named missing")
 
 
-def test_estimator_killed_and_a_new_one_started(tmp_path, request):
+def test_estimator_killed_and_a_new_one_resumes(tmp_path, request):
     """The estimator's process killed (SIGKILL) mid-flight and a new one started 1 s later
-    into a new folder: the first folder holds every pose it had covered by a command
-    (status ``running`` left behind), the second starts from the poses after its start and
-    ends with the player's end; neither holds a pose twice."""
+    with ``--resume`` on the dead one's folder: the dead folder holds every pose it had
+    covered by a command (status ``running`` left behind); the new folder holds those once
+    and then the live ones, the time it was down is a named gap, and the estimate is
+    within 4 sigma of the truth."""
+    import csv
+    import json
+    import signal
+
     with lab_net.lab_net() as lab:
         flight = LabFlight(lab, tmp_path)
         flight.start_all(FLIGHT_S)
         time.sleep(3.0)
-        import signal
-
         lab.stop(flight.procs["live"], sig=signal.SIGKILL)
         t_kill = time.time()
         time.sleep(1.0)
-        flight.start_estimator(name="live2", out="live2")
+        flight.start_estimator(name="live2", out="live2",
+                               extra=("--resume", str(tmp_path / "live")))
         r2 = flight.collect(live="live2")
-    import csv
-    import json
-
     first = json.loads((tmp_path / "live" / "run.json").read_text())
     assert first["status"] == "running"  # the process died
-    t0a, t0b = first["t0_lab"], json.loads((tmp_path / "live2" / "run.json").read_text())["t0_lab"]
+    second = json.loads((tmp_path / "live2" / "run.json").read_text())
+    t0a, t0b = first["t0_lab"], second["t0_lab"]
     ta = [float(x["t"]) + t0a for x in csv.DictReader((tmp_path / "live" / "poses.csv").open())]
     tb = [float(x["t"]) + t0b for x in csv.DictReader((tmp_path / "live2" / "poses.csv").open())]
-    assert ta and tb and ta[-1] < tb[0]  # no pose twice
-    assert t_kill - ta[-1] < 0.5  # the first folder lost at most the last command's span
-    assert r2.returncodes["live2"] == 0 and r2.play["status"] == "success"
-    record(request, "estimator process killed (SIGKILL), a new one started 1 s later", r2,
-           held=f"first folder: poses up to {t_kill - ta[-1]:.2f} s before the kill; second "
-                f"from {tb[0] - t_kill:.2f} s after it", restart_gap_s=tb[0] - ta[-1])
+    assert ta and tb[:len(ta)] == pytest.approx(ta, abs=1e-6)  # the dead run's, once each
+    assert all(y > x for x, y in zip(tb, tb[1:], strict=False))  # none twice
+    assert t_kill - ta[-1] < 0.5  # the dead folder lost at most the last command's span
+    assert second["replayed_poses"] == len(ta)
+    assert r2.returncodes["live2"] == 0 and r2.play["status"] == "success", r2.stderr["live2"]
+    gaps = {g["stream"]: g for g in r2.gaps()}
+    assert set(gaps) == {"poses", "commands"}
+    assert gaps["poses"]["t_start"] == pytest.approx(ta[-1], abs=1e-6)
+    zm, zi = check_estimate(r2)
+    down = gaps["poses"]["t_end"] - gaps["poses"]["t_start"]
+    record(request, "estimator process killed (SIGKILL), a new one resumed 1 s later", r2,
+           zm=zm, zi=zi, restart_gap_s=down,
+           held=f"the dead folder's {len(ta)} poses, taken in again once; "
+                f"{gaps['poses']['missing']} poses missed while down, named")

@@ -29,7 +29,7 @@ def row(d: dict) -> str:
     elif "valves_closed_after_s" in d:
         rec = f"valves closed {d['valves_closed_after_s'] * 1e3:.0f} ms after the cut"
     elif "restart_gap_s" in d:
-        rec = f"new estimator's first pose {d['restart_gap_s']:.2f} s after the old one's last"
+        rec = f"new estimator's first live pose {d['restart_gap_s']:.2f} s after the old one's last"
     else:
         rec = "-"
     lost = (f"{lost_p} poses, {lost_c} commands" if lost_p or lost_c else "nothing")
