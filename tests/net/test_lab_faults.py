@@ -8,7 +8,8 @@ After each: every process ends on its own (no manual step), the estimator names 
 (start, end, poses missing) in its output and its run folder, the recording holds every
 pose that reached the estimator's host, and the valves close within the watchdog when the
 player's link is gone. Each test writes its outcome to ``lab-faults.jsonl`` in the run's
-temporary folder (docs/live.md's fault table is made from those lines).
+temporary folder, or ``$TPODS_LAB_REPORT_DIR`` (docs/live.md's fault table is made from
+those lines).
 """
 
 from __future__ import annotations
@@ -95,8 +96,10 @@ def record(request, fault: str, r: FlightResult, **outcome) -> None:
     line = {"fault": fault, "test": request.node.name, "mass_z": outcome.pop("zm", None),
             "izz_z": outcome.pop("zi", None), "poses_rx": s["counters"]["poses_rx"],
             "poses_emitted": r.module.get("frames"), "gaps": r.gaps(), **outcome}
-    folder = Path(os.environ.get("TPODS_LAB_REPORT_DIR")
-                  or request.config._tmp_path_factory.getbasetemp().parent)
+    base = request.config._tmp_path_factory.getbasetemp()
+    if hasattr(request.config, "workerinput"):  # an xdist worker's: the run's is above it
+        base = base.parent
+    folder = Path(os.environ.get("TPODS_LAB_REPORT_DIR") or base)
     folder.mkdir(parents=True, exist_ok=True)
     with (folder / "lab-faults.jsonl").open("a") as fh:
         fh.write(json.dumps(line) + "\n")
