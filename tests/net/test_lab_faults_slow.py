@@ -138,7 +138,7 @@ def test_estimator_killed_and_a_new_one_resumes(tmp_path, request):
     with ``--resume`` on the dead one's folder: the dead folder holds every pose it had
     covered by a command (status ``running`` left behind); the new folder holds those once
     and then the live ones, the time it was down is a named gap, and the estimate is
-    within 4 sigma of the truth."""
+    within 5 sigma of the truth."""
     import csv
     import json
     import signal
