@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from common.thrust_table import ThrustTable
 from estimator.live.config import LiveConfig
@@ -51,6 +52,7 @@ def _scan(run_dir, capsys) -> dict:
     return json.loads(text)["delay_scan"]
 
 
+@pytest.mark.slow
 def test_offset_measured_then_applied_unbiases_the_dead_time(tmp_path, capsys):
     raw = _record(tmp_path / "raw", 0.0)
     assert abs(raw["clock_offset_ms"] - 20.0) < 2.0  # measured within 2 ms
