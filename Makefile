@@ -4,9 +4,26 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup test test-slow demo bench bench-long robustness lint clean golden fixtures docs
+.PHONY: setup debian-tools test test-slow demo bench bench-long robustness lint clean golden fixtures docs
 
-setup: $(STAMP)
+setup: $(STAMP) debian-tools
+
+# the Debian tools the namespace tests use (tests/support/lab_net.py): nftables for packet
+# loss. Installed when missing and running as root; a failure is reported, not fatal (the
+# tests that need it then skip, saying so)
+DEBIAN_TOOLS := nft:nftables ip:iproute2 openssl:openssl
+debian-tools:
+	@for pair in $(DEBIAN_TOOLS); do \
+	  cmd=$${pair%%:*}; pkg=$${pair#*:}; \
+	  command -v $$cmd > /dev/null 2>&1 && continue; \
+	  if [ "$$(id -u)" != 0 ] || ! command -v apt-get > /dev/null 2>&1; then \
+	    echo "setup: $$cmd not found; install the Debian package $$pkg as root (apt-get install $$pkg) or the tests that need it skip"; \
+	    continue; fi; \
+	  echo "setup: installing $$pkg (for $$cmd)"; \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -q $$pkg > /dev/null 2>&1 \
+	    || (apt-get update -q > /dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q $$pkg > /dev/null 2>&1) \
+	    || echo "setup: could not install $$pkg (apt-get failed); the tests that need $$cmd skip"; \
+	done
 
 # the project's bytecode, compiled ahead of every target that starts Python processes. A
 # machine may set PYTHONDONTWRITEBYTECODE (this one does): Python then never caches what it

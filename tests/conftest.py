@@ -96,6 +96,7 @@ LONGEST_FIRST = (
     # takes them in one block and flies them one after the other, without waiting
     "tests/tpods/test_demo.py", "tests/tpods/test_demo_structure.py", "tests/tpods/test_e2e.py",
     "tests/tpods/test_demo_vehicle.py", "tests/tpods/test_plant_vehicle.py",
+    "tests/net/test_lab_faults.py",
     "tests/bench/test_session.py", "tests/estimator/batch/test_consider.py",
     "tests/estimator/test_montecarlo.py", "tests/estimator/test_sweep.py",
     "tests/estimator/plant/test_sim.py", "tests/tpods/cli/test_estimate_structure_models.py",

@@ -2,7 +2,9 @@
 
 Same emulator interface as :mod:`bench.emulators.pty` (``receive`` / ``tick``); one
 client at a time, like a module's Wi-Fi serial bridge. A new connection replaces
-the previous one.
+the previous one. Given ``trust`` (addresses), a connection from any other address is
+closed at once, unanswered (counted in ``refused``): on a lab network only the player's
+host may drive the valves.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import select
 import socket
 import time
+from collections.abc import Iterable
 
 from bench.emulators.pty import Emulator, EmulatorServer
 
@@ -18,8 +21,11 @@ class TcpServer(EmulatorServer):
     """A running TCP server: ``url`` is ``socket://HOST:PORT``; ``stop()`` ends it."""
 
     def __init__(self, emulator: Emulator, host: str = "127.0.0.1", port: int = 0,
-                 max_idle_s: float = 0.02) -> None:
+                 max_idle_s: float = 0.02, trust: Iterable[str] | None = None) -> None:
         self.emulator = emulator
+        self.trust = None if trust is None else frozenset(trust)
+        self.refused: list[str] = []
+        """Addresses whose connections were closed unanswered (not trusted)."""
         self._max_idle_s = max_idle_s
         self._srv = socket.create_server((host, port))
         self._srv.setblocking(False)
@@ -59,8 +65,12 @@ class TcpServer(EmulatorServer):
                 continue
             if self._srv in ready:
                 try:
-                    conn, _ = self._srv.accept()
+                    conn, peer = self._srv.accept()
                 except OSError:
+                    continue
+                if self.trust is not None and peer[0] not in self.trust:
+                    self.refused.append(peer[0])
+                    conn.close()
                     continue
                 self._drop()
                 conn.setblocking(True)
@@ -83,6 +93,8 @@ class TcpServer(EmulatorServer):
         self._srv.close()
 
 
-def serve_tcp(emulator: Emulator, host: str = "127.0.0.1", port: int = 0) -> TcpServer:
-    """Serve ``emulator`` on ``host:port`` (0: a free port); returns the server (``.url``)."""
-    return TcpServer(emulator, host, port)
+def serve_tcp(emulator: Emulator, host: str = "127.0.0.1", port: int = 0,
+              trust: Iterable[str] | None = None) -> TcpServer:
+    """Serve ``emulator`` on ``host:port`` (0: a free port); returns the server (``.url``).
+    ``trust``: the only client addresses answered (None: any)."""
+    return TcpServer(emulator, host, port, trust=trust)

@@ -41,6 +41,8 @@ class LiveConfig:
     ls_in_process: bool = False
     n_channels: int = 4
     rewind_s: float = DEFAULT_REWIND_S
+    clock_offset_s: float = 0.0
+    """The mocap host's clock minus the player host's (s), taken off every pose time."""
 
     def __post_init__(self) -> None:
         if self.method not in LIVE_METHODS:
@@ -53,6 +55,8 @@ class LiveConfig:
             raise UserError("the publish rate must be >= 0 Hz (0: every update)")
         if self.ls_window_s <= 0:
             raise UserError("the LS window must be positive")
+        if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 10.0:
+            raise UserError("the clock offset must be a number of ms within +-10000")
         if not (self.rewind_s >= 0 and math.isfinite(self.rewind_s)):
             raise UserError("the rewind horizon must be a non-negative number of seconds")
 
@@ -74,3 +78,4 @@ class LiveCounters(Counters):
     rewinds: int = 0
     rewind_updates: int = 0
     before_ls: int = 0
+    motion_resets: int = 0

@@ -40,6 +40,7 @@ import numpy as np
 from common.errors import UserError
 from estimator.filters.kernels import ekf_predict, ekf_update
 from estimator.live.align import LiveAligner
+from estimator.live.clock_offset import OffsetMeter
 from estimator.live.config import (
     DEFAULT_MAX_WAIT_S,
     DEFAULT_REWIND_S,
@@ -47,6 +48,7 @@ from estimator.live.config import (
     LiveConfig,
     LiveCounters,
 )
+from estimator.live.gaps import GapTracker, forget_motion
 from estimator.live.history import DIVERGED_NIS, NIS_WINDOW, LiveHistory
 from estimator.live.history import _nis_limits as _nis_limits
 from estimator.live.merge import ModuleMerger
@@ -121,6 +123,8 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         """Alternative to ``publish``: called with the encoded payload (the fast path)."""
         self.aligner = LiveAligner(max_wait_s=self.config.max_wait_s, n_channels=n_aligned)
         self.counters = LiveCounters()
+        self.gaps = GapTracker(csv_path=None if recorder is None else recorder.out / "gaps.csv")
+        self.clock_meter = OffsetMeter()
         self._wrench: dict[float, tuple[float, float, float]] = {}
         self.z: np.ndarray | None = None
         self.P: np.ndarray | None = None
@@ -157,6 +161,10 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
+        self._input_gap(self.gaps.command(self.body, d.get("seq"), d["t"],
+                                          d["t"] if arrival is None else arrival))
+        if arrival is not None:
+            self.clock_meter.command(d["t"], arrival)
         return self._command(d["t"], d["duty"], d.get("kind"))
 
     def _command(self, t: float, duty, kind: str | None) -> bool:
@@ -203,7 +211,9 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
-        t = d["t"]
+        t = d["t"] - self.config.clock_offset_s  # on the player's clock
+        self.gaps.pose(d["frame"], t, arrival)
+        self.clock_meter.pose(t, arrival)
         return self.aligner.push_pose(d["frame"], t, d["x"] if d["x"] is not None else math.nan,
                                       d["y"] if d["y"] is not None else math.nan,
                                       d["yaw"] if d["yaw"] is not None else math.nan,
@@ -246,10 +256,35 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         if t_prev is not None and t > t_prev:
             seg_dt, seg_w = self._segments(t_prev, t)
             z, P, _ = ekf_predict(z, P, seg_dt, seg_w, cfg)
+            if self.gaps.input_unknown(t_prev, t):
+                self._forget_motion(P, t - t_prev, z)
         nis = math.nan
         if use:
             z, P, (nis, _) = ekf_update(z, P, meas, cfg, self._R)
         return z, P, nis
+
+    def _input_gap(self, gap) -> None:
+        """Commands were lost: the filter re-runs from before the gap (if it went past its
+        start within the rewind horizon) and takes the input there as unknown
+        (:func:`estimator.live.gaps.forget_motion`); beyond the horizon it forgets the
+        motion now."""
+        if gap is None or gap.missing == 0 or self.z is None or self.structure is not None:
+            return
+        if self.t_last is not None and self.t_last > gap.t_start:
+            if self._ck and self._ck[0][0] <= gap.t_start:
+                self._rewind_t = (gap.t_start if self._rewind_t is None
+                                  else min(self._rewind_t, gap.t_start))
+            else:
+                self._forget_motion(self.P, gap.t_end - gap.t_start, self.z)
+
+    def _forget_motion(self, P, dt_s: float, z) -> None:
+        """:func:`~estimator.live.gaps.forget_motion` with full thrust's accelerations at
+        the filter's mass and Izz (every valve at 100 %: m/s^2, rad/s^2)."""
+        full = np.abs(self._thrust_of(np.full((1, self.config.n_channels), 100.0))[0])
+        f = float(np.sum(full))
+        m, izz = max(float(z[6]), 1e-3), max(float(z[7]), 1e-6)
+        forget_motion(P, self.config.ekf.P0, dt_s, f / m, f * self.config.ekf.arm_m / izz)
+        self.counters.motion_resets += 1
 
     def _start_filter(self, meas) -> None:
         z = np.array(self.config.ekf.x0, dtype=float)

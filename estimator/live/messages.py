@@ -126,6 +126,12 @@ class EstimateMessages:
                          "window_s": self.config.ls_window_s, "elapsed_s": self.ls_elapsed_s}
         if self.ls_error:
             out["ls_error"] = self.ls_error
+        out.update(self.gaps.summary())
+        out["clock_offset_given_ms"] = 1e3 * self.config.clock_offset_s
+        off = self.clock_meter.estimate()
+        out.update(off.as_dict() if off is not None else
+                   {"clock_offset_ms": None, "clock_offset_sigma_ms": None,
+                    "clock_offset_windows": 0})
         out["counters"] = self.stats()
         return out
 

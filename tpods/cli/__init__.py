@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     from tpods.cli.fixture import register as register_fixture
     from tpods.cli.imports import register as register_import
     from tpods.cli.mocap import register as register_mocap
+    from tpods.cli.net import register as register_net
     from tpods.cli.replay import register as register_replay
     from tpods.cli.run import register as register_run
     from tpods.cli.view import register as register_view
@@ -54,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     register_import(sub)
     register_fixture(sub)
     register_view(sub)
+    register_net(sub)
     register_demo(sub)
     return parser
 

@@ -60,6 +60,15 @@ def register(est) -> None:
                    help="a command that arrives after the poses it governs, but at most S lab "
                         "seconds after its time, makes the filter re-run from before it "
                         "(default 2; 0: such commands are counted as late and not used live)")
+    p.add_argument("--resume", default=None, metavar="RUN_DIR",
+                   help="continue from the run folder of a live estimator that died: its "
+                        "commands and poses are taken in first (and recorded again in --out, "
+                        "another folder), then the live stream; the time it was down is "
+                        "named as a gap")
+    p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
+                   help="the mocap host's clock minus the player host's, ms, taken off every "
+                        "pose time before use (default 0; the offset left is measured and "
+                        "reported)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",
@@ -110,7 +119,8 @@ def cmd_live(args: argparse.Namespace) -> int:
     cfg = LiveConfig(method=args.method, ekf=_filter_config(args), ls_window_s=args.ls_window,
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s,
-                     n_channels=structure.n_channels if is_vehicle else 4)
+                     n_channels=structure.n_channels if is_vehicle else 4,
+                     clock_offset_s=args.clock_offset_ms * 1e-3)
     k = keys(args.body, args.mocap_prefix, args.prefix,
              [m.name for m in structure.modules] if structure is not None and not is_vehicle
              else None)
@@ -127,6 +137,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             "body": args.body, "keys": k, "method": args.method,
             "thrust_table": args.thrust_table or "built-in Table 2",
             "settings": {"max_wait_s": cfg.max_wait_s, "rewind_s": cfg.rewind_s,
+                         "clock_offset_s": cfg.clock_offset_s,
                          "publish_rate_hz": cfg.publish_rate_hz,
                          "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
@@ -137,6 +148,11 @@ def cmd_live(args: argparse.Namespace) -> int:
             log = McapProcessLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
+    if args.resume is not None:
+        resumed = _resume(est, args)
+        if rec is not None:
+            rec.meta.update(resumed)
+            rec.write_meta()
     console = _Console(args.quiet)
     stop = threading.Event()
     status = "failed"
@@ -184,6 +200,11 @@ def cmd_live(args: argparse.Namespace) -> int:
         print("tpods: warning: the live filter's recent innovations are larger than its covariance "
               "allows (mean NIS above the chi-square bound): its sigma understates the error",
               file=sys.stderr)
+    from estimator.live.gaps import gap_warnings
+
+    for line in gap_warnings(est.gaps.rows(), est.aligner.first_command_t):  # never bridged silently
+        print(f"tpods: warning: {line}", file=sys.stderr)
+    _clock_offset_lines(summary)
     if not summary.get("thrust_uncertainty", {}).get("included", True):
         print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:
@@ -232,3 +253,41 @@ def nothing_received(c: dict, k: dict, body: str) -> str:
     return (f"no estimate: received {c['poses_rx']} poses and {c['cmds_rx']} commands on {cmds}, "
             "none the filter could pair (it needs the commands in time with the poses): is "
             f"`tpods run play` publishing for body {body!r} (--prefix), on the same clock?")
+
+
+def _clock_offset_lines(summary: dict) -> None:
+    """The measured offset of the mocap host's clock against the player's (stderr), and a
+    warning when it is clearly there: it shifts every pose against the commands exactly as
+    a valve dead time would."""
+    off, sig = summary.get("clock_offset_ms"), summary.get("clock_offset_sigma_ms")
+    if off is None:
+        return
+    print(f"live: clock offset, mocap host minus player host{_given(summary)}: "
+          f"{off:+.2f} +/- {sig:.2f} ms "
+          f"(from the lower envelopes of the pose and command delays, "
+          f"{summary['clock_offset_windows']} windows of 1 s)", file=sys.stderr)
+    if abs(off) > max(1.0, 3.0 * sig):
+        print(f"tpods: warning: the mocap and player hosts' clocks differ by {off:+.1f} ms: "
+              "every pose is shifted against the commands as by a valve dead time of that "
+              "size; synchronise the hosts (NTP/PTP) before fitting a dead time",
+              file=sys.stderr)
+
+
+def _given(summary: dict) -> str:
+    g = summary.get("clock_offset_given_ms") or 0.0
+    return f", after the {g:+g} ms given" if g else ""
+
+
+def _resume(est, args) -> dict:
+    """``--resume RUN_DIR`` (:func:`estimator.live.resume.resume_from`), one stderr line."""
+    from estimator.live.resume import resume_from
+
+    if est.structure is not None:
+        raise UserError("--resume takes a module's run (not a structure's or a vehicle's)")
+    if args.out is not None and Path(args.out).resolve() == Path(args.resume).resolve():
+        raise UserError("--resume RUN_DIR needs another --out folder (the dead run's stays as "
+                        "it was)")
+    r = resume_from(est, args.resume)
+    print(f"live: resumed from {args.resume}: {r['replayed_commands']} commands, "
+          f"{r['replayed_poses']} poses taken in", file=sys.stderr)
+    return r
