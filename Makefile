@@ -48,12 +48,12 @@ $(STAMP): pyproject.toml
 # 15 slowest tests are listed at the end. One OpenBLAS thread per process: the workers
 # already use every core, and OpenBLAS's own pool spins at start-up (import numpy: 0.24 s
 # CPU, 0.09 s with one thread) in each of the suite's few hundred `tpods` subprocesses
-test: $(STAMP)
+test: $(STAMP) debian-tools
 	@$(BYTECODE)
 	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
 # the many-seed studies marked slow (skipped by make test: tests/conftest.py), minutes each
-test-slow: $(STAMP)
+test-slow: $(STAMP) debian-tools
 	@$(BYTECODE)
 	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto -m slow --durations=15
 
