@@ -78,17 +78,22 @@ def admin_config_json5() -> tuple[str, str]:
 def router_locators(session, timeout_s: float = 2.0) -> list[str]:
     """The endpoints ``session`` listens on, from its admin space (``@/<zid>/router``);
     empty when the admin space does not answer within ``timeout_s`` seconds."""
+    info = _router_info(session, timeout_s)
+    return [] if info is None else [str(x) for x in info.get("locators", [])]
+
+
+def _router_info(session, timeout_s: float) -> dict | None:
+    """The router's own entry of its admin space (``@/<zid>/router``, JSON), or None when
+    the admin space does not answer (switched off by a config file, a closing session)."""
     zid = str(session.info.zid())
     try:
         for reply in session.get(f"@/{zid}/router", timeout=timeout_s):
             ok = getattr(reply, "ok", None)
-            if ok is None:
-                continue
-            info = json.loads(ok.payload.to_string())
-            return [str(x) for x in info.get("locators", [])]
-    except Exception:  # an admin space switched off by the config file: nothing to read
-        return []
-    return []
+            if ok is not None:
+                return json.loads(ok.payload.to_string())
+    except Exception:  # no admin space to read
+        return None
+    return None
 
 
 def configured_endpoints(args: Any) -> list[str]:
@@ -150,19 +155,13 @@ def _connected(session, timeout_s: float = 1.0) -> set[str]:
     """The sessions this router is connected to, each as ``ZID (KIND from ADDRESS)``, from
     its admin space; the peers' zids alone when the admin space does not answer."""
     out: set[str] = set()
-    zid = str(session.info.zid())
-    try:
-        for reply in session.get(f"@/{zid}/router", timeout=timeout_s):
-            ok = getattr(reply, "ok", None)
-            if ok is None:
-                continue
-            for s in json.loads(ok.payload.to_string()).get("sessions", []):
-                links = s.get("links") or [{}]
-                out.add(f"{s.get('peer')} ({s.get('whatami', '?')} from "
-                        f"{links[0].get('dst', '?')})")
-            return out
-    except Exception:  # a closing session, or no admin space
-        pass
+    info = _router_info(session, timeout_s)
+    if info is not None:
+        for s in info.get("sessions", []):
+            links = s.get("links") or [{}]
+            out.add(f"{s.get('peer')} ({s.get('whatami', '?')} from "
+                    f"{links[0].get('dst', '?')})")
+        return out
     try:
         out |= {str(z) for z in session.info.peers_zid()}
     except Exception:
