@@ -139,14 +139,14 @@ class LiveAligner:
             t, _, pose, arrival = self._pending[0]
             if not self._cmd_t or t < self._cmd_t[0]:
                 # before the first command: nothing commanded yet, the pose cannot be used
-                if latest_cmd >= t or now - arrival > self.max_wait_s:
+                if latest_cmd >= t or now - arrival >= self.max_wait_s:
                     self._pending.pop(0)
                     self.stats.before_first_cmd += 1
                     continue
                 break
             if latest_cmd >= t:
                 pass
-            elif now - arrival > self.max_wait_s:
+            elif now - arrival >= self.max_wait_s:
                 self.stats.released_by_timeout += 1
             else:
                 break
@@ -173,6 +173,12 @@ class LiveAligner:
     @property
     def first_command_t(self) -> float | None:
         return self._cmd_t[0] if self._cmd_t else None
+
+    def duty_in_force(self, t: float) -> tuple[float, ...] | None:
+        """The duties (%) of the last command stamped at or before ``t`` (s); None before
+        the first."""
+        i = bisect.bisect_right(self._cmd_t, t) - 1
+        return self._cmd_d[i] if i >= 0 else None
 
     def commands(self) -> tuple[np.ndarray, np.ndarray]:
         """All commands so far: (N,) times and (N, n_channels) duties."""
