@@ -41,6 +41,11 @@ def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) ->
     """The writer process: batches from ``conn`` into an McapLog, flushed every
     ``flush_every_s``; ``("close", status, extra)`` ends it (replying with the counters),
     and so does the pipe closing (status ``incomplete``)."""
+    import contextlib
+    import os
+
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(10)  # a live estimator in the caller wins a busy core
     from common.mcap_log import McapLog
 
     log = McapLog(path, meta=meta, flush_every_s=0)

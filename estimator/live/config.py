@@ -39,7 +39,9 @@ class LiveConfig:
     ls_start: str = "reuse"
     max_wait_s: float = DEFAULT_MAX_WAIT_S
     publish_rate_hz: float = 10.0
-    catchup_budget_s: float = 0.0005
+    catchup_budget_s: float = 0.0002
+    """Host seconds of ``ls-ekf`` catch-up per pass of the loop: a pose that arrives meanwhile
+    waits at most this long."""
     ls_in_process: bool = False
     n_channels: int = 4
     rewind_s: float = DEFAULT_REWIND_S

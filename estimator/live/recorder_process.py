@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import os
 import signal
 import threading
 from collections import deque
@@ -36,6 +37,8 @@ from common.errors import UserError
 FEED_EVERY_S = 0.02
 """The calls queued by the estimator go to the recording process at this period, s."""
 CLOSE_TIMEOUT_S = 60.0
+NICE = 10
+"""The recording process's lower priority: the estimator's thread wins a busy core."""
 
 
 def check_folder(out: str | Path) -> Path:
@@ -58,6 +61,8 @@ def _recorder_main(out: str, meta: dict[str, Any], n_channels: int, structure: A
     counts; the pipe closing (the caller died) or SIGTERM leaves the files as a kill
     would: every row received written, ``run.json`` still ``running``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
+    with contextlib.suppress(OSError, AttributeError):
+        os.nice(NICE)  # the estimator first when the cores are busy
 
     def _term(*_: object) -> None:
         raise SystemExit(143)
@@ -126,9 +131,12 @@ class RecorderProcess:
         """A pose the filter used: lab time (s), x, y (m), yaw (rad)."""
         self._calls.append(("pose", (t, x, y, yaw)))
 
-    def estimate(self, *args: Any) -> None:
-        """An estimates.csv row (:meth:`LiveRecorder.estimate`'s arguments)."""
-        self._calls.append(("estimate", args))
+    def estimate(self, t: float, frame: int, phase: str, z, sig,
+                 thrust_rel: tuple[float, float] = (0.0, 0.0), com=None) -> None:
+        """An estimates.csv row (:meth:`LiveRecorder.estimate`'s arguments; the state and
+        sigma arrays go as lists: they pickle several times faster)."""
+        self._calls.append(("estimate", (t, frame, phase, z.tolist(), sig.tolist(),
+                                         thrust_rel, com)))
 
     def seal(self) -> None:
         """The data are whole (:meth:`LiveRecorder.seal`): handed over at once."""

@@ -180,7 +180,7 @@ class LsEkfRestart:
         deadline = time.perf_counter() + self.config.catchup_budget_s
         while i < len(hist_t):
             t = hist_t[i]
-            z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win)
+            z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win, k=i)
             if horizon > 0 and t >= hist_t[-1] - horizon:
                 ck.append((t, i, z.copy(), P.copy()))
             t_prev = t

@@ -97,8 +97,11 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
 
     gc.collect()  # before subscribing: nothing is received during this collection
     gc.freeze()
+    # BLOCK as the bridge and the player publish: an estimate (a revised one above all)
+    # waits for a full transmit queue rather than being dropped
     pub = session.declare_publisher(k["estimate"], encoding=zenoh.Encoding(ENCODING),
-                                    express=True)
+                                    express=True,
+                                    congestion_control=zenoh.CongestionControl.BLOCK)
 
     estimator.publish_bytes = pub.put
     subs = [session.declare_subscriber(k["pose"], direct_callback(on_pose))]
