@@ -67,6 +67,11 @@ def register(sub) -> None:
     add_duty_limits(p)
     p.add_argument("--heartbeat", type=positive_float, default=0.1, metavar="S",
                    help="re-announce the command in force after S s without one (default 0.1)")
+    p.add_argument("--announce-ahead", type=nonneg_float, default=0.0, metavar="S",
+                   help="publish each command S s before it is due, stamped with when it is due "
+                        "(the live estimator then never re-runs a pose for it; commands.csv keeps "
+                        "the measured switch times); default 0: after the switch, with its "
+                        "measured time")
     p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--prefix", default="tpods", help="key prefix (default tpods)")
     p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
@@ -235,7 +240,8 @@ def cmd_play(args: argparse.Namespace) -> int:
                     _wait_subscribers(args, [pub], key)
                     res = play(valves, cmd_t, duty, clock=clock, publish=pub.put, body=args.body,
                                out_dir=out, watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
-                               heartbeat_s=args.heartbeat, progress=not args.no_progress,
+                               heartbeat_s=args.heartbeat, announce_ahead_s=args.announce_ahead,
+                               progress=not args.no_progress,
                                meta={"input": args.input, "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate,
                                      **({"vehicle": vehicle.name} if vehicle is not None else {})})
@@ -315,7 +321,8 @@ def _play_structure(args, structure, urls, cmd_t, duty, lim, clock, out) -> int:
                     res = play(ctrls, cmd_t, duty, clock=clock,
                                publish={n: p.put for n, p in pubs.items()}, out_dir=out,
                                watchdog_ms=args.watchdog_ms, pwm_hz=args.pwm_hz,
-                               heartbeat_s=args.heartbeat, progress=not args.no_progress,
+                               heartbeat_s=args.heartbeat, announce_ahead_s=args.announce_ahead,
+                               progress=not args.no_progress,
                                meta={"input": args.input, "structure": structure.name,
                                      "duration_s": float(cmd_t[-1] - cmd_t[0]),
                                      "cmd_rate_hz": args.cmd_rate})
