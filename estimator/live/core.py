@@ -196,8 +196,9 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         changes = before is None or before != self.aligner.duty_in_force(t)
         if not changes:  # a hold (or a repeat) of the duty in force: nothing to correct
             self.counters.cmds_no_change += 1
-        elif self.t_last is not None and t <= self.t_last:
-            # the filter already went past it: re-filter from before it (in process())
+        elif self.t_last is not None and t < self.t_last:
+            # the filter already went past it: re-filter from before it (in process()); a
+            # command stamped at the last pose's time acts only after that pose
             self._rewind_t = t if self._rewind_t is None else min(self._rewind_t, t)
         cu = self._cu
         if changes and cu is not None and cu["t"] is not None and t <= cu["t"]:  # the catch-up too
