@@ -185,6 +185,15 @@ class LiveAligner:
         return (np.asarray(self._cmd_t, dtype=float),
                 np.asarray(self._cmd_d, dtype=float).reshape(-1, self.n_channels))
 
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """The times of :meth:`commands_between` as a list (no arrays: the live filter's
+        every step)."""
+        cmd_t = self._cmd_t
+        ts = cmd_t[max(bisect.bisect_right(cmd_t, t0) - 1, 0):bisect.bisect_right(cmd_t, t1)]
+        if ts and ts[0] < t0:
+            ts[0] = t0
+        return ts
+
     def commands_between(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
         """The command in force at ``t0`` (restamped to ``t0``) and every switch in (t0, t1]."""
         i0 = max(bisect.bisect_right(self._cmd_t, t0) - 1, 0)

@@ -231,8 +231,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
     # ------------------------------------------------------------- filtering
     def _segments(self, t0: float, t1: float):
         """Hold segments (durations s, body wrenches) from ``t0`` to ``t1``."""
-        ct, _ = self.aligner.commands_between(t0, t1)
-        ts = ct.tolist()
+        ts = self.aligner.switch_times(t0, t1)
         w = self._wrench
         cmd_all = self.aligner._cmd_t
         seg_w = []

@@ -45,6 +45,35 @@ def _nis_limits() -> np.ndarray:
     return np.concatenate([[np.inf], np.maximum(4.0, chi2.ppf(0.999, 3 * n) / n)])
 
 
+class NisWindow(collections.deque):
+    """The last ``maxlen`` NIS values with their running sum (:meth:`total`): the mean for
+    every published estimate without summing the window each time."""
+
+    def __init__(self, maxlen: int) -> None:
+        super().__init__(maxlen=maxlen)
+        self._sum = 0.0
+        self._n = 0
+
+    def append(self, x: float) -> None:
+        if len(self) == self.maxlen:
+            self._sum -= self[0]
+        super().append(x)
+        self._sum += x
+        self._n += 1
+        if self._n % self.maxlen == 0:  # no drift of the running sum
+            self._sum = math.fsum(self)
+
+    def extend(self, xs) -> None:
+        for x in xs:
+            self.append(x)
+
+    def total(self) -> float:
+        """The sum of the window (summed again when an infinite value spoiled the running one)."""
+        if not math.isfinite(self._sum):
+            self._sum = sum(self)
+        return self._sum
+
+
 def history_entry(t: float, z: np.ndarray, P: np.ndarray) -> tuple[float, ...]:
     """One row of the estimate history: (t, mass kg, its sigma, Izz kg m^2, its sigma)."""
     return (t, float(z[6]), math.sqrt(max(P[6, 6], 0.0)),
@@ -78,7 +107,7 @@ class LiveHistory:
         self._rewind_t: float | None = None
         self._revs: dict[int, int] = {}
         """Index in ``hist_t`` -> how many times a rewind re-ran that pose (re-runnable ones)."""
-        self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
+        self._nis_recent = NisWindow(maxlen=NIS_WINDOW)
         _nis_limits()  # the chi-square limits now, not in the middle of a stream
 
     def _after_update(self, t: float, idx: int) -> None:
@@ -140,7 +169,7 @@ class LiveHistory:
 
     def _nis_recent_mean(self) -> float:
         nis = self._nis_recent
-        return sum(nis) / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
+        return nis.total() / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
 
     @property
     def inconsistent(self) -> bool:
