@@ -3,13 +3,14 @@
 :class:`LiveEstimator`: feed it decoded pose and command messages
 (:meth:`~LiveEstimator.pose`, :meth:`~LiveEstimator.command`) and call
 :meth:`~LiveEstimator.process` with the host time; it aligns them
-(:class:`estimator.live.align.LiveAligner`: commands are a zero-order hold, a pose
-waits up to ``max_wait_s`` for a late command, occluded / non-finite / repeated /
-too-old samples are counted and skipped), runs the lean EKF
-(:func:`estimator.filters.ekf.ekf_predict`, :func:`estimator.filters.ekf.ekf_update`) pose by pose,
-re-filters from a checkpoint when a command arrives after poses it governs (``rewind_s``),
-and hands estimate messages to ``publish`` at ``publish_rate_hz`` (0: after every
-update).
+(:class:`estimator.live.align.LiveAligner`: commands are a zero-order hold, a pose is
+filtered as it arrives unless ``max_wait_s`` > 0 makes it wait for a late command,
+occluded / non-finite / repeated / too-old samples are counted and skipped), runs the lean
+EKF (:func:`estimator.filters.ekf.ekf_predict`, :func:`estimator.filters.ekf.ekf_update`)
+pose by pose, re-runs the poses since a checkpoint when a command arrives after poses it
+governs (``rewind_s``; their estimates then carry ``rev`` > 0, and with
+``publish_rate_hz`` 0 are published again), and hands estimate messages to ``publish`` at
+``publish_rate_hz`` (0: after every update).
 
 Its parts, each in its module (mixins of :class:`LiveEstimator`):
 
