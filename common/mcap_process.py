@@ -5,9 +5,10 @@ recording process. In the live estimator that thread took the interpreter lock f
 about 84 us of Python per message (json.loads, the ``mcap`` writer, chunk compression)
 at 2,000 messages/s, and the estimator's pose-to-estimate p99 went from 2.9 to 5.8 ms
 (``make bench``: ``bench_live``). :class:`McapProcessLog` keeps the same interface but
-only queues ``(key, payload, receive time)`` in the caller's process; a feeder thread
-hands the queue to a spawned writer process every :data:`FEED_EVERY_S` (one pipe write
-per batch), and the writer process runs an ordinary ``McapLog`` on it, so the file is
+only queues ``(key, payload, receive time)`` in the caller's process; the queue goes to a
+spawned writer process every :data:`FEED_EVERY_S` (one pipe write per batch), from the
+caller's loop when it is idle (:meth:`McapProcessLog.idle`: a live estimator between two
+poses) or else from a feeder thread once it is one and a half periods old, and the writer process runs an ordinary ``McapLog`` on it, so the file is
 the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
 
 - The writer needs only ``mcap`` and this package (no Zenoh, no estimator): it starts in
@@ -15,7 +16,7 @@ the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metad
   the pipe.
 - Killed caller: the writer sees the pipe close, writes everything it received with
   status ``incomplete`` and closes the file cleanly (summary and footer). What the
-  caller had queued but not yet handed over is lost: at most :data:`FEED_EVERY_S`.
+  caller had queued but not yet handed over is lost: at most 2.5 :data:`FEED_EVERY_S`.
 - Writer that dies: the next hand-over or :meth:`McapProcessLog.close` finds it gone;
   ``close`` raises :class:`common.errors.UserError` naming the file and the exit code
   (the file keeps what was written up to the last chunk).
@@ -104,6 +105,7 @@ class McapProcessLog:
         self._lock = threading.Lock()  # one sender on the pipe at a time
         self._stop = threading.Event()
         self._dead = False
+        self._last_feed = time.monotonic()
         self._feeder = threading.Thread(target=self._feed_loop, name="mcap-feed", daemon=True)
         self._feeder.start()
 
@@ -121,6 +123,7 @@ class McapProcessLog:
         self._pending.append((key, bytes(payload), log_time_ns, publish_time_ns))  # atomic
 
     def _send_pending(self) -> None:
+        self._last_feed = time.monotonic()
         pending = self._pending
         batch = []
         while pending:
@@ -133,10 +136,19 @@ class McapProcessLog:
             self._dead = True
             self.counters["write_errors"] = self.counters.get("write_errors", 0) + len(batch)
 
-    def _feed_loop(self) -> None:
-        while not self._stop.wait(FEED_EVERY_S):
+    def idle(self) -> None:
+        """The caller's loop is idle (a live estimator between two poses): hand the queue
+        over if the last hand-over is :data:`FEED_EVERY_S` old. The feeder thread then only
+        hands over what waited for two periods."""
+        if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._pending:
             with self._lock:
                 self._send_pending()
+
+    def _feed_loop(self) -> None:
+        while not self._stop.wait(FEED_EVERY_S):
+            if time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
+                with self._lock:
+                    self._send_pending()
 
     def flush(self) -> None:
         """Hand everything queued to the writer and wait until it is in the file."""

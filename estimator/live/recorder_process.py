@@ -8,13 +8,17 @@ thread hands the list to a spawned process every :data:`FEED_EVERY_S` (one pipe 
 per batch), and that process runs an ordinary :class:`LiveRecorder` on it, so the folder
 is the same, file for file.
 
+- The hand-over runs on the caller's loop when it is idle (:meth:`RecorderProcess.idle`,
+  which :func:`estimator.live.zenoh_run.run_live` calls once its input queue is empty:
+  between two poses, not while one waits); the feeder thread hands over what the loop left
+  for one and a half periods (a loop that does not idle).
 - The folder is checked in the caller (``UserError`` at once: cannot be created, already
   holds a run); the process creates the files when it has started (a few tenths of a
   second; what arrives meanwhile waits in the pipe).
 - Killed caller (SIGKILL): the process sees the pipe close, writes every call it received
   and closes the files; ``run.json`` keeps status ``running`` (the estimator died), and
-  the folder is a valid run up to what was handed over: at most :data:`FEED_EVERY_S`
-  before the kill is lost on top of what :class:`LiveRecorder` itself would lose (the
+  the folder is a valid run up to what was handed over: at most 2.5 :data:`FEED_EVERY_S`
+  (50 ms) before the kill is lost on top of what :class:`LiveRecorder` itself would lose (the
   poses after the last command or hold). Ctrl-C reaches the caller only: the process
   ignores SIGINT and ends when the caller closes it.
 - A process that dies (a full disk): the next hand-over fails and :meth:`close` raises
@@ -28,6 +32,7 @@ import multiprocessing as mp
 import os
 import signal
 import threading
+import time
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -116,6 +121,7 @@ class RecorderProcess:
         self._lock = threading.Lock()  # one sender on the pipe at a time
         self._stop = threading.Event()
         self._dead = False
+        self._last_feed = time.monotonic()
         self.lost_calls = 0
         """Calls that could not be handed over (the process had died)."""
         self._feeder = threading.Thread(target=self._feed_loop, name="recorder-feed",
@@ -146,6 +152,7 @@ class RecorderProcess:
 
     # hand-over
     def _send(self) -> None:
+        self._last_feed = time.monotonic()
         queued = self._calls
         calls = []
         while queued:
@@ -161,10 +168,18 @@ class RecorderProcess:
             self._dead = True
             self.lost_calls += len(calls)
 
-    def _feed_loop(self) -> None:
-        while not self._stop.wait(FEED_EVERY_S):
+    def idle(self) -> None:
+        """The caller's loop is idle: hand the queue over if the last hand-over is
+        :data:`FEED_EVERY_S` old."""
+        if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._calls:
             with self._lock:
                 self._send()
+
+    def _feed_loop(self) -> None:
+        while not self._stop.wait(FEED_EVERY_S):
+            if time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:  # the loop did not idle
+                with self._lock:
+                    self._send()
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
         """Hand over what is queued, close the folder with ``status`` and wait for it;

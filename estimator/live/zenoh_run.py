@@ -62,8 +62,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
              duration_s: float | None = None, exit_on_end: bool = False,
              end_grace_s: float = 0.5, end_span_s: float = 1.0,
              mocap_prefix: str = "tpods/mocap", prefix: str = "tpods",
-             on_console: Callable[[str], None] | None = None, console_period_s: float = 1.0
-             ) -> LiveRun:
+             on_console: Callable[[str], None] | None = None, console_period_s: float = 1.0,
+             on_idle: tuple[Callable[[], None], ...] = ()) -> LiveRun:
     """Subscribe, estimate and publish until ``stop``, ``duration_s`` or (with
     ``exit_on_end``) the end of the player's input: once its ``end`` command is in, the
     poses stamped up to ``end_span_s`` (lab time) after it are used and the run ends at the
@@ -79,7 +79,9 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     next pose's wait deadline. The objects of the start-up (modules, session, filter)
     are frozen out of the garbage collector while it runs (``gc.freeze``): a collection
     of the oldest generation then scans only what the run made, not the whole program
-    (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26).
+    (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26). ``on_idle`` (the
+    recorders' hand-overs: :meth:`estimator.live.recorder_process.RecorderProcess.idle`) run
+    after an estimate when no message is waiting, so that their work falls between poses.
     """
     stop = stop or threading.Event()
     st = estimator.structure
@@ -171,6 +173,9 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                 except queue.Empty:
                     item = None
             estimator.process(now())
+            if on_idle and q.empty():
+                for f in on_idle:
+                    f()
             if time.monotonic() >= next_console:
                 c = estimator.counters
                 el = time.monotonic() - next_console + console_period_s

@@ -156,7 +156,8 @@ def cmd_live(args: argparse.Namespace) -> int:
                       f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
                 res = run_live(session, est, stop=stop, duration_s=args.duration,
                                exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                               prefix=args.prefix, on_console=console.show)
+                               prefix=args.prefix, on_console=console.show,
+                               on_idle=tuple(r.idle for r in (rec, log) if r is not None))
                 status = res.status
             finally:
                 for s in subs:
