@@ -253,7 +253,8 @@ def _latency_figures(sent: dict, items, rate_hz: float) -> dict:
     return {"p50": float(p50), "p99": float(p99), "p99_all": float(np.percentile(lat_ms, 99)),
             "max": float(lat_ms.max()), "first": float(np.percentile(steady[:k10], 99)),
             "last": float(np.percentile(steady[-k10:], 99)),
-            "med_first": float(np.median(steady[:k10])), "med_last": float(np.median(steady[-k10:])),
+            "med_first": float(np.median(steady[:k10])),
+            "med_last": float(np.median(steady[-k10:])),
             "estimated": len(set(frames.tolist())), "n": len(pub_t)}
 
 
@@ -334,13 +335,14 @@ def run() -> list[dict]:
             if os.environ.get("TPODS_BENCH_LIVE_DEBUG"):
                 fr, lat = _latencies(sent["pub_t"], items)
                 slow = fr[lat > 1.0]
-                print(method, capture, late_ms, json.dumps(c), st.get("err", "")[-2000:],  # noqa: T201
-                      "slow frames", np.histogram(slow, bins=15, range=(0, len(sent["pub_t"])))[0])
+                print(method, capture, late_ms, json.dumps(c),  # noqa: T201
+                      st.get("err", "")[-2000:], "slow frames", np.histogram(slow, bins=15, range=(0, len(sent["pub_t"])))[0])
             rx = c.get("poses_rx", 0)
             keeps_up = bool(rx and c.get("updates") == rx
                             and f["med_last"] < f["med_first"] + BACKLOG_MS)
             load = os.getloadavg()[0]
-            case = (f"live estimator {method} {rate_hz:g} Hz" + (" + --out --mcap" if capture else "")
+            case = (f"live estimator {method} {rate_hz:g} Hz"
+                    + (" + --out --mcap" if capture else "")
                     + (f", commands late 0-{late_ms:g} ms" if late_ms else ""))
             p99 = f["p99"]
             if late_ms:

@@ -8,8 +8,8 @@ at 2,000 messages/s, and the estimator's pose-to-estimate p99 went from 2.9 to 5
 only queues ``(key, payload, receive time)`` in the caller's process; the queue goes to a
 spawned writer process every :data:`FEED_EVERY_S` (one pipe write per batch), from the
 caller's loop when it is idle (:meth:`McapProcessLog.idle`: a live estimator between two
-poses) or else from a feeder thread once it is one and a half periods old, and the writer process runs an ordinary ``McapLog`` on it, so the file is
-the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
+poses) or else from a feeder thread once it is one and a half periods old, and the writer
+process runs an ordinary ``McapLog`` on it, so the file is the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
 
 - The writer needs only ``mcap`` and this package (no Zenoh, no estimator): it starts in
   a few tenths of a second while the caller goes on; what arrives meanwhile waits in

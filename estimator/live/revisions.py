@@ -75,7 +75,8 @@ def arrival_order(pose_t, cmd_t, cmd_delay_s) -> list[tuple[float, int, int]]:
     """The stream a live estimator receives when pose ``k`` arrives at its time
     ``pose_t[k]`` and command ``i`` at ``cmd_t[i] + cmd_delay_s[i]`` (s): ``(arrival s,
     kind 0 pose / 1 command, index)`` sorted by arrival (a tie: the command first)."""
-    ev = [(float(t), 1, i) for i, t in enumerate(np.asarray(cmd_t, float) + np.asarray(cmd_delay_s, float))]
+    arrive = np.asarray(cmd_t, float) + np.asarray(cmd_delay_s, float)
+    ev = [(float(t), 1, i) for i, t in enumerate(arrive)]
     ev += [(float(t), 0, k) for k, t in enumerate(np.asarray(pose_t, float))]
     ev.sort(key=lambda e: (e[0], -e[1], e[2]))
     return ev

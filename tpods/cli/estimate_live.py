@@ -125,7 +125,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         log = McapProcessLog(stream_file(args.out, force=args.force),
                       meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     elif args.out is not None:
-        rec = RecorderProcess(stream_folder(args.out, force=args.force, command="tpods estimate live"), {
+        folder = stream_folder(args.out, force=args.force, command="tpods estimate live")
+        rec = RecorderProcess(folder, {
             "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "body": args.body, "keys": k, "method": args.method,

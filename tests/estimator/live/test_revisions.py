@@ -117,4 +117,5 @@ def test_old_estimate_payloads_read_as_first_estimates():
            b'"mass_kg":2.0}')
     d = decode_estimate(old)
     assert d["rev"] == 0 and d["revised"] is False
-    assert latest_per_frame([d, {**d, "rev": 2, "mass_kg": 2.5}, {**d, "rev": 1}])[3]["mass_kg"] == 2.5
+    latest = latest_per_frame([d, {**d, "rev": 2, "mass_kg": 2.5}, {**d, "rev": 1}])
+    assert latest[3]["mass_kg"] == 2.5
