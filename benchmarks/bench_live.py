@@ -8,7 +8,8 @@ estimate live --rate 0``: an estimate after every pose, each pose filtered as it
 this process subscribes to the estimates. Runs (:data:`CASES`): ekf and ls-ekf, each
 without and with ``--out --mcap``, and ekf with every command after the first published
 0-5 ms after its stamp (seeded): the poses of that span are filtered before it and
-re-run when it comes.
+re-run when it comes; and ``--vehicle vehicles/example-8-onoff.toml`` (ls-ekf, its 8
+duties on one stream) without and with ``--out --mcap``.
 
 Latency = the ``t_pub`` of the first estimate that includes a pose minus the pose's publish
 time (same host clock), p99 after the first second: under :data:`TARGET_P99_MS`; with
@@ -61,10 +62,12 @@ def _batch_ms() -> int | None:
     return int(v) if v else None
 
 
-def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out, late_ms: float = 0.0) -> None:
+def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out, late_ms: float = 0.0,
+                    vehicle: str | None = None) -> None:
     """Publish the run; with ``late_ms`` every command after the first is stamped when it is
     due but published a uniform 0..``late_ms`` ms later (seeded): the poses of that span
-    reach the estimator before the command that governs them."""
+    reach the estimator before the command that governs them. ``vehicle`` (a vehicle.toml):
+    its N duties and its valve timing, the example's mass and Izz."""
     import zenoh
 
     from common.constants import PAPER_IZZ_KGM2, PAPER_MASS_KG
@@ -75,9 +78,19 @@ def _publisher_proc(ep: str, seconds: float, rate_hz: float, go, out, late_ms: f
     from mocap_bridge.pose import encode_pose, pose_key, yaw_quat
     from tpods.player import cmd_key, encode_command
 
-    cmd_t, duty = phase_sine(seconds, 50.0)
-    res = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2),
-                   config=SimConfig(pose_rate_hz=rate_hz, seed=7))
+    if vehicle is None:
+        cmd_t, duty = phase_sine(seconds, 50.0)
+        res = simulate(cmd_t, duty, PlantParams(PAPER_MASS_KG, PAPER_IZZ_KGM2),
+                       config=SimConfig(pose_rate_hz=rate_hz, seed=7))
+    else:
+        from common.vehicle import Vehicle
+        from estimator.plant.inputs import make_input
+
+        v = Vehicle.load(vehicle)
+        cmd_t, duty = make_input("phase-sine", seconds, 50.0, n_channels=v.n_channels)
+        tt, vt = v.input_profile(cmd_t, duty)
+        res = simulate(cmd_t, duty, PlantParams(*VEHICLE_TRUTH), None,
+                       SimConfig(pose_rate_hz=rate_hz, seed=7), thrust_n=vt, thrust_t=tt)
     session = open_session(connect=[ep], no_multicast=True, zenoh_batch_ms=_batch_ms())
     enc = zenoh.Encoding("application/json")
     block = zenoh.CongestionControl.BLOCK  # as the bridge and the player publish
@@ -180,7 +193,7 @@ class _Sink:
 
 
 def _stream(ctx, session, ep: str, seconds: float, rate_hz: float, key: str, start_consumer,
-            late_ms: float = 0.0):
+            late_ms: float = 0.0, vehicle: str | None = None):
     """Run one publisher stream while ``start_consumer()`` handles it; returns
     (what was published: ``pub_t``, ``pose``, ``cmd_t``, ``duty``; received (payload, t)
     list, consumer result)."""
@@ -188,7 +201,8 @@ def _stream(ctx, session, ep: str, seconds: float, rate_hz: float, key: str, sta
     sub = session.declare_subscriber(key, direct_callback(sink))
     consumer = start_consumer()
     go, out = ctx.Event(), ctx.Queue()
-    p = ctx.Process(target=_publisher_proc, args=(ep, seconds, rate_hz, go, out, late_ms))
+    p = ctx.Process(target=_publisher_proc,
+                    args=(ep, seconds, rate_hz, go, out, late_ms, vehicle))
     p.start()
     time.sleep(1.0)
     go.set()
@@ -215,11 +229,13 @@ def _latencies(pub_t: np.ndarray, items, t_key: str = "t_pub"):
 
 
 def _estimator_consumer(session, ep: str, exe: str, method: str, seconds: float,
-                        out_dir: str | None, state: dict):
+                        out_dir: str | None, state: dict, vehicle: str | None = None):
     """Start ``tpods estimate live`` (the real command) and wait until it subscribed."""
     cmd = [exe, "estimate", "live", "--body", BODY, "--connect", ep, "--no-multicast",
            "--rate", "0", "--exit-on-end", "--quiet", "--json", "--method", method,
            "--ls-window", "5", "--duration", str(seconds * 4 + 60)]
+    if vehicle is not None:
+        cmd += ["--vehicle", vehicle]
     if out_dir is not None:  # the run folder and the MCAP recording written as it goes
         cmd += ["--out", out_dir, "--mcap"]
     if _batch_ms() is not None:
@@ -275,8 +291,12 @@ def _revision_check(sent: dict, items) -> dict:
 
 
 CASES = (("ekf", False, 0.0), ("ekf", True, 0.0), ("ls-ekf", False, 0.0), ("ls-ekf", True, 0.0),
-         ("ekf", False, 5.0))
-"""(method, with --out --mcap, commands late up to this many ms) of each estimator run."""
+         ("ekf", False, 5.0), ("vehicle", False, 0.0), ("vehicle", True, 0.0))
+"""(method, with --out --mcap, commands late up to this many ms) of each estimator run;
+``vehicle``: ls-ekf with ``--vehicle`` :data:`VEHICLE` (its 8 duties on one stream)."""
+VEHICLE = str(Path(__file__).resolve().parents[1] / "vehicles" / "example-8-onoff.toml")
+VEHICLE_TRUTH = (23.09, 0.31)
+"""The simulated vehicle's mass (kg) and Izz (kg m^2)."""
 
 
 def _cases() -> list[tuple[str, bool, float]]:
@@ -319,15 +339,17 @@ def run() -> list[dict]:
         # ---- the live estimator (the real command)
         capture_dir = tempfile.TemporaryDirectory()
         p99_by, w_by = {}, {}
-        for method, capture, late_ms in _cases():
+        for label, capture, late_ms in _cases():
+            vehicle = VEHICLE if label == "vehicle" else None
+            method = "ls-ekf" if vehicle else label
             state: dict = {}
-            out_dir = str(Path(capture_dir.name) / f"live-{method}") if capture else None
+            out_dir = str(Path(capture_dir.name) / f"live-{label}") if capture else None
             w = Window()
             sent, items, st = _stream(
                 ctx, session, ep, seconds, rate_hz, f"tpods/{BODY}/estimate",
-                lambda m=method, o=out_dir, s=state: _estimator_consumer(session, ep, exe, m,
-                                                                         seconds, o, s),
-                late_ms)
+                lambda m=method, o=out_dir, s=state, v=vehicle: _estimator_consumer(
+                    session, ep, exe, m, seconds, o, s, v),
+                late_ms, vehicle)
             w.stop()
             f = _latency_figures(sent, items, rate_hz)
             summ = st.get("summary", {})
@@ -342,6 +364,7 @@ def run() -> list[dict]:
                             and f["med_last"] < f["med_first"] + BACKLOG_MS)
             load = os.getloadavg()[0]
             case = (f"live estimator {method} {rate_hz:g} Hz"
+                    + (f" vehicle {Path(vehicle).stem}" if vehicle else "")
                     + (" + --out --mcap" if capture else "")
                     + (f", commands late 0-{late_ms:g} ms" if late_ms else ""))
             p99 = f["p99"]
@@ -365,8 +388,8 @@ def run() -> list[dict]:
                               f"p99 {p99:.2f} ms (p50 {f['p50']:.2f})",
                     "timed": False})
             else:
-                p99_by[(method, capture)] = p99
-                w_by[(method, capture)] = w
+                p99_by[(label, capture)] = p99
+                w_by[(label, capture)] = w
                 rows.append({
                     "case": case, "metric": "pose publish -> estimate p99, ms", "value": p99,
                     "reference": ref_p99, "ratio": ref_p99 / p99, "ok": bool(p99 < TARGET_P99_MS),
@@ -376,7 +399,7 @@ def run() -> list[dict]:
                               f"{c.get('rewinds', 0)} rewinds); {ref_note}; load avg "
                               f"{load:.2f} on {os.cpu_count()} cpus", **w.timed()})
             if capture:
-                base = p99_by[(method, False)]
+                base = p99_by[(label, False)]
                 rows.append({
                     "case": case, "metric": "p99 with recording - without, ms",
                     "value": p99 - base, "reference": RECORDING_MS,
@@ -385,7 +408,7 @@ def run() -> list[dict]:
                     "target": f"recording (run folder + MCAP, each written by a process of its "
                               f"own) within {RECORDING_MS:g} ms of the same run without it: "
                               f"p99 {p99:.3f} ms with, {base:.3f} ms without",
-                    **Window.spanning(w_by[(method, False)], w).timed()})
+                    **Window.spanning(w_by[(label, False)], w).timed()})
             rows.append({
                 "case": case, "metric": "poses filtered / received",
                 "value": c.get("updates", 0) / max(rx, 1), "reference": 1.0,

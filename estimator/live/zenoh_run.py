@@ -81,7 +81,9 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     of the oldest generation then scans only what the run made, not the whole program
     (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26). ``on_idle`` (the
     recorders' hand-overs: :meth:`estimator.live.recorder_process.RecorderProcess.idle`) run
-    after an estimate when no message is waiting, so that their work falls between poses.
+    after an estimate when no message is waiting, so that their work falls between poses;
+    so does an ``ls-ekf`` catch-up (:meth:`LiveEstimator.idle_catch_up`), pose by pose
+    until a message arrives.
     """
     stop = stop or threading.Event()
     st = estimator.structure
@@ -128,6 +130,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
         return False
 
     status = "success"
+    catching_up = False
     try:
         while not stop.is_set():
             mono = time.monotonic()
@@ -141,6 +144,8 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                 break
             dl = estimator.next_deadline()
             timeout = 0.05 if dl is None else min(0.05, max(0.0, dl - now()))
+            if catching_up:  # no sleeping while there is catch-up to do in the idle time
+                timeout = 0.0
             try:
                 item = q.get(timeout=timeout) if timeout > 0 else q.get_nowait()
             except queue.Empty:
@@ -173,9 +178,10 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
                 except queue.Empty:
                     item = None
             estimator.process(now())
-            if on_idle and q.empty():
+            if q.empty():
                 for f in on_idle:
                     f()
+                catching_up = estimator.idle_catch_up(lambda: not q.empty())
             if time.monotonic() >= next_console:
                 c = estimator.counters
                 el = time.monotonic() - next_console + console_period_s
