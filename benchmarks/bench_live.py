@@ -420,7 +420,8 @@ def run() -> list[dict]:
                           f"{f['med_last']:.2f} ms; p99 {f['first']:.2f} -> {f['last']:.2f} ms); "
                           f"estimator queue max {c.get('max_queue')}, aligner pending max "
                           f"{c.get('max_backlog')}; {rx} of {f['n']} published poses received, "
-                          f"{used} filtered ({c.get('before_ls', 0)} before the window's fit), estimates for {f['estimated']} delivered; "
+                          f"{used} filtered ({c.get('before_ls', 0)} before the window's fit), "
+                          f"estimates for {f['estimated']} delivered; "
                           f"final m {summ.get('mass_kg', float('nan')):.4f} kg (phase "
                           f"{summ.get('phase')})",
                 **w.timed(ok_untimed=bool(rx and used == rx))})
