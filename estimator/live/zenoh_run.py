@@ -79,7 +79,7 @@ def run_live(session, estimator: LiveEstimator, *, stop: threading.Event | None 
     next pose's wait deadline. The objects of the start-up (modules, session, filter)
     are frozen out of the garbage collector while it runs (``gc.freeze``): a collection
     of the oldest generation then scans only what the run made, not the whole program
-    (measured: 12-17 ms pauses, once per run, at 1 kHz; issue 26). ``on_idle`` (the
+    (measured: 12-17 ms pauses, once per run, at 1 kHz). ``on_idle`` (the
     recorders' hand-overs: :meth:`estimator.live.recorder_process.RecorderProcess.idle`) run
     after an estimate when no message is waiting, so that their work falls between poses;
     so does an ``ls-ekf`` catch-up (:meth:`LiveEstimator.idle_catch_up`), pose by pose
