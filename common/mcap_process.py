@@ -6,10 +6,11 @@ about 84 us of Python per message (json.loads, the ``mcap`` writer, chunk compre
 at 2,000 messages/s, and the estimator's pose-to-estimate p99 went from 2.9 to 5.8 ms
 (``make bench``: ``bench_live``). :class:`McapProcessLog` keeps the same interface but
 only queues ``(key, payload, receive time)`` in the caller's process; the queue goes to a
-spawned writer process every :data:`FEED_EVERY_S` (one pipe write per batch), from the
-caller's loop when it is idle (:meth:`McapProcessLog.idle`: a live estimator between two
-poses) or else from a feeder thread once it is one and a half periods old, and the writer
-process runs an ordinary ``McapLog`` on it, so the file is the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
+spawned writer process every :data:`FEED_EVERY_S` (one pipe write per batch), from a
+feeder thread woken when the caller's loop is idle (:meth:`McapProcessLog.idle`: a live
+estimator between two poses) or else once the queue is one and a half periods old, and
+the writer process runs an ordinary ``McapLog`` on it, so the file is the same: channels,
+schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
 
 - The writer needs only ``mcap`` and this package (no Zenoh, no estimator): it starts in
   a few tenths of a second while the caller goes on; what arrives meanwhile waits in
@@ -106,6 +107,7 @@ class McapProcessLog:
         self._stop = threading.Event()
         self._dead = False
         self._last_feed = time.monotonic()
+        self._wake = threading.Event()
         self._feeder = threading.Thread(target=self._feed_loop, name="mcap-feed", daemon=True)
         self._feeder.start()
 
@@ -137,16 +139,19 @@ class McapProcessLog:
             self.counters["write_errors"] = self.counters.get("write_errors", 0) + len(batch)
 
     def idle(self) -> None:
-        """The caller's loop is idle (a live estimator between two poses): hand the queue
-        over if the last hand-over is :data:`FEED_EVERY_S` old. The feeder thread then only
-        hands over what waited for two periods."""
+        """The caller's loop is idle (a live estimator between two poses): wake the feeder
+        thread if the last hand-over is :data:`FEED_EVERY_S` old (it pickles and writes:
+        a full pipe blocks it, never the caller)."""
         if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._pending:
-            with self._lock:
-                self._send_pending()
+            self._wake.set()
 
     def _feed_loop(self) -> None:
-        while not self._stop.wait(FEED_EVERY_S):
-            if time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
+        while not self._stop.is_set():
+            woke = self._wake.wait(FEED_EVERY_S)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            if woke or time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
                 with self._lock:
                     self._send_pending()
 
@@ -169,6 +174,7 @@ class McapProcessLog:
             return
         self.closed = True
         self._stop.set()
+        self._wake.set()
         self._feeder.join(timeout=5.0)
         with self._lock:
             self._send_pending()

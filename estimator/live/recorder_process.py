@@ -8,10 +8,11 @@ thread hands the list to a spawned process every :data:`FEED_EVERY_S` (one pipe 
 per batch), and that process runs an ordinary :class:`LiveRecorder` on it, so the folder
 is the same, file for file.
 
-- The hand-over runs on the caller's loop when it is idle (:meth:`RecorderProcess.idle`,
+- The hand-over starts when the caller's loop is idle (:meth:`RecorderProcess.idle`,
   which :func:`estimator.live.zenoh_run.run_live` calls once its input queue is empty:
-  between two poses, not while one waits); the feeder thread hands over what the loop left
-  for one and a half periods (a loop that does not idle).
+  between two poses, not while one waits): it wakes the feeder thread, which pickles and
+  writes the batch (a full pipe blocks that thread, never the loop); without a wake-up
+  the thread hands over what waited one and a half periods (a loop that does not idle).
 - The folder is checked in the caller (``UserError`` at once: cannot be created, already
   holds a run); the process creates the files when it has started (a few tenths of a
   second; what arrives meanwhile waits in the pipe).
@@ -120,6 +121,7 @@ class RecorderProcess:
         child.close()
         self._lock = threading.Lock()  # one sender on the pipe at a time
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._dead = False
         self._last_feed = time.monotonic()
         self.lost_calls = 0
@@ -169,15 +171,18 @@ class RecorderProcess:
             self.lost_calls += len(calls)
 
     def idle(self) -> None:
-        """The caller's loop is idle: hand the queue over if the last hand-over is
-        :data:`FEED_EVERY_S` old."""
+        """The caller's loop is idle: wake the feeder thread if the last hand-over is
+        :data:`FEED_EVERY_S` old (it pickles and writes; the loop never waits for a pipe)."""
         if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._calls:
-            with self._lock:
-                self._send()
+            self._wake.set()
 
     def _feed_loop(self) -> None:
-        while not self._stop.wait(FEED_EVERY_S):
-            if time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:  # the loop did not idle
+        while not self._stop.is_set():
+            woke = self._wake.wait(FEED_EVERY_S)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            if woke or time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
                 with self._lock:
                     self._send()
 
@@ -188,6 +193,7 @@ class RecorderProcess:
             return
         self.closed = True
         self._stop.set()
+        self._wake.set()
         self._feeder.join(timeout=5.0)
         reply = None
         with self._lock:
