@@ -43,11 +43,10 @@ def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) ->
     """The writer process: batches from ``conn`` into an McapLog, flushed every
     ``flush_every_s``; ``("close", status, extra)`` ends it (replying with the counters),
     and so does the pipe closing (status ``incomplete``)."""
-    import contextlib
-    import os
+    from common.lowprio import LagGuard, background
 
-    with contextlib.suppress(OSError, AttributeError):
-        os.nice(10)  # a live estimator in the caller wins a busy core
+    background()  # a live estimator in the caller takes a core at once when it wakes
+    guard = LagGuard()
     from common.mcap_log import McapLog
 
     log = McapLog(path, meta=meta, flush_every_s=0)
@@ -62,6 +61,7 @@ def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) ->
                 except (EOFError, OSError):
                     break
                 if msg[0] == "batch":
+                    guard.check(msg[2] if len(msg) > 2 else None)
                     for item in msg[1]:
                         log.write(*item)
                 elif msg[0] == "flush":
@@ -133,7 +133,7 @@ class McapProcessLog:
         if not batch or self._dead:
             return
         try:
-            self._conn.send(("batch", batch))
+            self._conn.send(("batch", batch, time.monotonic()))
         except (OSError, ValueError):  # the writer is gone: counted, said at close
             self._dead = True
             self.counters["write_errors"] = self.counters.get("write_errors", 0) + len(batch)

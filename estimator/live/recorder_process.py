@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
-import os
 import signal
 import threading
 import time
@@ -39,12 +38,11 @@ from pathlib import Path
 from typing import Any
 
 from common.errors import UserError
+from common.lowprio import LagGuard, background
 
 FEED_EVERY_S = 0.02
 """The calls queued by the estimator go to the recording process at this period, s."""
 CLOSE_TIMEOUT_S = 60.0
-NICE = 10
-"""The recording process's lower priority: the estimator's thread wins a busy core."""
 
 
 def check_folder(out: str | Path) -> Path:
@@ -67,8 +65,8 @@ def _recorder_main(out: str, meta: dict[str, Any], n_channels: int, structure: A
     counts; the pipe closing (the caller died) or SIGTERM leaves the files as a kill
     would: every row received written, ``run.json`` still ``running``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
-    with contextlib.suppress(OSError, AttributeError):
-        os.nice(NICE)  # the estimator first when the cores are busy
+    background()  # the estimator's thread takes a core at once when it wakes
+    guard = LagGuard()
 
     def _term(*_: object) -> None:
         raise SystemExit(143)
@@ -84,6 +82,7 @@ def _recorder_main(out: str, meta: dict[str, Any], n_channels: int, structure: A
             except (EOFError, OSError):
                 break
             if msg[0] == "batch":
+                guard.check(msg[2])
                 for name, args in msg[1]:
                     getattr(rec, name)(*args)
             elif msg[0] == "close":
@@ -165,7 +164,7 @@ class RecorderProcess:
             self.lost_calls += len(calls)
             return
         try:
-            self._conn.send(("batch", calls))
+            self._conn.send(("batch", calls, time.monotonic()))
         except (OSError, ValueError):  # the process is gone: counted, said at close
             self._dead = True
             self.lost_calls += len(calls)
