@@ -215,7 +215,9 @@ EST_FMT = ('{"schema":"' + EST_SCHEMA + '","body":%s,"seq":%d,"t":%r,"frame":%d,
             '"izz_sigma_noise_kgm2":%r,"izz_sigma_thrust_kgm2":%r,'
             '"state":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},'
             '"state_sigma":{"x":%r,"y":%r,"psi":%r,"u":%r,"v":%r,"r":%r},"n_updates":%d,'
-            '"nis":%s,"diverged":%s,"inconsistent":%s}')
+            '"nis":%s,"diverged":%s,"inconsistent":%s,"rev":%d,"revised":%s}')
+"""The estimate payload of a module (``%`` fields in this order). ``rev`` and ``revised``
+come last and are optional for readers: a payload without them is a first estimate."""
 
 
 def encode_estimate(d: dict[str, Any]) -> bytes:
@@ -230,4 +232,6 @@ def decode_estimate(payload: bytes | bytearray | memoryview | str) -> dict[str, 
         return None
     if not isinstance(d, dict) or d.get("schema") != EST_SCHEMA:
         return None
+    d.setdefault("rev", 0)  # written before estimates were revised: a first estimate
+    d.setdefault("revised", bool(d["rev"]))
     return d

@@ -82,7 +82,14 @@ ESTIMATE = _payload(
      "n_updates": {"type": "integer"},
      "nis": _NUM_OR_NULL,
      "diverged": {"type": "boolean"},
-     "inconsistent": {"type": "boolean"}},
+     "inconsistent": {"type": "boolean"},
+     "rev": {"type": "integer", "minimum": 0,
+             "description": "revision of the estimate for this pose: 0 the first, n after the "
+                            "filter re-ran the pose n times for commands that arrived after it "
+                            "(absent: 0)"},
+     "revised": {"type": "boolean",
+                 "description": "rev > 0: this estimate replaces one published for the same "
+                                "pose (t, frame)"}},
     ["t", "phase", "mass_kg", "mass_sigma_kg", "izz_kgm2", "izz_sigma_kgm2"])
 
 STATS = _payload(

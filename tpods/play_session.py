@@ -168,11 +168,13 @@ def plan_play(valves: str, *, input_name: str, duration_s: float | None, cmd_rat
 
 def play_plan(plan: PlayPlan, session: Any, *, clock: Any, prefix: str = "tpods",
               valves_baud: int = 115200, watchdog_ms: int = 500, pwm_hz: float = 10.0,
-              heartbeat_s: float = 0.1, progress: bool = True, wait_subscriber_s: float = 0.0,
+              heartbeat_s: float = 0.1, announce_ahead_s: float = 0.0, progress: bool = True,
+              wait_subscriber_s: float = 0.0,
               on_info: Callable[[str], object] = lambda _line: None,
               on_warning: Callable[[str], object] = lambda _line: None):
     """Play ``plan`` on its controllers (module doc); returns :class:`tpods.player.PlayResult`.
-    ``session``: an open Zenoh session; commands go out on ``<prefix>/<body>/cmd``."""
+    ``session``: an open Zenoh session; commands go out on ``<prefix>/<body>/cmd``, each
+    ``announce_ahead_s`` before it is due when that is above 0 (stamped with when it is due)."""
     import zenoh
 
     from bench.valves import ValveController
@@ -209,7 +211,8 @@ def play_plan(plan: PlayPlan, session: Any, *, clock: Any, prefix: str = "tpods"
                 on_warning(f"no subscriber of {what} after {wait_subscriber_s:g} s; playing "
                            "(nothing records the commands over Zenoh)")
             common = dict(clock=clock, out_dir=plan.out, watchdog_ms=watchdog_ms, pwm_hz=pwm_hz,
-                          heartbeat_s=heartbeat_s, progress=progress, meta=plan.meta)
+                          heartbeat_s=heartbeat_s, announce_ahead_s=announce_ahead_s,
+                          progress=progress, meta=plan.meta)
             if plan.structure is None:
                 return play(ctrls[0][1], plan.cmd_t, plan.duty, publish=pubs[plan.body].put,
                             body=plan.body, **common)

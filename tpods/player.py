@@ -95,7 +95,8 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
          body: str = "tpods1",
          out_dir: str | Path | None = None, watchdog_ms: int = 500, pwm_hz: float = 10.0,
          heartbeat_s: float = 0.1, lead_s: float = 0.2, stop: threading.Event | None = None,
-         meta: dict[str, Any] | None = None, progress: bool = False) -> PlayResult:
+         meta: dict[str, Any] | None = None, progress: bool = False,
+         announce_ahead_s: float = 0.0) -> PlayResult:
     """Play ``(cmd_t (N,), duty_pct (N, n))`` on an open :class:`bench.valves.ValveController`
     or, for a structure, on several: ``valves`` a sequence of ``(module name,
     controller)`` whose channel blocks are ``duty_pct``'s columns in that order.
@@ -111,6 +112,13 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     files written. Every controller's watchdog is armed and fed while the loop lives; any
     one's lost link ends the run and closes them all. Publishing errors are counted,
     never allowed to stop the closing of the valves.
+
+    ``announce_ahead_s`` > 0 publishes each row that many lab seconds before it is due,
+    stamped with when it is due (``t_start + cmd_t[i] - cmd_t[0]``), instead of after the
+    switch with the measured stamp (commands.csv keeps the measured stamps): a live
+    estimator then has every command before the poses it governs and never re-runs one.
+    A run that ends early restates every announced row it did not play as all closed
+    (the same stamp: the later message wins), then sends its ``end``.
     """
     clock = clock or LabClock()
     cmd_t = np.asarray(cmd_t, float)
@@ -168,6 +176,22 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
     current = (0.0,) * n_ch
     bar = None
     stamp = _Stamper()
+    announced = 0  # rows published ahead (announce_ahead_s > 0)
+    played = 0
+
+    def due(i: int) -> float:
+        return t_start + (cmd_t[i] - cmd_t[0])
+
+    def announce_ahead(now: float) -> None:
+        """Publish the rows due within ``announce_ahead_s`` of ``now``, stamped when due."""
+        nonlocal announced, last_msg
+        while (announce_ahead_s > 0 and announced < len(cmd_t)
+               and due(announced) - announce_ahead_s <= now):
+            d = tuple(float(x) for x in duty_pct[announced])
+            announce(due(announced), d,
+                     "end" if announced == len(cmd_t) - 1 and not any(d) else "set")
+            announced += 1
+            last_msg = now
 
     def beat() -> None:
         for g in guards:
@@ -193,11 +217,12 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
             last = len(cmd_t) - 1
             for i in range(len(cmd_t)):
-                target = t_start + (cmd_t[i] - cmd_t[0])
+                target = due(i)
                 while True:
                     now = clock.now()
                     if stop is not None and stop.is_set():
                         raise _Stopped()
+                    announce_ahead(now)
                     if now >= target:
                         break
                     if now - last_msg >= heartbeat_s:
@@ -206,6 +231,8 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                         last_msg = now
                     beat()
                     wait = min(target - now, last_msg + heartbeat_s - now)
+                    if announced < len(cmd_t) and announce_ahead_s > 0:
+                        wait = min(wait, max(due(announced) - announce_ahead_s - now, 0.0))
                     if wait > 4e-4 * clock.scale:
                         time.sleep(min(clock.real_s(wait) - 2e-4, 0.05))
                 d = tuple(float(x) for x in duty_pct[i])
@@ -216,12 +243,14 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
                 t = ta + stamp.half_rtt((tb - ta) / len(mods))
                 max_late = max(max_late, ta - target)
                 current = d
+                played = i + 1
                 sent.append((t, d))
                 if rec is not None:
                     rec.add(t - t_start, d)
                 is_end = i == last and not any(d)
-                announce(t, d, "end" if is_end else "set")
-                last_msg = t
+                if announce_ahead_s <= 0:
+                    announce(t, d, "end" if is_end else "set")
+                    last_msg = t
                 beat()
                 if progress and bar is not None:
                     bar.update(max(0.0, min(bar.total, cmd_t[i] - cmd_t[0]) - bar.n))
@@ -236,6 +265,8 @@ def play(valves, cmd_t, duty_pct, *, clock: LabClock | None = None,
         t_end = clock.now()
         if bar is not None:
             bar.close()
+        for j in range(played, announced):  # announced, never played: closed after all
+            announce(due(j), (0.0,) * n_ch, "set")
         if any(current):  # aborted with valves open: the closing row and the end message
             sent.append((t_end, (0.0,) * n_ch))
             if rec is not None and math.isfinite(t_start):

@@ -5,17 +5,19 @@ recording process. In the live estimator that thread took the interpreter lock f
 about 84 us of Python per message (json.loads, the ``mcap`` writer, chunk compression)
 at 2,000 messages/s, and the estimator's pose-to-estimate p99 went from 2.9 to 5.8 ms
 (``make bench``: ``bench_live``). :class:`McapProcessLog` keeps the same interface but
-only queues ``(key, payload, receive time)`` in the caller's process; a feeder thread
-hands the queue to a spawned writer process every :data:`FEED_EVERY_S` (one pipe write
-per batch), and the writer process runs an ordinary ``McapLog`` on it, so the file is
-the same: channels, schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
+only queues ``(key, payload, receive time)`` in the caller's process; the queue goes to a
+spawned writer process every :data:`FEED_EVERY_S` (one pipe write per batch), from a
+feeder thread woken when the caller's loop is idle (:meth:`McapProcessLog.idle`: a live
+estimator between two poses) or else once the queue is one and a half periods old, and
+the writer process runs an ordinary ``McapLog`` on it, so the file is the same: channels,
+schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
 
 - The writer needs only ``mcap`` and this package (no Zenoh, no estimator): it starts in
   a few tenths of a second while the caller goes on; what arrives meanwhile waits in
   the pipe.
 - Killed caller: the writer sees the pipe close, writes everything it received with
   status ``incomplete`` and closes the file cleanly (summary and footer). What the
-  caller had queued but not yet handed over is lost: at most :data:`FEED_EVERY_S`.
+  caller had queued but not yet handed over is lost: at most 2.5 :data:`FEED_EVERY_S`.
 - Writer that dies: the next hand-over or :meth:`McapProcessLog.close` finds it gone;
   ``close`` raises :class:`common.errors.UserError` naming the file and the exit code
   (the file keeps what was written up to the last chunk).
@@ -41,6 +43,10 @@ def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) ->
     """The writer process: batches from ``conn`` into an McapLog, flushed every
     ``flush_every_s``; ``("close", status, extra)`` ends it (replying with the counters),
     and so does the pipe closing (status ``incomplete``)."""
+    from common.lowprio import LagGuard, background
+
+    background()  # a live estimator in the caller takes a core at once when it wakes
+    guard = LagGuard()
     from common.mcap.log import McapLog
 
     log = McapLog(path, meta=meta, flush_every_s=0)
@@ -55,6 +61,7 @@ def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) ->
                 except (EOFError, OSError):
                     break
                 if msg[0] == "batch":
+                    guard.check(msg[2] if len(msg) > 2 else None)
                     for item in msg[1]:
                         log.write(*item)
                 elif msg[0] == "flush":
@@ -99,6 +106,8 @@ class McapProcessLog:
         self._lock = threading.Lock()  # one sender on the pipe at a time
         self._stop = threading.Event()
         self._dead = False
+        self._last_feed = time.monotonic()
+        self._wake = threading.Event()
         self._feeder = threading.Thread(target=self._feed_loop, name="mcap-feed", daemon=True)
         self._feeder.start()
 
@@ -116,6 +125,7 @@ class McapProcessLog:
         self._pending.append((key, bytes(payload), log_time_ns, publish_time_ns))  # atomic
 
     def _send_pending(self) -> None:
+        self._last_feed = time.monotonic()
         pending = self._pending
         batch = []
         while pending:
@@ -123,15 +133,27 @@ class McapProcessLog:
         if not batch or self._dead:
             return
         try:
-            self._conn.send(("batch", batch))
+            self._conn.send(("batch", batch, time.monotonic()))
         except (OSError, ValueError):  # the writer is gone: counted, said at close
             self._dead = True
             self.counters["write_errors"] = self.counters.get("write_errors", 0) + len(batch)
 
+    def idle(self) -> None:
+        """The caller's loop is idle (a live estimator between two poses): wake the feeder
+        thread if the last hand-over is :data:`FEED_EVERY_S` old (it pickles and writes:
+        a full pipe blocks it, never the caller)."""
+        if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._pending:
+            self._wake.set()
+
     def _feed_loop(self) -> None:
-        while not self._stop.wait(FEED_EVERY_S):
-            with self._lock:
-                self._send_pending()
+        while not self._stop.is_set():
+            woke = self._wake.wait(FEED_EVERY_S)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            if woke or time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
+                with self._lock:
+                    self._send_pending()
 
     def flush(self) -> None:
         """Hand everything queued to the writer and wait until it is in the file."""
@@ -152,6 +174,7 @@ class McapProcessLog:
             return
         self.closed = True
         self._stop.set()
+        self._wake.set()
         self._feeder.join(timeout=5.0)
         with self._lock:
             self._send_pending()

@@ -6,8 +6,8 @@ analytic transition matrix) and filterpy's Joseph-form update with an angle-wrap
 residual; :func:`run_filterpy` runs it over a whole run. The tests use it as the
 reference for the lean filter and the vectorised one.
 
-It imports the filter's modules (:mod:`estimator.filters.config`, ``ekf_kernels``,
-``ekf_loop``, ``ekf_result``), never :mod:`estimator.filters.ekf`, which loads this module
+It imports the filter's modules (:mod:`estimator.filters.config`, ``kernels``,
+``loop``, ``result``), never :mod:`estimator.filters.ekf`, which loads this module
 on first use of ``TpodsEKF`` or ``run_filterpy`` (no import cycle).
 """
 

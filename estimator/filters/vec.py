@@ -65,7 +65,7 @@ def rhs_jac_batch(s, w, m, izz, known, with_jac: bool = True):
         s: (R, 6) states. w: (3,) body wrench (Fx, Fy, Mz) shared by all. m, izz: (R,).
         known: (ct, cr, kb, ax, ay).
     Returns:
-        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``ekf_kernels._JAC_POS`` (every
+        ``(sdot (R, 6), jac (R, 21))``: ``jac`` in the order of ``kernels._JAC_POS`` (every
         effect of :mod:`estimator.plant.model` compiled in), or None without ``with_jac``.
     """
     f = array_function(ALL_EFFECTS, ("mass", "izz") if with_jac else None)

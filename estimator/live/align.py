@@ -22,6 +22,12 @@ import numpy as np
 
 from estimator.live.counters import Counters
 
+PRESTART_KEEP_S = 0.5
+"""Before any command has arrived, a pose waits up to this long (host seconds) for the
+first command, which may be stamped at or before it; then it is dropped and counted
+(``before_first_cmd``). Nothing can be filtered before the first command, so the wait
+costs no latency."""
+
 
 @dataclass(frozen=True)
 class Pose:
@@ -137,16 +143,21 @@ class LiveAligner:
         latest_cmd = self._cmd_t[-1] if self._cmd_t else -math.inf
         while self._pending:
             t, _, pose, arrival = self._pending[0]
-            if not self._cmd_t or t < self._cmd_t[0]:
-                # before the first command: nothing commanded yet, the pose cannot be used
-                if latest_cmd >= t or now - arrival > self.max_wait_s:
+            if not self._cmd_t:
+                # nothing commanded yet: the first command may still come stamped at or before
+                # this pose (it waits up to PRESTART_KEEP_S for it, however short max_wait_s)
+                if now - arrival >= max(self.max_wait_s, PRESTART_KEEP_S):
                     self._pending.pop(0)
                     self.stats.before_first_cmd += 1
                     continue
                 break
+            if t < self._cmd_t[0]:  # before the first command: the pose cannot be used
+                self._pending.pop(0)
+                self.stats.before_first_cmd += 1
+                continue
             if latest_cmd >= t:
                 pass
-            elif now - arrival > self.max_wait_s:
+            elif now - arrival >= self.max_wait_s:
                 self.stats.released_by_timeout += 1
             else:
                 break
@@ -167,17 +178,35 @@ class LiveAligner:
 
     def next_deadline(self) -> float | None:
         """Host time at which the oldest pending pose is released by timeout (None: none pending)."""
-        return self._pending[0][3] + self.max_wait_s if self._pending else None
+        if not self._pending:
+            return None
+        wait = self.max_wait_s if self._cmd_t else max(self.max_wait_s, PRESTART_KEEP_S)
+        return self._pending[0][3] + wait
 
     # --------------------------------------------------------------- commands
     @property
     def first_command_t(self) -> float | None:
         return self._cmd_t[0] if self._cmd_t else None
 
+    def duty_in_force(self, t: float) -> tuple[float, ...] | None:
+        """The duties (%) of the last command stamped at or before ``t`` (s); None before
+        the first."""
+        i = bisect.bisect_right(self._cmd_t, t) - 1
+        return self._cmd_d[i] if i >= 0 else None
+
     def commands(self) -> tuple[np.ndarray, np.ndarray]:
         """All commands so far: (N,) times and (N, n_channels) duties."""
         return (np.asarray(self._cmd_t, dtype=float),
                 np.asarray(self._cmd_d, dtype=float).reshape(-1, self.n_channels))
+
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """The times of :meth:`commands_between` as a list (no arrays: the live filter's
+        every step)."""
+        cmd_t = self._cmd_t
+        ts = cmd_t[max(bisect.bisect_right(cmd_t, t0) - 1, 0):bisect.bisect_right(cmd_t, t1)]
+        if ts and ts[0] < t0:
+            ts[0] = t0
+        return ts
 
     def commands_between(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
         """The command in force at ``t0`` (restamped to ``t0``) and every switch in (t0, t1]."""

@@ -16,11 +16,13 @@ from estimator.filters.config import PAPER, EkfConfig
 from estimator.live.counters import Counters
 
 LIVE_METHODS = ("ekf", "ls-ekf")
-DEFAULT_MAX_WAIT_S = 0.002
+DEFAULT_MAX_WAIT_S = 0.0
 """Default bound on how long a pose waits for a late command (host seconds, counted from
-the earlier of its capture and arrival times). Commands cross Zenoh in 0.1-1 ms on one
-host or a LAN; a real mocap's own latency (3+ ms for VICON) means its poses are usually
-released on arrival. Keeps pose-to-estimate latency within a few milliseconds."""
+the earlier of its capture and arrival times): none. The filter updates on each pose as it
+arrives with the commands it has; a command stamped before poses already filtered makes it
+re-run them from the state saved before the command (``DEFAULT_REWIND_S``), and the
+estimates it re-ran are published again, marked revised. A wait only delays every estimate
+by up to its length to spare a few of those re-runs."""
 DEFAULT_REWIND_S = 2.0
 """How far back (lab seconds) a command arriving after the poses it governs still
 corrects the live filter: it restores the state saved before the command and re-filters
@@ -37,7 +39,9 @@ class LiveConfig:
     ls_start: str = "reuse"
     max_wait_s: float = DEFAULT_MAX_WAIT_S
     publish_rate_hz: float = 10.0
-    catchup_budget_s: float = 0.0005
+    catchup_budget_s: float = 0.0002
+    """Host seconds of ``ls-ekf`` catch-up per pass of the loop: a pose that arrives meanwhile
+    waits at most this long."""
     ls_in_process: bool = False
     n_channels: int = 4
     rewind_s: float = DEFAULT_REWIND_S
@@ -77,5 +81,9 @@ class LiveCounters(Counters):
     max_queue: int = 0
     rewinds: int = 0
     rewind_updates: int = 0
+    revised_published: int = 0
+    """Estimates published again after a rewind re-ran their pose (``revised``)."""
+    cmds_no_change: int = 0
+    """Commands that repeat the duty in force at their time (holds): they never rewind."""
     before_ls: int = 0
     motion_resets: int = 0

@@ -3,13 +3,14 @@
 :class:`LiveEstimator`: feed it decoded pose and command messages
 (:meth:`~LiveEstimator.pose`, :meth:`~LiveEstimator.command`) and call
 :meth:`~LiveEstimator.process` with the host time; it aligns them
-(:class:`estimator.live.align.LiveAligner`: commands are a zero-order hold, a pose
-waits up to ``max_wait_s`` for a late command, occluded / non-finite / repeated /
-too-old samples are counted and skipped), runs the lean EKF
-(:func:`estimator.filters.ekf.ekf_predict`, :func:`estimator.filters.ekf.ekf_update`) pose by pose,
-re-filters from a checkpoint when a command arrives after poses it governs (``rewind_s``),
-and hands estimate messages to ``publish`` at ``publish_rate_hz`` (0: after every
-update).
+(:class:`estimator.live.align.LiveAligner`: commands are a zero-order hold, a pose is
+filtered as it arrives unless ``max_wait_s`` > 0 makes it wait for a late command,
+occluded / non-finite / repeated / too-old samples are counted and skipped), runs the lean
+EKF (:func:`estimator.filters.ekf.ekf_predict`, :func:`estimator.filters.ekf.ekf_update`)
+pose by pose, re-runs the poses since a checkpoint when a command arrives after poses it
+governs (``rewind_s``; their estimates then carry ``rev`` > 0, and with
+``publish_rate_hz`` 0 are published again), and hands estimate messages to ``publish`` at
+``publish_rate_hz`` (0: after every update).
 
 Its parts, each in its module (mixins of :class:`LiveEstimator`):
 
@@ -134,6 +135,11 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         self.phase = "ekf"
         self.hist_t: list[float] = []
         self.hist_pose: list[tuple[float, float, float]] = []
+        self.hist_frame: list[int] = []
+        """Frame numbers of the poses in ``hist_t`` (the estimates published again after a
+        rewind name them)."""
+        self.rev_last = 0
+        """Revision of the current estimate: how many times the filter re-ran its pose."""
         self._init_ls()
         self.restart_t: float | None = None
         self.end_seen_t: float | None = None
@@ -170,6 +176,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
     def _command(self, t: float, duty, kind: str | None) -> bool:
         """One command of the body (a structure: the merged 4N duties) into the aligner."""
         late_before = self.aligner.stats.cmds_late
+        before = self.aligner.duty_in_force(t)
         if self.structure is not None and self.z is None:
             # no live filter yet (it starts from the LS window): every command is still
             # usable by the fit and its catch-up
@@ -195,11 +202,15 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
             self.end_seen_t = t
         if self.recorder is not None:
             self.recorder.command(t, duty)
-        if self.t_last is not None and t <= self.t_last:
-            # the filter already went past it: re-filter from before it (in process())
+        changes = before is None or before != self.aligner.duty_in_force(t)
+        if not changes:  # a hold (or a repeat) of the duty in force: nothing to correct
+            self.counters.cmds_no_change += 1
+        elif self.t_last is not None and t < self.t_last:
+            # the filter already went past it: re-filter from before it (in process()); a
+            # command stamped at the last pose's time acts only after that pose
             self._rewind_t = t if self._rewind_t is None else min(self._rewind_t, t)
         cu = self._cu
-        if cu is not None and cu["t"] is not None and t <= cu["t"]:  # the catch-up too
+        if changes and cu is not None and cu["t"] is not None and t <= cu["t"]:  # the catch-up too
             cu["rewind"] = t if cu["rewind"] is None else min(cu["rewind"], t)
         return True
 
@@ -231,8 +242,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
     # ------------------------------------------------------------- filtering
     def _segments(self, t0: float, t1: float):
         """Hold segments (durations s, body wrenches) from ``t0`` to ``t1``."""
-        ct, _ = self.aligner.commands_between(t0, t1)
-        ts = ct.tolist()
+        ts = self.aligner.switch_times(t0, t1)
         w = self._wrench
         cmd_all = self.aligner._cmd_t
         seg_w = []
@@ -249,7 +259,11 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         seg_dt = [ts[i + 1] - ts[i] for i in range(len(ts) - 1)]
         return seg_dt, seg_w
 
-    def _step(self, z, P, t_prev: float | None, t: float, meas, use: bool = True):
+    def _step(self, z, P, t_prev: float | None, t: float, meas, use: bool = True, k: int = 0):
+        """Predict from ``t_prev`` to ``t`` (s) and update with ``meas`` (x, y m, yaw rad), the
+        pose ``hist_t[k]``: its covariance is symmetrised on every 16th pose as the batch
+        filter does (:func:`estimator.filters.loop.run_filter`), so both give the same
+        numbers on the same data."""
         cfg = self.config.ekf
         if self.structure is not None:
             return self._step_structure(z, P, t_prev, t, meas, use)
@@ -260,7 +274,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
                 self._forget_motion(P, t - t_prev, z)
         nis = math.nan
         if use:
-            z, P, (nis, _) = ekf_update(z, P, meas, cfg, self._R)
+            z, P, (nis, _) = ekf_update(z, P, meas, cfg, self._R, (k & 15) == 0)
         return z, P, nis
 
     def _input_gap(self, gap) -> None:
@@ -311,21 +325,26 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
                 # a structure: no filter before the LS window's fit (see the class docstring)
                 self.hist_t.append(p.t)
                 self.hist_pose.append(meas)
+                self.hist_frame.append(p.frame)
                 self.t_last, self.frame_last = p.t, p.frame
                 self.counters.before_ls += 1
                 if self.recorder is not None:
                     self.recorder.pose(p.t, p.x, p.y, p.yaw)
                 n += 1
                 continue
+            k = len(self.hist_t)
             if self.z is None:
                 self._start_filter(meas)
-                self.z, self.P, self.last_nis = self._step(self.z, self.P, None, p.t, meas)
+                self.z, self.P, self.last_nis = self._step(self.z, self.P, None, p.t, meas, k=k)
             else:
-                self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, p.t, meas)
+                self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, p.t, meas,
+                                                           k=k)
             self.t_last = p.t
             self.frame_last = p.frame
+            self.rev_last = 0
             self.hist_t.append(p.t)
             self.hist_pose.append(meas)
+            self.hist_frame.append(p.frame)
             self.counters.updates += 1
             n += 1
             self._after_update(p.t, len(self.hist_t) - 1)

@@ -5,7 +5,9 @@ After every update of the live filter (:meth:`LiveHistory._after_update`) the es
 appends (t, m, sigma m, Izz, sigma Izz) to its ``history``, the NIS to a window of the last
 :data:`NIS_WINDOW` updates, and a checkpoint ``(pose t, index in hist_t, z, P)`` kept for
 ``rewind_s`` lab seconds. A command that arrives after poses it governs restores the
-checkpoint at or before it and re-filters the poses since (:meth:`LiveHistory._rewind`);
+checkpoint at or before it and re-filters the poses since (:meth:`LiveHistory._rewind`),
+each re-run estimate then carries its revision number (published again when every update
+is published);
 the ``ls-ekf`` catch-up keeps and uses its checkpoints the same way
 (:func:`checkpoint_at`, :func:`prune_checkpoints`). :attr:`LiveHistory.diverged` and
 :attr:`LiveHistory.inconsistent` are the batch EKF's tests on the recent NIS.
@@ -43,6 +45,35 @@ def _nis_limits() -> np.ndarray:
     return np.concatenate([[np.inf], np.maximum(4.0, chi2.ppf(0.999, 3 * n) / n)])
 
 
+class NisWindow(collections.deque):
+    """The last ``maxlen`` NIS values with their running sum (:meth:`total`): the mean for
+    every published estimate without summing the window each time."""
+
+    def __init__(self, maxlen: int) -> None:
+        super().__init__(maxlen=maxlen)
+        self._sum = 0.0
+        self._n = 0
+
+    def append(self, x: float) -> None:
+        if len(self) == self.maxlen:
+            self._sum -= self[0]
+        super().append(x)
+        self._sum += x
+        self._n += 1
+        if self._n % self.maxlen == 0:  # no drift of the running sum
+            self._sum = math.fsum(self)
+
+    def extend(self, xs) -> None:
+        for x in xs:
+            self.append(x)
+
+    def total(self) -> float:
+        """The sum of the window (summed again when an infinite value spoiled the running one)."""
+        if not math.isfinite(self._sum):
+            self._sum = sum(self)
+        return self._sum
+
+
 def history_entry(t: float, z: np.ndarray, P: np.ndarray) -> tuple[float, ...]:
     """One row of the estimate history: (t, mass kg, its sigma, Izz kg m^2, its sigma)."""
     return (t, float(z[6]), math.sqrt(max(P[6, 6], 0.0)),
@@ -74,7 +105,9 @@ class LiveHistory:
         self._ck: list[Checkpoint] = []
         """Checkpoints of the live filter within ``rewind_s``: (pose t, index in hist, z, P)."""
         self._rewind_t: float | None = None
-        self._nis_recent: collections.deque[float] = collections.deque(maxlen=NIS_WINDOW)
+        self._revs: dict[int, int] = {}
+        """Index in ``hist_t`` -> how many times a rewind re-ran that pose (re-runnable ones)."""
+        self._nis_recent = NisWindow(maxlen=NIS_WINDOW)
         _nis_limits()  # the chi-square limits now, not in the middle of a stream
 
     def _after_update(self, t: float, idx: int) -> None:
@@ -101,13 +134,23 @@ class LiveHistory:
         del self.history[len(self.history) - (len(self.hist_t) - 1 - idx):]
         self.z, self.P, self.t_last = z.copy(), P.copy(), t_prev
         n = 0
+        each = self.config.publish_rate_hz == 0
+        revs = self._revs
         for i in range(idx + 1, len(self.hist_t)):
             t = self.hist_t[i]
             self.z, self.P, self.last_nis = self._step(self.z, self.P, self.t_last, t,
-                                                       self.hist_pose[i])
+                                                       self.hist_pose[i], k=i)
             self.t_last = t
+            self.frame_last = self.hist_frame[i]
+            self.rev_last = revs[i] = revs.get(i, 0) + 1
             self._after_update(t, i)
+            if each:  # every estimate is published: each re-run one again, marked revised
+                self._publish(self._last_pub)
             n += 1
+        if len(revs) > 16 * CHECKPOINT_BLOCK and self._ck:  # only poses still re-runnable
+            oldest = self._ck[0][1]
+            for i in [i for i in revs if i < oldest]:
+                del revs[i]
         self.counters.rewinds += 1
         self.counters.rewind_updates += n
 
@@ -126,7 +169,7 @@ class LiveHistory:
 
     def _nis_recent_mean(self) -> float:
         nis = self._nis_recent
-        return sum(nis) / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
+        return nis.total() / len(nis) if len(nis) >= min(NIS_WINDOW, 20) else math.nan
 
     @property
     def inconsistent(self) -> bool:

@@ -49,6 +49,7 @@ class EstimateMessages:
             "nis": None if math.isnan(self.last_nis) else float(self.last_nis),
             "diverged": self.diverged,
             "inconsistent": self.inconsistent,
+            "rev": self.rev_last, "revised": self.rev_last > 0,
         }
         if self.structure is not None:
             out.update(self._com_keys())
@@ -72,6 +73,8 @@ class EstimateMessages:
                 msg["seq"] = self._seq
                 self.publish(msg)
             self.counters.estimates_published += 1
+            if self.rev_last:
+                self.counters.revised_published += 1
         except Exception:
             self.counters.publish_errors += 1
 
@@ -86,7 +89,8 @@ class EstimateMessages:
                             self.config.method, self.phase, z[6], sm, z[7], si, nm, tm, ni, ti,
                             *z[:6], *sg[:6], self.counters.updates, nis,
                             "true" if self.diverged else "false",
-                            "true" if self.inconsistent else "false")).encode()
+                            "true" if self.inconsistent else "false", self.rev_last,
+                            "true" if self.rev_last else "false")).encode()
 
     def stats(self) -> dict[str, Any]:
         d = self.counters.as_dict()

@@ -22,6 +22,7 @@ import concurrent.futures as cf
 import multiprocessing as mp
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,10 @@ import numpy as np
 from estimator.live import worker as live_worker
 from estimator.live.history import checkpoint_at, history_entry, prune_checkpoints
 from estimator.live.scan_job import scan_ls_job
+
+IDLE_SLICE_S = 0.005
+"""Longest stretch of catch-up in the live loop's idle time (host s): the loop's other
+duties (deadlines, console) wait at most this long."""
 
 
 class LsEkfRestart:
@@ -154,8 +159,19 @@ class LsEkfRestart:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
-    def _catch_up(self, block: bool) -> None:
-        """Re-filter buffered poses from the LS start for at most ``catchup_budget_s``.
+    def idle_catch_up(self, waiting: Callable[[], bool]) -> bool:
+        """Go on with the catch-up in the live loop's idle time: pose after pose until
+        ``waiting()`` says a message arrived (checked after each, the interpreter lock
+        released in between so that a receiving thread can queue it) or
+        :data:`IDLE_SLICE_S` passed. Returns whether there was a catch-up to go on with."""
+        if self._cu is None:
+            return False
+        self._catch_up(False, waiting)
+        return True
+
+    def _catch_up(self, block: bool, waiting: Callable[[], bool] | None = None) -> None:
+        """Re-filter buffered poses from the LS start for at most ``catchup_budget_s`` (with
+        ``waiting``: :meth:`idle_catch_up`).
 
         Keeps checkpoints over the last ``rewind_s`` like the live filter, so a late
         command rewinds the catch-up too, and the live filter can rewind after takeover.
@@ -177,17 +193,23 @@ class LsEkfRestart:
         n_win = cu["n_win"]
         hist_t, hist_pose = self.hist_t, self.hist_pose
         horizon = self.config.rewind_s
-        deadline = time.perf_counter() + self.config.catchup_budget_s
+        deadline = time.perf_counter() + (self.config.catchup_budget_s if waiting is None
+                                          else IDLE_SLICE_S)
         while i < len(hist_t):
             t = hist_t[i]
-            z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win)
+            z, P, _ = self._step(z, P, t_prev, t, hist_pose[i], reuse or i >= n_win, k=i)
             if horizon > 0 and t >= hist_t[-1] - horizon:
                 ck.append((t, i, z.copy(), P.copy()))
             t_prev = t
             i += 1
             self.counters.catchup_updates += 1
-            if not block and time.perf_counter() > deadline:
-                break
+            if not block:
+                if time.perf_counter() > deadline:
+                    break
+                if waiting is not None:
+                    time.sleep(0)  # the lock to a receiving thread that waits for it
+                    if waiting():
+                        break
         prune_checkpoints(ck, hist_t[-1] - horizon)
         cu.update(z=z, P=P, t=t_prev, i=i)
         if i >= len(hist_t):  # caught up with the live filter: take over

@@ -30,7 +30,8 @@ Estimate payload (JSON), schema ``tpods.estimate/1`` (:mod:`common.wire`)::
      "mass_sigma_noise_kg": .., "mass_sigma_thrust_kg": ..,
      "izz_sigma_noise_kgm2": .., "izz_sigma_thrust_kgm2": ..,
      "state": {"x": .., "y": .., "psi": .., "u": .., "v": .., "r": ..},
-     "state_sigma": {...}, "n_updates": 1499}
+     "state_sigma": {...}, "n_updates": 1499,
+     "rev": 0, "revised": false}  # rev n: the n-th re-run of this pose (a late command)
 """
 
 from __future__ import annotations

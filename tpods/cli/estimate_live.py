@@ -27,8 +27,10 @@ def register(est) -> None:
     p = command(
         est, "live", cmd_live, help="estimate mass and Izz live from Zenoh poses and commands",
         description="Subscribe to tpods/mocap/<body>/pose and tpods/<body>/cmd, align them (commands "
-                    "are a zero-order hold; a pose waits up to --max-wait-ms for a late command), "
-                    "run the EKF (or LS then EKF) pose by pose and publish tpods/<body>/estimate. "
+                    "are a zero-order hold; each pose is filtered as it arrives, and a command that "
+                    "arrives after poses it governs makes the filter re-run them), run the EKF (or "
+                    "LS then EKF) pose by pose and publish tpods/<body>/estimate (re-run estimates "
+                    "again, with rev > 0 and revised true). "
                     "With --out, what it saw is recorded as a run folder for `tpods estimate batch`.")
     p.add_argument("--body", default=None,
                    help="body name: its poses are tpods/mocap/<body>/pose (default tpods1; with "
@@ -53,9 +55,11 @@ def register(est) -> None:
     add_force(p)
     p.add_argument("--rate", type=nonneg_float, default=10.0, metavar="HZ",
                    help="estimate publish rate, Hz; 0 = after every pose update (default 10)")
-    p.add_argument("--max-wait-ms", type=nonneg_float, default=2.0, metavar="MS",
+    p.add_argument("--max-wait-ms", type=nonneg_float, default=0.0, metavar="MS",
                    help="longest a pose waits for a late command, ms, counted from the earlier of "
-                        "its capture and arrival times (default 2)")
+                        "its capture and arrival times (default 0: each pose is filtered as it "
+                        "arrives; a command that comes after poses it governs makes the filter "
+                        "re-run them and publish their estimates again, marked revised)")
     p.add_argument("--rewind-s", type=nonneg_float, default=2.0, metavar="S",
                    help="a command that arrives after the poses it governs, but at most S lab "
                         "seconds after its time, makes the filter re-run from before it "
@@ -87,7 +91,8 @@ def cmd_live(args: argparse.Namespace) -> int:
     from common.outputs import is_mcap, stream_file
     from common.thrust_table import load_thrust_table
     from estimator.live.recorder import record_streams
-    from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, keys, run_live
+    from estimator.live.recorder_process import RecorderProcess
+    from estimator.live.runtime import LiveConfig, LiveEstimator, keys, run_live
     from estimator.live.zenoh_run import command_keys
     from tpods.cli.estimate_ekf import _filter_config
 
@@ -131,7 +136,8 @@ def cmd_live(args: argparse.Namespace) -> int:
         log = McapProcessLog(stream_file(args.out, force=args.force),
                       meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     elif args.out is not None:
-        rec = LiveRecorder(stream_folder(args.out, force=args.force, command="tpods estimate live"), {
+        folder = stream_folder(args.out, force=args.force, command="tpods estimate live")
+        rec = RecorderProcess(folder, {
             "kind": "live-estimate", "software": f"tpods {tpods.__version__}",
             "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "body": args.body, "keys": k, "method": args.method,
@@ -143,7 +149,7 @@ def cmd_live(args: argparse.Namespace) -> int:
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
                          "sigma_meas": list(cfg.ekf.sigma_meas),
                          "underweight": cfg.ekf.underweight}},
-            structure=structure)
+            n_channels=structure.n_channels if structure is not None else 4, structure=structure)
         if args.mcap:
             log = McapProcessLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
@@ -168,7 +174,8 @@ def cmd_live(args: argparse.Namespace) -> int:
                       f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
                 res = run_live(session, est, stop=stop, duration_s=args.duration,
                                exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                               prefix=args.prefix, on_console=console.show)
+                               prefix=args.prefix, on_console=console.show,
+                               on_idle=tuple(r.idle for r in (rec, log) if r is not None))
                 status = res.status
             finally:
                 for s in subs:

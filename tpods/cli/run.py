@@ -65,6 +65,11 @@ def register(sub) -> None:
     add_duty_limits(p)
     p.add_argument("--heartbeat", type=positive_float, default=0.1, metavar="S",
                    help="re-announce the command in force after S s without one (default 0.1)")
+    p.add_argument("--announce-ahead", type=nonneg_float, default=0.0, metavar="S",
+                   help="publish each command S s before it is due, stamped with when it is due "
+                        "(the live estimator then never re-runs a pose for it; commands.csv keeps "
+                        "the measured switch times); default 0: after the switch, with its "
+                        "measured time")
     p.add_argument("--valves-baud", type=int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--prefix", default="tpods", help="key prefix (default tpods)")
     p.add_argument("--wait-subscriber", type=nonneg_float, default=0.0, metavar="S",
@@ -159,6 +164,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                 res = play_plan(plan, session, clock=clock, prefix=args.prefix,
                                 valves_baud=args.valves_baud, watchdog_ms=args.watchdog_ms,
                                 pwm_hz=args.pwm_hz, heartbeat_s=args.heartbeat,
+                                announce_ahead_s=args.announce_ahead,
                                 progress=not args.no_progress,
                                 wait_subscriber_s=args.wait_subscriber,
                                 on_info=lambda line: print(line, file=sys.stderr),

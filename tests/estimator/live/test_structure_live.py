@@ -17,6 +17,7 @@ from common.thrust_table import ThrustTable
 from common.wire import encode_command, encode_pose
 from estimator.estimate import FilterOptions, estimate_run
 from estimator.live.merge import ModuleMerger
+from estimator.live.revisions import latest_per_frame
 from estimator.live.runtime import LiveConfig, LiveEstimator, LiveRecorder, run_live
 from tests.support.net import wait_for
 from tpods.fixtures import FIXTURES_ROOT
@@ -179,13 +180,57 @@ def test_live_equals_batch_on_the_recorded_structure_run(recorded, batch_ls_ekf)
 
 def test_a_lagging_module_rewinds_the_fit_to_the_same_estimate(recorded, batch_ls_ekf):
     """The second module's messages arrive 30 ms after their time (after poses they
-    govern were released by the 2 ms wait): the merger emits each row when the second
+    govern were filtered on arrival): the merger emits each row when the second
     module's part arrives, the catch-up and the live filter re-filter from before it, and
     the estimate is the on-time stream's."""
     est, _ = _live(recorded, module_delay_s=0.03)
     c = est.summary()["counters"]
     assert c["align_cmds_late"] == 0 and c["align_cmds_rewound"] > 100
     _assert_equal_to_batch(est, batch_ls_ekf, sig_frac=1e-5)
+
+
+def test_module_commands_up_to_5_ms_late_revise_the_published_estimates(recorded):
+    """Every pose is filtered as it arrives; the poses a late module command governs are
+    re-run and their estimates published again (rev > 0); from the takeover of the LS start
+    on, every pose's estimate of the highest revision is the on-time stream's."""
+    def live(**kw):  # the window's fit and catch-up done before the next pose: deterministic
+        cfg = LiveConfig(method="ls-ekf", ls_window_s=WINDOW_S, publish_rate_hz=0,
+                         ls_in_process=False, catchup_budget_s=10.0)
+        est = LiveEstimator(ThrustTable.default(), cfg, recorded.structure.name,
+                            structure=recorded.structure)
+        published: list[dict] = []
+        est.publish = published.append
+        for kind, m in _messages(recorded, **kw):
+            if kind == "cmd":
+                est.command(m)
+                continue
+            est.pose(m, m["t"])
+            est.process(m["t"])
+            if est.phase == "ls-running":
+                est._ls_future.result()
+        est.finish()
+        return est, published
+
+    late, pub_late = live(module_delay_s=0.005)
+    ontime, pub_on = live()
+    c = late.summary()["counters"]
+    assert c["align_before_first_cmd"] == 0 and c["align_poses_out"] == len(recorded.pose_t)
+    assert c["updates"] > len(recorded.pose_t) // 2  # the live filter from the window's end
+    assert c["rewinds"] > 50 and c["revised_published"] > 50
+    assert ontime.summary()["counters"]["revised_published"] == 0
+    assert all(m["rev"] > 0 for m in pub_late if m["revised"])
+    a, b = latest_per_frame(pub_late), latest_per_frame(pub_on)
+    both = [f for f in b if f in a and b[f]["phase"] == a[f]["phase"] == "ls-ekf"]
+    assert len(both) > len(recorded.pose_t) // 3
+    for f in both:
+        for k in ("mass_kg", "izz_kgm2", "com_x_m", "com_y_m"):
+            assert a[f][k] == pytest.approx(b[f][k], rel=1e-9, abs=1e-12), (f, k)
+    first: dict[int, dict] = {}
+    for m in pub_late:
+        first.setdefault(m["frame"], m)
+    corrected = [f for f in both if first[f]["rev"] == 0 and a[f]["rev"] > 0
+                 and abs(first[f]["mass_kg"] - b[f]["mass_kg"]) > 1e-9 * b[f]["mass_kg"]]
+    assert len(corrected) > 20  # the first estimates were off; their revisions are not
 
 
 def test_the_recorded_folder_is_a_structure_run_batch_reads(recorded, tmp_path):
