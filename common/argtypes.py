@@ -205,3 +205,16 @@ def nearest(name: str, choices) -> str:
 
     close = difflib.get_close_matches(name.lower(), [c.lower() for c in choices], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def clock_offset_arg(text: str) -> str | float:
+    """``auto``, ``none`` or a number of ms (a float; finite)."""
+    if text.strip().lower() in ("auto", "none"):
+        return text.strip().lower()
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, none or a number of ms, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be auto, none or a finite number of ms, got {text!r}")
+    return v

@@ -132,6 +132,7 @@ class EstimateMessages:
         out.update(off.as_dict() if off is not None else
                    {"clock_offset_ms": None, "clock_offset_sigma_ms": None,
                     "clock_offset_windows": 0})
+        out.update(self.clock_apply.as_dict())
         out["counters"] = self.stats()
         return out
 
