@@ -24,6 +24,7 @@ def clock_offset_lines(summary: dict[str, Any], delay_sigma_s: float | None = No
     warn: list[str] = []
     off, sig = summary.get("clock_offset_ms"), summary.get("clock_offset_sigma_ms")
     given = summary.get("clock_offset_given_ms") or 0.0
+    info.extend(ping_lines(summary.get("clock_ping_player")))
     if off is None:
         if delay_sigma_s is not None and not given:
             c = summary.get("counters", {})
@@ -53,3 +54,16 @@ def clock_offset_lines(summary: dict[str, Any], delay_sigma_s: float | None = No
         warn.append(f"the mocap and player hosts' clocks differ by {off:+.1f} ms: {done}; "
                     "synchronise the hosts (NTP/PTP) before fitting a dead time")
     return info, warn
+
+
+def ping_lines(ping: dict[str, Any] | None) -> list[str]:
+    """The round-trip measurement of the player host's clock, one line (none if not asked)."""
+    if not ping or not ping.get("asked"):
+        return []
+    if ping.get("offset_ms") is None:
+        return [f"live: player host's clock by round trip: not measured ({ping['answered']} of "
+                f"{ping['asked']} queries on {ping['key']} answered; tpods run play answers them)"]
+    return [f"live: player host's clock minus this host's, by round trip: {ping['offset_ms']:+.2f} "
+            f"+/- {ping['sigma_ms']:.2f} ms (shortest round trip {ping['rtt_min_ms']:.2f} ms, "
+            f"{ping['kept']} of {ping['answered']} exchanges kept; where this host is the mocap "
+            "host, the offset above is minus it)"]

@@ -129,6 +129,8 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         self.clock_apply = OffsetApplier(enabled=self.config.clock_offset_auto)
         self._clock_windows = 0
         self.on_note: Callable[[str], None] | None = None
+        self.clock_ping: dict[str, Any] | None = None
+        """The round-trip measurement of the player host's clock (set by the caller)."""
         """Called once with a line when a measured clock offset is applied (stderr)."""
         self._wrench: dict[float, tuple[float, float, float]] = {}
         self.z: np.ndarray | None = None

@@ -133,6 +133,7 @@ class EstimateMessages:
                    {"clock_offset_ms": None, "clock_offset_sigma_ms": None,
                     "clock_offset_windows": 0})
         out.update(self.clock_apply.as_dict())
+        out["clock_ping_player"] = self.clock_ping
         out["counters"] = self.stats()
         return out
 

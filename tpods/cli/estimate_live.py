@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 from common.argtypes import clock_offset_arg, nonneg_float, positive_float
+from common.clock_ping import PingPoller, clock_key
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
@@ -173,9 +174,11 @@ def cmd_live(args: argparse.Namespace) -> int:
                 cmds = " + ".join(command_keys(k))
                 print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
                       f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
-                res = run_live(session, est, stop=stop, duration_s=args.duration,
-                               exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                               prefix=args.prefix, on_console=console.show)
+                with PingPoller(session, clock_key(args.body, args.prefix)) as ping:
+                    res = run_live(session, est, stop=stop, duration_s=args.duration,
+                                   exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
+                                   prefix=args.prefix, on_console=console.show)
+                est.clock_ping = ping.summary()
                 status = res.status
             finally:
                 for s in subs:
