@@ -3,8 +3,10 @@
 :class:`~estimator.live.clock_offset.OffsetMeter` measures the mocap host's clock minus
 the player's from the streams. :class:`OffsetApplier` decides, once, when that measurement
 has settled: at least ``min_windows`` windows, an offset clearly there (above
-``min_offset_s`` and ``k_sigma`` sigmas) and a sigma small against it (at most
-``rel_sigma`` of it). From then on every pose *arriving* is taken onto the player's clock
+``min_offset_s`` and ``k_sigma`` sigmas), a sigma small against it (at most
+``rel_sigma`` of it), and windows that agree (their spread, sigma times the square root of
+their number, at most ``max_spread_s``: the lower envelopes of a LAN agree to a fraction of
+a millisecond; streams stamped on a scaled lab clock drift within every window and do not). From then on every pose *arriving* is taken onto the player's clock
 by the offset too (the same path as a given offset); the poses already taken keep their
 times, so the filter is never re-run. A pose whose corrected time falls at or before the
 last pose taken before the change (the clocks' overlap, an offset of 20 ms at 100 Hz: two
@@ -35,6 +37,7 @@ class OffsetApplier:
     min_offset_s: float = MIN_OFFSET_S
     k_sigma: float = 5.0
     rel_sigma: float = 0.1
+    max_spread_s: float = 2e-3
     applied_s: float = 0.0
     """The offset applied (s, mocap clock minus the player's); 0 before the change."""
     at_t_s: float | None = None
@@ -57,7 +60,8 @@ class OffsetApplier:
             return False
         off = abs(est.offset_s)
         return (off >= self.min_offset_s and off >= self.k_sigma * est.sigma_s
-                and est.sigma_s <= self.rel_sigma * off)
+                and est.sigma_s <= self.rel_sigma * off
+                and est.sigma_s * math.sqrt(est.windows) <= self.max_spread_s)
 
     def consider(self, est: OffsetEstimate | None, arrival: float) -> None:
         """Apply ``est`` if not yet applied, enabled and settled."""
