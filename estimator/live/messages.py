@@ -92,6 +92,7 @@ class EstimateMessages:
         d = self.counters.as_dict()
         d.update({f"align_{k}": v for k, v in self.aligner.stats.as_dict().items()})
         d["pending"] = self.aligner.pending
+        d["clock_overlap_skipped"] = self.clock_apply.skipped
         if self.merger is not None:
             d.update({f"merge_{k}": v for k, v in self.merger.stats.as_dict().items()})
         return d
