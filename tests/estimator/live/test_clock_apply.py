@@ -49,3 +49,22 @@ def test_a_ping_is_reported_beside_the_envelope():
                                "kept": 5}}
     info, warn = clock_offset_lines(s)
     assert "round trip: +20.00" in info[0] and "-20.10" in info[1] and "differ by -20.1" in warn[0]
+
+
+def test_the_clock_offset_option_takes_auto_none_or_ms(capsys):
+    """``--clock-offset-ms``: auto, none or a finite number; anything else one line, exit 2."""
+    import argparse
+
+    import pytest
+
+    from common.argtypes import clock_offset_arg
+
+    assert clock_offset_arg("AUTO") == "auto" and clock_offset_arg("none") == "none"
+    assert clock_offset_arg("-19.5") == -19.5
+    for bad in ("soon", "nan", "inf"):
+        with pytest.raises(argparse.ArgumentTypeError, match="auto, none or a"):
+            clock_offset_arg(bad)
+    from tests.support.cli import main_rc
+
+    rc, _, err = main_rc(["estimate", "live", "--clock-offset-ms", "soon"], capsys)
+    assert rc == 2 and len(err) == 1 and "--clock-offset-ms" in err[0], err
