@@ -165,12 +165,7 @@ def key_values(text: str, keys: dict[str, str] | None = None) -> dict[str, float
         if k.lower() not in keys:
             raise argparse.ArgumentTypeError(f"unknown name {k!r}{nearest(k, keys)}; use "
                                              f"{', '.join(sorted(set(keys)))}")
-        try:
-            val = float(v)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a number: {v!r} (for {k})") from None
-        if not math.isfinite(val):
-            raise argparse.ArgumentTypeError(f"{k} must be finite")
+        val = _finite_float(v, f"not a number: {v!r} (for {k})", f"{k} must be finite")
         _check_range(keys[k.lower()], val)
         out[keys[k.lower()]] = val
     return out
@@ -205,3 +200,22 @@ def nearest(name: str, choices) -> str:
 
     close = difflib.get_close_matches(name.lower(), [c.lower() for c in choices], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _finite_float(text: str, not_number: str, not_finite: str) -> float:
+    """``float(text)``, finite, else an argparse error with the message given."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(not_number) from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(not_finite)
+    return v
+
+
+def clock_offset_arg(text: str) -> str | float:
+    """``auto``, ``none`` or a number of ms (a float; finite)."""
+    if text.strip().lower() in ("auto", "none"):
+        return text.strip().lower()
+    return _finite_float(text, f"must be auto, none or a number of ms, got {text!r}",
+                         f"must be auto, none or a finite number of ms, got {text!r}")

@@ -26,7 +26,7 @@ TOP_KEYS = ("vehicle", "thrusters", "valves", "supplies", "body")
 VEHICLE_KEYS = ("name",)
 THRUSTER_KEYS = ("name", "position_m", "direction", "force_n", "force_sigma_n", "thrust_table", "health",
                  "supply")
-VALVE_KEYS = ("delay_s", "rise_s")
+VALVE_KEYS = ("delay_s", "rise_s", "delay_sigma_s")
 SUPPLY_KEYS = ("drop_per_valve", "drop_sigma")
 DEFAULT_SUPPLY = "main"
 HEALTH_VERDICTS = ("ok", "weak", "dead", "reversed", "stuck-open")
@@ -68,10 +68,12 @@ class Thruster:
 
 @dataclass(frozen=True)
 class Valves:
-    """``[valves]``: known dead time ``delay_s`` and first-order rise ``rise_s``, s."""
+    """``[valves]``: known dead time ``delay_s`` and first-order rise ``rise_s``, s; the
+    1-sigma of ``delay_s``, ``delay_sigma_s`` (s; None: not stated)."""
 
     delay_s: float = 0.0
     rise_s: float = 0.0
+    delay_sigma_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -225,7 +227,9 @@ def vehicle_document(name: str, thrusters: tuple[Thruster, ...], valves: Valves,
             d["health"] = t.health
         out["thrusters"].append(d)
     if valves != Valves():
-        out["valves"] = {"delay_s": valves.delay_s, "rise_s": valves.rise_s}
+        out["valves"] = {"delay_s": valves.delay_s, "rise_s": valves.rise_s,
+                         **({} if valves.delay_sigma_s is None
+                            else {"delay_sigma_s": valves.delay_sigma_s})}
     kept = {s.name: {"drop_per_valve": s.drop_per_valve,
                      **({} if s.drop_sigma is None else {"drop_sigma": s.drop_sigma})}
             for s in supplies if s.drop_per_valve or s.drop_sigma is not None}

@@ -178,6 +178,7 @@ def play_plan(plan: PlayPlan, session: Any, *, clock: Any, prefix: str = "tpods"
     import zenoh
 
     from bench.valves import ValveController
+    from common.clock_ping import clock_key, serve_clock
     from common.zenoh_net import wait_matching
     from tpods.player import cmd_key, play
 
@@ -186,6 +187,8 @@ def play_plan(plan: PlayPlan, session: Any, *, clock: Any, prefix: str = "tpods"
     pubs = {n: session.declare_publisher(
         cmd_key(n, prefix), encoding=zenoh.Encoding("application/json"), express=True,
         congestion_control=zenoh.CongestionControl.BLOCK) for n in names}
+    # the player host's clock, for the estimator's round-trip measurement (common/clock_ping.py)
+    clock_q = serve_clock(session, clock_key(plan.body, prefix))
     what = (cmd_key(plan.body, prefix) if plan.structure is None
             else f"{prefix.strip('/')}/<module>/cmd")
     if plan.structure is None and plan.vehicle is not None and plan.out is not None:
@@ -219,6 +222,6 @@ def play_plan(plan: PlayPlan, session: Any, *, clock: Any, prefix: str = "tpods"
             return play(ctrls, plan.cmd_t, plan.duty,
                         publish={n: p.put for n, p in pubs.items()}, **common)
     finally:
-        for p in pubs.values():
+        for p in [*pubs.values(), clock_q]:
             with contextlib.suppress(Exception):
                 p.undeclare()

@@ -47,6 +47,9 @@ class LiveConfig:
     rewind_s: float = DEFAULT_REWIND_S
     clock_offset_s: float = 0.0
     """The mocap host's clock minus the player host's (s), taken off every pose time."""
+    clock_offset_auto: bool = False
+    """Apply the measured offset once it has settled (:mod:`estimator.live.clock_apply`);
+    the command line's default (``--clock-offset-ms auto``)."""
 
     def __post_init__(self) -> None:
         if self.method not in LIVE_METHODS:

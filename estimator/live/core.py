@@ -41,6 +41,7 @@ import numpy as np
 from common.errors import UserError
 from estimator.filters.kernels import ekf_predict, ekf_update
 from estimator.live.align import LiveAligner
+from estimator.live.clock_apply import OffsetApplier
 from estimator.live.clock_offset import OffsetMeter
 from estimator.live.config import (
     DEFAULT_MAX_WAIT_S,
@@ -126,6 +127,12 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         self.counters = LiveCounters()
         self.gaps = GapTracker(csv_path=None if recorder is None else recorder.out / "gaps.csv")
         self.clock_meter = OffsetMeter()
+        self.clock_apply = OffsetApplier(enabled=self.config.clock_offset_auto)
+        self._clock_windows = 0
+        self.on_note: Callable[[str], None] | None = None
+        self.clock_ping: dict[str, Any] | None = None
+        """The round-trip measurement of the player host's clock (set by the caller)."""
+        """Called once with a line when a measured clock offset is applied (stderr)."""
         self._wrench: dict[float, tuple[float, float, float]] = {}
         self.z: np.ndarray | None = None
         self.P: np.ndarray | None = None
@@ -171,6 +178,7 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
                                           d["t"] if arrival is None else arrival))
         if arrival is not None:
             self.clock_meter.command(d["t"], arrival)
+            self.clock_apply.command(d["t"], arrival)
         return self._command(d["t"], d["duty"], d.get("kind"))
 
     def _command(self, t: float, duty, kind: str | None) -> bool:
@@ -222,13 +230,28 @@ class LiveEstimator(LsEkfRestart, LiveHistory, StructureFilter, ThrustPart, Esti
         if d.get("body") not in (None, self.body):
             self.counters.other_body += 1
             return False
-        t = d["t"] - self.config.clock_offset_s  # on the player's clock
+        t0 = d["t"] - self.config.clock_offset_s  # on the player's clock (as given)
+        self.clock_meter.pose(t0, arrival)
+        self._clock_settle(arrival)
+        t, in_overlap = self.clock_apply.pose_time(t0, arrival)  # (as measured, once applied)
         self.gaps.pose(d["frame"], t, arrival)
-        self.clock_meter.pose(t, arrival)
+        if in_overlap:
+            return False
         return self.aligner.push_pose(d["frame"], t, d["x"] if d["x"] is not None else math.nan,
                                       d["y"] if d["y"] is not None else math.nan,
                                       d["yaw"] if d["yaw"] is not None else math.nan,
                                       occluded=bool(d["occluded"]), arrival=min(t, arrival))
+
+    def _clock_settle(self, arrival: float) -> None:
+        """A new window of the clock meter: apply its offset once it has settled
+        (:mod:`estimator.live.clock_apply`), and say so once."""
+        n = len(self.clock_meter.samples)
+        if n == self._clock_windows:
+            return
+        self._clock_windows = n
+        self.clock_apply.consider(self.clock_meter.estimate(), arrival)
+        if self.clock_apply.take_news() and self.on_note is not None:
+            self.on_note(self.clock_apply.message())
 
     def next_deadline(self) -> float | None:
         """Host time by which :meth:`process` must run again (a pose's wait ends, or a

@@ -96,6 +96,7 @@ class EstimateMessages:
         d = self.counters.as_dict()
         d.update({f"align_{k}": v for k, v in self.aligner.stats.as_dict().items()})
         d["pending"] = self.aligner.pending
+        d["clock_overlap_skipped"] = self.clock_apply.skipped
         if self.merger is not None:
             d.update({f"merge_{k}": v for k, v in self.merger.stats.as_dict().items()})
         return d
@@ -136,6 +137,8 @@ class EstimateMessages:
         out.update(off.as_dict() if off is not None else
                    {"clock_offset_ms": None, "clock_offset_sigma_ms": None,
                     "clock_offset_windows": 0})
+        out.update(self.clock_apply.as_dict())
+        out["clock_ping_player"] = self.clock_ping
         out["counters"] = self.stats()
         return out
 

@@ -146,6 +146,16 @@ def test_write_and_load_round_trip(tmp_path):
         folder_layout(tmp_path)
 
 
+def test_the_valve_delay_sigma_is_read_and_written_back(tmp_path):
+    """``[valves] delay_sigma_s``: the stated 1-sigma of the delay (the live estimator warns
+    against an unmeasured clock offset larger than it)."""
+    v = Vehicle.load(EIGHT)
+    v = dataclasses.replace(v, valves=dataclasses.replace(v.valves, delay_s=0.02,
+                                                          delay_sigma_s=0.002))
+    v2 = Vehicle.load(v.write(tmp_path))
+    assert v2.valves.delay_sigma_s == 0.002 and v2.valves == v.valves
+
+
 def test_valve_delay_shifts_every_switch(tmp_path):
     v = dataclasses.replace(Vehicle.load(EIGHT), valves=dataclasses.replace(Vehicle.load(EIGHT).valves,
                                                                              delay_s=0.03))

@@ -58,7 +58,7 @@ def check_whole(r: FlightResult) -> None:
     assert len(rows) == c["align_poses_out"] == c["updates"]
     assert (c["align_poses_out"] + c["align_before_first_cmd"] + c["align_occluded"]
             + c["align_duplicates"] + c["align_too_old"] + c["align_non_finite"] + c["pending"]
-            == c["poses_rx"])
+            + c["clock_overlap_skipped"] == c["poses_rx"])
     run = json.loads((r.live_dir / "run.json").read_text())
     assert run["recorded"]["poses"] == len(rows)
     assert run["final"]["gaps"] == r.summary["gaps"]  # the output's and the recording's

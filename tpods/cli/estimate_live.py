@@ -10,7 +10,8 @@ import sys
 import threading
 from pathlib import Path
 
-from common.argtypes import nonneg_float, positive_float
+from common.argtypes import clock_offset_arg, nonneg_float, positive_float
+from common.clock_ping import PingPoller, clock_key
 from common.errors import UserError
 from common.outputs import add_force, stream_folder
 from common.zenoh_net import add_zenoh_options
@@ -69,9 +70,12 @@ def register(est) -> None:
                         "commands and poses are taken in first (and recorded again in --out, "
                         "another folder), then the live stream; the time it was down is "
                         "named as a gap")
-    p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
-                   help="the mocap host's clock minus the player host's, ms, taken off every "
-                        "pose time before use (default 0; the offset left is measured and "
+    p.add_argument("--clock-offset-ms", type=clock_offset_arg, default="auto",
+                   metavar="auto|none|MS",
+                   help="the mocap host's clock minus the player host's: auto (default) "
+                        "measures it from the streams and, once settled, takes it off every "
+                        "later pose time; none applies nothing (it is still measured); MS "
+                        "takes MS ms off every pose time (the offset left is measured and "
                         "reported)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
@@ -125,7 +129,9 @@ def cmd_live(args: argparse.Namespace) -> int:
                      ls_start=args.ls_start, max_wait_s=args.max_wait_ms * 1e-3,
                      publish_rate_hz=args.rate, ls_in_process=True, rewind_s=args.rewind_s,
                      n_channels=structure.n_channels if is_vehicle else 4,
-                     clock_offset_s=args.clock_offset_ms * 1e-3)
+                     clock_offset_s=(args.clock_offset_ms if isinstance(args.clock_offset_ms, float)
+                                     else 0.0) * 1e-3,
+                     clock_offset_auto=args.clock_offset_ms == "auto")
     k = keys(args.body, args.mocap_prefix, args.prefix,
              [m.name for m in structure.modules] if structure is not None and not is_vehicle
              else None)
@@ -144,6 +150,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             "thrust_table": args.thrust_table or "built-in Table 2",
             "settings": {"max_wait_s": cfg.max_wait_s, "rewind_s": cfg.rewind_s,
                          "clock_offset_s": cfg.clock_offset_s,
+                         "clock_offset_auto": cfg.clock_offset_auto,
                          "publish_rate_hz": cfg.publish_rate_hz,
                          "ls_window_s": cfg.ls_window_s, "ls_start": cfg.ls_start,
                          "q_psd": list(cfg.ekf.q_psd), "sigma0": list(cfg.ekf.sigma0),
@@ -154,6 +161,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             log = McapProcessLog(Path(args.out) / "recording.mcap",
                           meta={"command": "tpods estimate live", "body": args.body, "keys": k})
     est = LiveEstimator(table, cfg, args.body, recorder=rec, structure=structure)
+    est.on_note = lambda line: print(line, file=sys.stderr)
     if args.resume is not None:
         resumed = _resume(est, args)
         if rec is not None:
@@ -172,10 +180,12 @@ def cmd_live(args: argparse.Namespace) -> int:
                 cmds = " + ".join(command_keys(k))
                 print(f"live: {k['pose']} + {cmds} -> {k['estimate']} ({args.method}, "
                       f"thrust table {args.thrust_table or 'Table 2'})", file=sys.stderr)
-                res = run_live(session, est, stop=stop, duration_s=args.duration,
-                               exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
-                               prefix=args.prefix, on_console=console.show,
-                               on_idle=tuple(r.idle for r in (rec, log) if r is not None))
+                with PingPoller(session, clock_key(args.body, args.prefix)) as ping:
+                    res = run_live(session, est, stop=stop, duration_s=args.duration,
+                                   exit_on_end=args.exit_on_end, mocap_prefix=args.mocap_prefix,
+                                   prefix=args.prefix, on_console=console.show,
+                                   on_idle=tuple(r.idle for r in (rec, log) if r is not None))
+                est.clock_ping = ping.summary()
                 status = res.status
             finally:
                 for s in subs:
@@ -211,7 +221,14 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     for line in gap_warnings(est.gaps.rows(), est.aligner.first_command_t):  # never bridged silently
         print(f"tpods: warning: {line}", file=sys.stderr)
-    _clock_offset_lines(summary)
+    from estimator.live.clock_report import clock_offset_lines
+
+    valves = getattr(getattr(structure, "vehicle", None), "valves", None)
+    info, warns = clock_offset_lines(summary, getattr(valves, "delay_sigma_s", None))
+    for line in info:
+        print(line, file=sys.stderr)
+    for line in warns:
+        print(f"tpods: warning: {line}", file=sys.stderr)
     if not summary.get("thrust_uncertainty", {}).get("included", True):
         print(f"tpods: warning: {summary['thrust_uncertainty']['note']}", file=sys.stderr)
     if args.json:
@@ -260,29 +277,6 @@ def nothing_received(c: dict, k: dict, body: str) -> str:
     return (f"no estimate: received {c['poses_rx']} poses and {c['cmds_rx']} commands on {cmds}, "
             "none the filter could pair (it needs the commands in time with the poses): is "
             f"`tpods run play` publishing for body {body!r} (--prefix), on the same clock?")
-
-
-def _clock_offset_lines(summary: dict) -> None:
-    """The measured offset of the mocap host's clock against the player's (stderr), and a
-    warning when it is clearly there: it shifts every pose against the commands exactly as
-    a valve dead time would."""
-    off, sig = summary.get("clock_offset_ms"), summary.get("clock_offset_sigma_ms")
-    if off is None:
-        return
-    print(f"live: clock offset, mocap host minus player host{_given(summary)}: "
-          f"{off:+.2f} +/- {sig:.2f} ms "
-          f"(from the lower envelopes of the pose and command delays, "
-          f"{summary['clock_offset_windows']} windows of 1 s)", file=sys.stderr)
-    if abs(off) > max(1.0, 3.0 * sig):
-        print(f"tpods: warning: the mocap and player hosts' clocks differ by {off:+.1f} ms: "
-              "every pose is shifted against the commands as by a valve dead time of that "
-              "size; synchronise the hosts (NTP/PTP) before fitting a dead time",
-              file=sys.stderr)
-
-
-def _given(summary: dict) -> str:
-    g = summary.get("clock_offset_given_ms") or 0.0
-    return f", after the {g:+g} ms given" if g else ""
 
 
 def _resume(est, args) -> dict:
