@@ -245,6 +245,7 @@ def read_run(path: str | Path, structure: Structure | Vehicle | str | Path | Non
             raise UserError(f"{meta_file}: must hold a JSON object")
         _check_truth(meta_file, meta.get("truth"))
         warn_if_partial(path, meta)
+        warn_if_mixed_clock(path, meta)
     else:
         warn_if_partial(path)  # a body folder of a mocap recording
     frame = None
@@ -336,6 +337,28 @@ def warn_if_partial(path: str | Path, meta: Any = None, *, source: str | Path | 
     print(f"tpods: warning: {path} is a partial run ({src} says status {status!r}: {why}); "
           "reading what it holds", file=sys.stderr)
     return status
+
+
+def warn_if_mixed_clock(path: str | Path, meta: Any) -> str | None:
+    """Print one warning line on stderr if the live estimator that recorded the run applied
+    a measured clock offset part-way through (run.json ``final.clock_offset_applied``): the
+    poses before that moment keep the mocap host's clock, those after are corrected. Returns
+    the line (None: nothing to say)."""
+    final = meta.get("final") if isinstance(meta, dict) else None
+    applied = final.get("clock_offset_applied") if isinstance(final, dict) else None
+    if not isinstance(applied, dict):
+        return None
+    try:
+        offset_ms = float(applied["offset_ms"])
+        at = float(applied["from_pose_t_s"]) - float(meta.get("t0_lab") or 0.0)
+    except (KeyError, TypeError, ValueError):
+        return None
+    line = (f"tpods: warning: {path}: the live estimator applied a clock offset of "
+            f"{offset_ms:+.2f} ms to the poses from t = {at:.3f} s on; the poses before keep "
+            f"the mocap host's clock (a step of {abs(offset_ms):.2f} ms in the pose times): "
+            f"fit either side alone (--window 0:{at:.3f} or --window {at:.3f}:END)")
+    print(line, file=sys.stderr)
+    return line
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, values: np.ndarray) -> None:

@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from common.runfolder import warn_if_mixed_clock
 from common.thrust_table import ThrustTable
 from estimator.live.config import LiveConfig
 from estimator.live.core import LiveEstimator
@@ -85,6 +86,11 @@ def test_a_settled_offset_is_applied_once_and_the_residual_reported(tmp_path):
     assert not s["diverged"] and abs(s["mass_kg"] - 2.268) < 5 * s["mass_sigma_kg"], s
     meta = json.loads((tmp_path / "auto" / "run.json").read_text())
     assert meta["final"]["clock_offset_applied"]["offset_ms"] == a["offset_ms"]
+    # reading the recording says that its pose times step where the offset was applied
+    at = a["from_pose_t_s"] - meta["t0_lab"]
+    line = warn_if_mixed_clock(tmp_path / "auto", meta)
+    assert line is not None and f"{a['offset_ms']:+.2f} ms" in line and f"--window 0:{at:.3f}" in line
+    assert warn_if_mixed_clock(tmp_path / "auto", {"final": {"clock_offset_applied": None}}) is None
 
 
 def test_no_offset_nothing_applied(tmp_path):
