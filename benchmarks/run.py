@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out or ("runs/bench-long.json" if args.long else "runs/bench.json"))
     status = _report(rows, failed, cases, time.monotonic() - t_start, out)
     if not args.k:  # a whole run (not one case): docs/bench.md from this report
-        from benchmarks.bench_page import write_page
+        from benchmarks.page import write_page
         print(f"page written to {write_page(out.with_name('bench.json'))}")
     return status
 

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
-from benchmarks.bench_page import GENERATED_NOTE, render, write_page
+from benchmarks.page import GENERATED_NOTE, render, write_page
 
 BENCH = {
     "machine": {"python": "3.11.7", "platform": "Linux-x", "cpus": 2,
@@ -44,3 +45,13 @@ def test_write_page_reads_the_long_report_beside_it(tmp_path):
     text = out.read_text()
     assert "### The long cases (`make bench-long`)" in text
     assert "1 case(s) crashed: bench_sweep" in text
+
+
+def test_every_bench_module_is_a_case():
+    """``make bench`` runs every ``benchmarks/bench_*.py`` as a case: each must have ``run()``
+    (a helper named bench_* would crash the bench)."""
+    import ast
+
+    for f in sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("bench_*.py")):
+        names = {n.name for n in ast.parse(f.read_text()).body if isinstance(n, ast.FunctionDef)}
+        assert "run" in names, f"{f.name} has no run(): not a bench case"
