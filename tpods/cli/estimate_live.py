@@ -70,13 +70,14 @@ def register(est) -> None:
                         "commands and poses are taken in first (and recorded again in --out, "
                         "another folder), then the live stream; the time it was down is "
                         "named as a gap")
-    p.add_argument("--clock-offset-ms", type=clock_offset_arg, default="auto",
+    p.add_argument("--clock-offset-ms", type=clock_offset_arg, default="none",
                    metavar="auto|none|MS",
-                   help="the mocap host's clock minus the player host's: auto (default) "
-                        "measures it from the streams and, once settled, takes it off every "
-                        "later pose time; none applies nothing (it is still measured); MS "
-                        "takes MS ms off every pose time (the offset left is measured and "
-                        "reported)")
+                   help="the mocap host's clock minus the player host's: none (default) "
+                        "applies nothing but measures it from the streams and reports it; auto "
+                        "also takes the measured offset, once settled, off every later pose "
+                        "time (the measurement cannot tell an offset from unequal path delays: "
+                        "on one host it reads a few ms); MS takes MS ms off every pose time "
+                        "(the offset left is measured and reported)")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: Ctrl-C / SIGTERM)")
     p.add_argument("--exit-on-end", action="store_true",

@@ -68,3 +68,13 @@ def test_the_clock_offset_option_takes_auto_none_or_ms(capsys):
 
     rc, _, err = main_rc(["estimate", "live", "--clock-offset-ms", "soon"], capsys)
     assert rc == 2 and len(err) == 1 and "--clock-offset-ms" in err[0], err
+
+
+def test_a_measured_offset_is_applied_only_when_asked():
+    """The envelopes cannot tell an offset from unequal path delays (a one-host demo reads a
+    few ms), so ``estimate live`` applies nothing unless given ``auto`` or ``MS``."""
+    from estimator.live.config import LiveConfig
+    from tpods.cli import build_parser
+
+    args = build_parser().parse_args(["estimate", "live"])
+    assert args.clock_offset_ms == "none" and LiveConfig().clock_offset_auto is False
