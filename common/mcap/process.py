@@ -26,17 +26,15 @@ schemas, sequences, times, ``tpods`` and ``tpods.end`` metadata.
 from __future__ import annotations
 
 import multiprocessing as mp
-import threading
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
 from common.errors import UserError
+from common.process_feeder import CLOSE_TIMEOUT_S, BatchFeeder
 
 FEED_EVERY_S = 0.02
 """The caller's queue goes to the writer process at this period."""
-CLOSE_TIMEOUT_S = 60.0
 
 
 def _writer_main(path: str, meta: dict[str, Any], conn, flush_every_s: float) -> None:
@@ -96,20 +94,13 @@ class McapProcessLog:
         self.counters: dict[str, int] = {"messages": 0, "raw": 0}
         self.closed = False
         self._keys: set[str] = set()
-        self._pending: deque[tuple[str, bytes, int, int | None]] = deque()
         ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
+        conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_writer_main, name="mcap-writer", daemon=True,
                                  args=(str(self.path), meta or {}, child, flush_every_s))
         self._proc.start()
         child.close()
-        self._lock = threading.Lock()  # one sender on the pipe at a time
-        self._stop = threading.Event()
-        self._dead = False
-        self._last_feed = time.monotonic()
-        self._wake = threading.Event()
-        self._feeder = threading.Thread(target=self._feed_loop, name="mcap-feed", daemon=True)
-        self._feeder.start()
+        self._feed = BatchFeeder(conn, self._proc, "mcap-feed", FEED_EVERY_S)
 
     @property
     def topics(self) -> set[str]:
@@ -122,50 +113,16 @@ class McapProcessLog:
         if log_time_ns is None:
             log_time_ns = time.time_ns()
         self._keys.add(key)
-        self._pending.append((key, bytes(payload), log_time_ns, publish_time_ns))  # atomic
-
-    def _send_pending(self) -> None:
-        self._last_feed = time.monotonic()
-        pending = self._pending
-        batch = []
-        while pending:
-            batch.append(pending.popleft())
-        if not batch or self._dead:
-            return
-        try:
-            self._conn.send(("batch", batch, time.monotonic()))
-        except (OSError, ValueError):  # the writer is gone: counted, said at close
-            self._dead = True
-            self.counters["write_errors"] = self.counters.get("write_errors", 0) + len(batch)
+        self._feed.queue.append((key, bytes(payload), log_time_ns, publish_time_ns))  # atomic
 
     def idle(self) -> None:
-        """The caller's loop is idle (a live estimator between two poses): wake the feeder
-        thread if the last hand-over is :data:`FEED_EVERY_S` old (it pickles and writes:
-        a full pipe blocks it, never the caller)."""
-        if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._pending:
-            self._wake.set()
-
-    def _feed_loop(self) -> None:
-        while not self._stop.is_set():
-            woke = self._wake.wait(FEED_EVERY_S)
-            self._wake.clear()
-            if self._stop.is_set():
-                break
-            if woke or time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
-                with self._lock:
-                    self._send_pending()
+        """The caller's loop is idle (a live estimator between two poses): the feeder
+        thread may hand the queue over now (:meth:`common.process_feeder.BatchFeeder.idle`)."""
+        self._feed.idle()
 
     def flush(self) -> None:
         """Hand everything queued to the writer and wait until it is in the file."""
-        with self._lock:
-            self._send_pending()
-            if not self._dead:
-                try:
-                    self._conn.send(("flush",))
-                    if self._conn.poll(CLOSE_TIMEOUT_S):
-                        self._conn.recv()
-                except (OSError, EOFError):
-                    self._dead = True
+        self._feed.ask(("flush",), CLOSE_TIMEOUT_S)
 
     def close(self, status: str = "complete", extra: dict[str, Any] | None = None) -> None:
         """Hand over what is queued, let the writer write the ``tpods.end`` metadata, the
@@ -173,24 +130,9 @@ class McapProcessLog:
         if self.closed:
             return
         self.closed = True
-        self._stop.set()
-        self._wake.set()
-        self._feeder.join(timeout=5.0)
-        with self._lock:
-            self._send_pending()
-            reply = None
-            if not self._dead:
-                try:
-                    self._conn.send(("close", status, extra or {}))
-                    if self._conn.poll(CLOSE_TIMEOUT_S):
-                        reply = self._conn.recv()
-                except (OSError, EOFError):
-                    reply = None
-            self._conn.close()
-        self._proc.join(CLOSE_TIMEOUT_S)
-        if self._proc.is_alive():
-            self._proc.kill()
-            self._proc.join(5.0)
+        reply = self._feed.finish(status, extra)
+        if self._feed.lost:
+            self.counters["write_errors"] = self.counters.get("write_errors", 0) + self._feed.lost
         if reply is None or reply[0] != "closed":
             raise UserError(f"{self.path}: the MCAP writer process ended early (exit code "
                             f"{self._proc.exitcode}); the file holds what it wrote before")

@@ -31,18 +31,15 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import signal
-import threading
-import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
 from common.errors import UserError
 from common.lowprio import LagGuard, background
+from common.process_feeder import BatchFeeder
 
 FEED_EVERY_S = 0.02
 """The calls queued by the estimator go to the recording process at this period, s."""
-CLOSE_TIMEOUT_S = 60.0
 
 
 def check_folder(out: str | Path) -> Path:
@@ -111,23 +108,19 @@ class RecorderProcess:
         self.out = check_folder(out)
         self.counts: dict[str, int] = {}
         self.closed = False
-        self._calls: deque[tuple[str, tuple]] = deque()
         ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
+        conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_recorder_main, name="live-recorder", daemon=True,
                                  args=(str(self.out), dict(meta), n_channels, structure, child))
         self._proc.start()
         child.close()
-        self._lock = threading.Lock()  # one sender on the pipe at a time
-        self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._dead = False
-        self._last_feed = time.monotonic()
-        self.lost_calls = 0
+        self._feed = BatchFeeder(conn, self._proc, "recorder-feed", FEED_EVERY_S)
+        self._calls = self._feed.queue
+
+    @property
+    def lost_calls(self) -> int:
         """Calls that could not be handed over (the process had died)."""
-        self._feeder = threading.Thread(target=self._feed_loop, name="recorder-feed",
-                                        daemon=True)
-        self._feeder.start()
+        return self._feed.lost
 
     # the estimator's calls: appended, nothing else (deque.append is atomic)
     def command(self, t: float, duty) -> None:
@@ -148,42 +141,13 @@ class RecorderProcess:
     def seal(self) -> None:
         """The data are whole (:meth:`LiveRecorder.seal`): handed over at once."""
         self._calls.append(("seal", ()))
-        with self._lock:
-            self._send()
-
-    # hand-over
-    def _send(self) -> None:
-        self._last_feed = time.monotonic()
-        queued = self._calls
-        calls = []
-        while queued:
-            calls.append(queued.popleft())
-        if not calls:
-            return
-        if self._dead:
-            self.lost_calls += len(calls)
-            return
-        try:
-            self._conn.send(("batch", calls, time.monotonic()))
-        except (OSError, ValueError):  # the process is gone: counted, said at close
-            self._dead = True
-            self.lost_calls += len(calls)
+        with self._feed.lock:
+            self._feed.send_locked()
 
     def idle(self) -> None:
-        """The caller's loop is idle: wake the feeder thread if the last hand-over is
-        :data:`FEED_EVERY_S` old (it pickles and writes; the loop never waits for a pipe)."""
-        if time.monotonic() - self._last_feed >= FEED_EVERY_S and self._calls:
-            self._wake.set()
-
-    def _feed_loop(self) -> None:
-        while not self._stop.is_set():
-            woke = self._wake.wait(FEED_EVERY_S)
-            self._wake.clear()
-            if self._stop.is_set():
-                break
-            if woke or time.monotonic() - self._last_feed >= 1.5 * FEED_EVERY_S:
-                with self._lock:
-                    self._send()
+        """The caller's loop is idle: the feeder thread may hand the calls over now
+        (:meth:`common.process_feeder.BatchFeeder.idle`; the loop never waits for a pipe)."""
+        self._feed.idle()
 
     def close(self, status: str, extra: dict[str, Any] | None = None) -> None:
         """Hand over what is queued, close the folder with ``status`` and wait for it;
@@ -191,24 +155,7 @@ class RecorderProcess:
         if self.closed:
             return
         self.closed = True
-        self._stop.set()
-        self._wake.set()
-        self._feeder.join(timeout=5.0)
-        reply = None
-        with self._lock:
-            self._send()
-            if not self._dead:
-                try:
-                    self._conn.send(("close", status, extra or {}))
-                    if self._conn.poll(CLOSE_TIMEOUT_S):
-                        reply = self._conn.recv()
-                except (OSError, EOFError):
-                    reply = None
-            self._conn.close()
-        self._proc.join(CLOSE_TIMEOUT_S)
-        if self._proc.is_alive():
-            self._proc.kill()
-            self._proc.join(5.0)
+        reply = self._feed.finish(status, extra)
         if reply is None or reply[0] != "closed":
             raise UserError(f"{self.out}: the recording process ended early (exit code "
                             f"{self._proc.exitcode}); the folder holds what it wrote before")
