@@ -132,7 +132,8 @@ def serve_router(args: Any, stop: threading.Event, *,
                         locators=router_locators(session) or configured_endpoints(args))
         if on_ready is not None:
             on_ready(run)
-        known: set[str] = set()
+        known: dict[str, str] = {}  # zid -> its description
+        seen: dict[str, str] = {}
         t_end = None if duration_s is None else t0 + duration_s
         while not stop.is_set():
             wait = poll_s if t_end is None else min(poll_s, t_end - time.monotonic())
@@ -140,10 +141,16 @@ def serve_router(args: Any, stop: threading.Event, *,
                 break
             stop.wait(wait)
             now = _connected(session)
-            if now != known:
-                run.peers_seen |= now
+            # by zid: a poll the admin space did not answer in time names the same session
+            # by its zid alone, which must not count as a second session
+            for zid, desc in now.items():
+                if desc != zid or zid not in seen:
+                    seen[zid] = desc
+            run.peers_seen = set(seen.values())
+            if now.keys() != known.keys():
                 if on_peers is not None:
-                    on_peers(now - known, known - now)
+                    on_peers({now[z] for z in now.keys() - known.keys()},
+                             {known[z] for z in known.keys() - now.keys()})
                 known = now
         run.elapsed_s = time.monotonic() - t0
         return run
@@ -151,19 +158,18 @@ def serve_router(args: Any, stop: threading.Event, *,
         session.close()
 
 
-def _connected(session, timeout_s: float = 1.0) -> set[str]:
-    """The sessions this router is connected to, each as ``ZID (KIND from ADDRESS)``, from
-    its admin space; the peers' zids alone when the admin space does not answer."""
-    out: set[str] = set()
+def _connected(session, timeout_s: float = 1.0) -> dict[str, str]:
+    """The sessions this router is connected to: zid -> ``ZID (KIND from ADDRESS)`` from its
+    admin space, or zid -> zid when the admin space does not answer."""
     info = _router_info(session, timeout_s)
     if info is not None:
+        out = {}
         for s in info.get("sessions", []):
             links = s.get("links") or [{}]
-            out.add(f"{s.get('peer')} ({s.get('whatami', '?')} from "
-                    f"{links[0].get('dst', '?')})")
+            zid = str(s.get("peer"))
+            out[zid] = f"{zid} ({s.get('whatami', '?')} from {links[0].get('dst', '?')})"
         return out
     try:
-        out |= {str(z) for z in session.info.peers_zid()}
+        return {str(z): str(z) for z in session.info.peers_zid()}
     except Exception:
-        pass
-    return out
+        return {}
